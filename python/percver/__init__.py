@@ -1,0 +1,14 @@
+"""percver: data-driven modeling and formal verification of perception-based autonomous systems."""
+
+from percver import _core
+from percver.errors import (
+    BlowUpError,
+    DomainError,
+    InputError,
+    MeasurementError,
+    NetworkFormatError,
+    ParseError,
+    PercverError,
+)
+
+__version__ = _core.__version__

@@ -1,0 +1,1 @@
+"""One module per ``percver`` sub-command (registered in ``percver.cli.COMMANDS``)."""
