@@ -12,3 +12,4 @@ from percver.errors import (
 )
 
 __version__ = _core.__version__
+from percver.networks import Network, chain, load_network

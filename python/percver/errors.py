@@ -32,3 +32,7 @@ class NetworkFormatError(ParseError):
 
 class MeasurementError(InputError):
     """Measurement data is malformed (NaN rows, shape mismatch, unsorted time, ...)."""
+
+
+class MissingFileError(InputError, FileNotFoundError):
+    """A file named by the user does not exist (also a ``FileNotFoundError``)."""

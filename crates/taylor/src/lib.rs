@@ -1,1 +1,20 @@
-pub fn placeholder() {}
+//! `taylor`: validated numerics for reachability.
+//!
+//! Layers, each in its own module and usable alone:
+//! intervals ([`interval`]) -> monomial layout ([`space`]) -> Taylor models ([`tm`]) ->
+//! elementary functions ([`functions`]) and range bounding ([`bound`]) -> expressions
+//! ([`expr`], [`parser`]) -> ODE flowpipes ([`flowpipe`], [`precondition`]).
+pub mod error;
+pub mod expr;
+pub mod functions;
+pub mod interval;
+pub mod parser;
+pub mod space;
+pub mod tm;
+
+pub use error::{Result, TaylorError};
+pub use expr::{Algebra, BinOp, Cmp, Expr, Program};
+pub use functions::Func;
+pub use interval::Interval;
+pub use space::Space;
+pub use tm::{Ctx, TaylorModel};

@@ -1,0 +1,526 @@
+//! Expressions: one definition of a function, evaluated on floats, intervals and Taylor models.
+//!
+//! An [`Expr`] is an immutable DAG (children shared through `Arc`). Before evaluation it is
+//! compiled into a [`Program`]: a topologically ordered list of operations over slots, with
+//! shared sub-expressions computed once and variable names resolved to input positions.
+//! The same program runs on every [`Algebra`], which is what keeps simulation (floats) and
+//! verification (sets) from drifting apart.
+use crate::error::{Result, TaylorError};
+use crate::functions::{div_tm, powf_tm, Func};
+use crate::interval::Interval;
+use crate::tm::{Ctx, TaylorModel};
+use std::collections::HashMap;
+use std::fmt;
+use std::sync::Arc;
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub enum BinOp {
+    Add,
+    Sub,
+    Mul,
+    Div,
+    Min,
+    Max,
+}
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub enum Cmp {
+    Lt,
+    Le,
+    Gt,
+    Ge,
+}
+
+impl Cmp {
+    /// Does `lhs - rhs` with value `d` satisfy the comparison?
+    pub fn holds(&self, d: f64) -> bool {
+        match self {
+            Cmp::Lt => d < 0.0,
+            Cmp::Le => d <= 0.0,
+            Cmp::Gt => d > 0.0,
+            Cmp::Ge => d >= 0.0,
+        }
+    }
+    /// Decide the comparison for every value of `lhs - rhs` in `d`, or None if it depends.
+    pub fn decide(&self, d: Interval) -> Option<bool> {
+        match self {
+            Cmp::Lt if d.hi() < 0.0 => Some(true),
+            Cmp::Lt if d.lo() >= 0.0 => Some(false),
+            Cmp::Le if d.hi() <= 0.0 => Some(true),
+            Cmp::Le if d.lo() > 0.0 => Some(false),
+            Cmp::Gt if d.lo() > 0.0 => Some(true),
+            Cmp::Gt if d.hi() <= 0.0 => Some(false),
+            Cmp::Ge if d.lo() >= 0.0 => Some(true),
+            Cmp::Ge if d.hi() < 0.0 => Some(false),
+            _ => None,
+        }
+    }
+    pub fn symbol(&self) -> &'static str {
+        match self {
+            Cmp::Lt => "<",
+            Cmp::Le => "<=",
+            Cmp::Gt => ">",
+            Cmp::Ge => ">=",
+        }
+    }
+}
+
+#[derive(Debug)]
+pub enum Node {
+    Const(f64),
+    /// A constant known only to an interval (uncertain parameter), as in Flow*'s `[a, b]`.
+    Uncertain(Interval),
+    Var(String),
+    Neg(Expr),
+    Binary(BinOp, Expr, Expr),
+    PowI(Expr, i32),
+    PowF(Expr, f64),
+    Func(Func, Expr),
+    /// `where(lhs cmp rhs, then, otherwise)`: piecewise definitions (limits, walls, modes).
+    Where { lhs: Expr, cmp: Cmp, rhs: Expr, then: Expr, otherwise: Expr },
+}
+
+#[derive(Clone, Debug)]
+pub struct Expr(pub Arc<Node>);
+
+impl Expr {
+    fn new(n: Node) -> Expr {
+        Expr(Arc::new(n))
+    }
+    pub fn constant(c: f64) -> Expr {
+        Expr::new(Node::Const(c))
+    }
+    pub fn uncertain(iv: Interval) -> Expr {
+        Expr::new(Node::Uncertain(iv))
+    }
+    pub fn var(name: &str) -> Expr {
+        Expr::new(Node::Var(name.to_string()))
+    }
+    pub fn neg(&self) -> Expr {
+        Expr::new(Node::Neg(self.clone()))
+    }
+    pub fn binary(op: BinOp, a: &Expr, b: &Expr) -> Expr {
+        Expr::new(Node::Binary(op, a.clone(), b.clone()))
+    }
+    pub fn powi(&self, n: i32) -> Expr {
+        Expr::new(Node::PowI(self.clone(), n))
+    }
+    pub fn powf(&self, r: f64) -> Expr {
+        if r == r.trunc() && r.abs() < 1e9 {
+            return self.powi(r as i32);
+        }
+        Expr::new(Node::PowF(self.clone(), r))
+    }
+    pub fn func(f: Func, a: &Expr) -> Expr {
+        Expr::new(Node::Func(f, a.clone()))
+    }
+    pub fn select(lhs: &Expr, cmp: Cmp, rhs: &Expr, then: &Expr, otherwise: &Expr) -> Expr {
+        Expr::new(Node::Where {
+            lhs: lhs.clone(),
+            cmp,
+            rhs: rhs.clone(),
+            then: then.clone(),
+            otherwise: otherwise.clone(),
+        })
+    }
+    /// min(max(x, lo), hi)
+    pub fn clip(&self, lo: &Expr, hi: &Expr) -> Expr {
+        Expr::binary(BinOp::Min, &Expr::binary(BinOp::Max, self, lo), hi)
+    }
+
+    /// Names of the variables used, in order of first appearance.
+    pub fn variables(&self) -> Vec<String> {
+        let mut out = Vec::new();
+        let mut seen = std::collections::HashSet::new();
+        let mut stack = vec![self.clone()];
+        let mut visited = std::collections::HashSet::new();
+        while let Some(e) = stack.pop() {
+            if !visited.insert(Arc::as_ptr(&e.0) as usize) {
+                continue;
+            }
+            match &*e.0 {
+                Node::Var(n) => {
+                    if seen.insert(n.clone()) {
+                        out.push(n.clone());
+                    }
+                }
+                Node::Const(_) | Node::Uncertain(_) => {}
+                Node::Neg(a) | Node::PowI(a, _) | Node::PowF(a, _) | Node::Func(_, a) => stack.push(a.clone()),
+                Node::Binary(_, a, b) => {
+                    stack.push(b.clone());
+                    stack.push(a.clone());
+                }
+                Node::Where { lhs, rhs, then, otherwise, .. } => {
+                    for x in [otherwise, then, rhs, lhs] {
+                        stack.push(x.clone());
+                    }
+                }
+            }
+        }
+        out
+    }
+}
+
+impl fmt::Display for Expr {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match &*self.0 {
+            Node::Const(c) => write!(f, "{c:?}"),
+            Node::Uncertain(iv) => write!(f, "[{:?}, {:?}]", iv.lo(), iv.hi()),
+            Node::Var(n) => write!(f, "{n}"),
+            Node::Neg(a) => write!(f, "(-{a})"),
+            Node::Binary(op, a, b) => match op {
+                BinOp::Add => write!(f, "({a} + {b})"),
+                BinOp::Sub => write!(f, "({a} - {b})"),
+                BinOp::Mul => write!(f, "({a} * {b})"),
+                BinOp::Div => write!(f, "({a} / {b})"),
+                BinOp::Min => write!(f, "min({a}, {b})"),
+                BinOp::Max => write!(f, "max({a}, {b})"),
+            },
+            Node::PowI(a, n) => write!(f, "({a}^{n})"),
+            Node::PowF(a, r) => write!(f, "({a}^{r:?})"),
+            Node::Func(func, a) => write!(f, "{}({a})", func.name()),
+            Node::Where { lhs, cmp, rhs, then, otherwise } => {
+                write!(f, "where({lhs} {} {rhs}, {then}, {otherwise})", cmp.symbol())
+            }
+        }
+    }
+}
+
+/// One step of a compiled program; operands are slot indices.
+#[derive(Clone, Debug)]
+pub enum Op {
+    Const(f64),
+    Uncertain(Interval),
+    Input(usize),
+    Neg(usize),
+    Binary(BinOp, usize, usize),
+    PowI(usize, i32),
+    PowF(usize, f64),
+    Func(Func, usize),
+    Where { lhs: usize, cmp: Cmp, rhs: usize, then: usize, otherwise: usize },
+}
+
+/// Expressions compiled against an ordered list of input names.
+#[derive(Clone, Debug)]
+pub struct Program {
+    pub inputs: Vec<String>,
+    pub ops: Vec<Op>,
+    pub outputs: Vec<usize>,
+}
+
+impl Program {
+    pub fn compile(outputs: &[Expr], inputs: &[String]) -> Result<Program> {
+        let positions: HashMap<&str, usize> = inputs.iter().enumerate().map(|(i, n)| (n.as_str(), i)).collect();
+        let mut program = Program { inputs: inputs.to_vec(), ops: Vec::new(), outputs: Vec::new() };
+        let mut slots: HashMap<usize, usize> = HashMap::new();
+        for e in outputs {
+            let s = program.emit(e, &positions, &mut slots)?;
+            program.outputs.push(s);
+        }
+        Ok(program)
+    }
+
+    fn emit(&mut self, e: &Expr, positions: &HashMap<&str, usize>, slots: &mut HashMap<usize, usize>) -> Result<usize> {
+        let key = Arc::as_ptr(&e.0) as usize;
+        if let Some(&s) = slots.get(&key) {
+            return Ok(s);
+        }
+        let op = match &*e.0 {
+            Node::Const(c) => Op::Const(*c),
+            Node::Uncertain(iv) => Op::Uncertain(*iv),
+            Node::Var(n) => match positions.get(n.as_str()) {
+                Some(&i) => Op::Input(i),
+                None => {
+                    return Err(TaylorError::input(format!(
+                        "unknown variable '{n}' (known: {}); declare it as a state, input or parameter",
+                        self.inputs.join(", ")
+                    )))
+                }
+            },
+            Node::Neg(a) => Op::Neg(self.emit(a, positions, slots)?),
+            Node::Binary(op, a, b) => {
+                let (a, b) = (self.emit(a, positions, slots)?, self.emit(b, positions, slots)?);
+                Op::Binary(*op, a, b)
+            }
+            Node::PowI(a, n) => Op::PowI(self.emit(a, positions, slots)?, *n),
+            Node::PowF(a, r) => Op::PowF(self.emit(a, positions, slots)?, *r),
+            Node::Func(f, a) => Op::Func(*f, self.emit(a, positions, slots)?),
+            Node::Where { lhs, cmp, rhs, then, otherwise } => Op::Where {
+                lhs: self.emit(lhs, positions, slots)?,
+                cmp: *cmp,
+                rhs: self.emit(rhs, positions, slots)?,
+                then: self.emit(then, positions, slots)?,
+                otherwise: self.emit(otherwise, positions, slots)?,
+            },
+        };
+        self.ops.push(op);
+        slots.insert(key, self.ops.len() - 1);
+        Ok(self.ops.len() - 1)
+    }
+
+    /// Runs the program on one algebra; returns one value per output.
+    pub fn eval<A: Algebra>(&self, alg: &A, inputs: &[A::Value]) -> Result<Vec<A::Value>> {
+        if inputs.len() != self.inputs.len() {
+            return Err(TaylorError::input(format!(
+                "expected {} inputs ({}), got {}",
+                self.inputs.len(),
+                self.inputs.join(", "),
+                inputs.len()
+            )));
+        }
+        let mut v: Vec<A::Value> = Vec::with_capacity(self.ops.len());
+        for op in &self.ops {
+            let value = match op {
+                Op::Const(c) => alg.constant(*c),
+                Op::Uncertain(iv) => alg.uncertain(*iv),
+                Op::Input(i) => inputs[*i].clone(),
+                Op::Neg(a) => alg.neg(&v[*a]),
+                Op::Binary(op, a, b) => alg.binary(*op, &v[*a], &v[*b])?,
+                Op::PowI(a, n) => alg.powi(&v[*a], *n)?,
+                Op::PowF(a, r) => alg.powf(&v[*a], *r)?,
+                Op::Func(f, a) => alg.func(*f, &v[*a])?,
+                Op::Where { lhs, cmp, rhs, then, otherwise } => {
+                    alg.select(&v[*lhs], *cmp, &v[*rhs], &v[*then], &v[*otherwise])?
+                }
+            };
+            v.push(value);
+        }
+        Ok(self.outputs.iter().map(|&s| v[s].clone()).collect())
+    }
+}
+
+/// A number system the expression language can be evaluated in.
+pub trait Algebra {
+    type Value: Clone;
+    fn constant(&self, c: f64) -> Self::Value;
+    fn uncertain(&self, iv: Interval) -> Self::Value;
+    fn neg(&self, a: &Self::Value) -> Self::Value;
+    fn binary(&self, op: BinOp, a: &Self::Value, b: &Self::Value) -> Result<Self::Value>;
+    fn powi(&self, a: &Self::Value, n: i32) -> Result<Self::Value>;
+    fn powf(&self, a: &Self::Value, r: f64) -> Result<Self::Value>;
+    fn func(&self, f: Func, a: &Self::Value) -> Result<Self::Value>;
+    /// `then` where `lhs cmp rhs` holds, `otherwise` elsewhere; sets take the hull when the
+    /// comparison is undecided (callers that need branching decide the condition first).
+    fn select(&self, lhs: &Self::Value, cmp: Cmp, rhs: &Self::Value, then: &Self::Value, otherwise: &Self::Value) -> Result<Self::Value>;
+}
+
+/// Plain floats, batched: each value is a column of `n` samples.
+pub struct FloatBatch {
+    pub n: usize,
+}
+
+impl FloatBatch {
+    fn map2(a: &[f64], b: &[f64], f: impl Fn(f64, f64) -> f64) -> Vec<f64> {
+        a.iter().zip(b).map(|(&x, &y)| f(x, y)).collect()
+    }
+}
+
+impl Algebra for FloatBatch {
+    type Value = Vec<f64>;
+    fn constant(&self, c: f64) -> Vec<f64> {
+        vec![c; self.n]
+    }
+    /// Simulation uses the midpoint of an uncertain constant.
+    fn uncertain(&self, iv: Interval) -> Vec<f64> {
+        vec![iv.mid(); self.n]
+    }
+    fn neg(&self, a: &Vec<f64>) -> Vec<f64> {
+        a.iter().map(|x| -x).collect()
+    }
+    fn binary(&self, op: BinOp, a: &Vec<f64>, b: &Vec<f64>) -> Result<Vec<f64>> {
+        Ok(match op {
+            BinOp::Add => Self::map2(a, b, |x, y| x + y),
+            BinOp::Sub => Self::map2(a, b, |x, y| x - y),
+            BinOp::Mul => Self::map2(a, b, |x, y| x * y),
+            BinOp::Div => Self::map2(a, b, |x, y| x / y),
+            BinOp::Min => Self::map2(a, b, f64::min),
+            BinOp::Max => Self::map2(a, b, f64::max),
+        })
+    }
+    fn powi(&self, a: &Vec<f64>, n: i32) -> Result<Vec<f64>> {
+        Ok(a.iter().map(|x| x.powi(n)).collect())
+    }
+    fn powf(&self, a: &Vec<f64>, r: f64) -> Result<Vec<f64>> {
+        Ok(a.iter().map(|x| x.powf(r)).collect())
+    }
+    fn func(&self, f: Func, a: &Vec<f64>) -> Result<Vec<f64>> {
+        Ok(a.iter().map(|&x| f.eval_f64(x)).collect())
+    }
+    fn select(&self, l: &Vec<f64>, cmp: Cmp, r: &Vec<f64>, t: &Vec<f64>, o: &Vec<f64>) -> Result<Vec<f64>> {
+        Ok((0..self.n).map(|i| if cmp.holds(l[i] - r[i]) { t[i] } else { o[i] }).collect())
+    }
+}
+
+/// Interval arithmetic (outward rounded); domain violations are errors.
+pub struct Intervals;
+
+impl Algebra for Intervals {
+    type Value = Interval;
+    fn constant(&self, c: f64) -> Interval {
+        Interval::point(c)
+    }
+    fn uncertain(&self, iv: Interval) -> Interval {
+        iv
+    }
+    fn neg(&self, a: &Interval) -> Interval {
+        -*a
+    }
+    fn binary(&self, op: BinOp, a: &Interval, b: &Interval) -> Result<Interval> {
+        Ok(match op {
+            BinOp::Add => *a + *b,
+            BinOp::Sub => *a - *b,
+            BinOp::Mul => *a * *b,
+            BinOp::Div => *a * b.recip()?,
+            BinOp::Min => a.min(b),
+            BinOp::Max => a.max(b),
+        })
+    }
+    fn powi(&self, a: &Interval, n: i32) -> Result<Interval> {
+        a.powi(n)
+    }
+    fn powf(&self, a: &Interval, r: f64) -> Result<Interval> {
+        a.powf(r)
+    }
+    fn func(&self, f: Func, a: &Interval) -> Result<Interval> {
+        f.eval_interval(*a)
+    }
+    fn select(&self, l: &Interval, cmp: Cmp, r: &Interval, t: &Interval, o: &Interval) -> Result<Interval> {
+        Ok(match cmp.decide(*l - *r) {
+            Some(true) => *t,
+            Some(false) => *o,
+            None => t.hull(o),
+        })
+    }
+}
+
+/// Taylor-model arithmetic at the context's order and cutoff.
+pub struct TaylorModels<'a> {
+    pub ctx: &'a Ctx,
+}
+
+impl TaylorModels<'_> {
+    /// The hull of two models: `a` plus everything `b` may differ from it by.
+    fn hull(&self, a: &TaylorModel, b: &TaylorModel) -> TaylorModel {
+        let diff = b.sub(a).bound(&self.ctx.space);
+        let mut t = a.clone();
+        t.rem = a.rem.hull(&(a.rem + diff));
+        t
+    }
+}
+
+impl Algebra for TaylorModels<'_> {
+    type Value = TaylorModel;
+    fn constant(&self, c: f64) -> TaylorModel {
+        TaylorModel::constant(c)
+    }
+    fn uncertain(&self, iv: Interval) -> TaylorModel {
+        TaylorModel::from_interval(iv)
+    }
+    fn neg(&self, a: &TaylorModel) -> TaylorModel {
+        a.neg()
+    }
+    fn binary(&self, op: BinOp, a: &TaylorModel, b: &TaylorModel) -> Result<TaylorModel> {
+        let space = &self.ctx.space;
+        Ok(match op {
+            BinOp::Add => a.add(b),
+            BinOp::Sub => a.sub(b),
+            BinOp::Mul => a.mul(b, self.ctx),
+            BinOp::Div => div_tm(a, b, self.ctx)?,
+            BinOp::Min | BinOp::Max => {
+                let d = a.sub(b).bound(space);
+                let a_smaller = if d.hi() <= 0.0 { Some(true) } else if d.lo() >= 0.0 { Some(false) } else { None };
+                match (a_smaller, op == BinOp::Min) {
+                    (Some(s), true) => if s { a.clone() } else { b.clone() },
+                    (Some(s), false) => if s { b.clone() } else { a.clone() },
+                    (None, _) => self.hull(a, b),
+                }
+            }
+        })
+    }
+    fn powi(&self, a: &TaylorModel, n: i32) -> Result<TaylorModel> {
+        if n >= 0 {
+            Ok(a.powi(n as u32, self.ctx))
+        } else {
+            Func::Recip.eval_tm(&a.powi((-n) as u32, self.ctx), self.ctx)
+        }
+    }
+    fn powf(&self, a: &TaylorModel, r: f64) -> Result<TaylorModel> {
+        powf_tm(a, r, self.ctx)
+    }
+    fn func(&self, f: Func, a: &TaylorModel) -> Result<TaylorModel> {
+        f.eval_tm(a, self.ctx)
+    }
+    fn select(&self, l: &TaylorModel, cmp: Cmp, r: &TaylorModel, t: &TaylorModel, o: &TaylorModel) -> Result<TaylorModel> {
+        Ok(match cmp.decide(l.sub(r).bound(&self.ctx.space)) {
+            Some(true) => t.clone(),
+            Some(false) => o.clone(),
+            None => self.hull(t, o),
+        })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::space::Space;
+
+    fn vdp() -> (Expr, Expr) {
+        let (x, y) = (Expr::var("x"), Expr::var("y"));
+        let one = Expr::constant(1.0);
+        let fy = Expr::binary(
+            BinOp::Sub,
+            &Expr::binary(BinOp::Mul, &Expr::binary(BinOp::Sub, &one, &x.powi(2)), &y),
+            &x,
+        );
+        (y, fy)
+    }
+
+    #[test]
+    fn three_algebras_agree() {
+        let (fx, fy) = vdp();
+        let p = Program::compile(&[fx, fy], &["x".into(), "y".into()]).unwrap();
+        let pts = [(0.3, -0.2), (1.0, 2.0), (-1.5, 0.7)];
+        let xs: Vec<f64> = pts.iter().map(|p| p.0).collect();
+        let ys: Vec<f64> = pts.iter().map(|p| p.1).collect();
+        let floats = p.eval(&FloatBatch { n: 3 }, &[xs, ys]).unwrap();
+        let ctx = Ctx::new(Space::get(2, 4, 0).unwrap(), 4, 0.0);
+        for (k, &(x, y)) in pts.iter().enumerate() {
+            let iv = p.eval(&Intervals, &[Interval::point(x), Interval::point(y)]).unwrap();
+            assert!(iv[1].contains(floats[1][k]));
+            let tx = TaylorModel::affine(&ctx, x, 0, 0.0);
+            let ty = TaylorModel::affine(&ctx, y, 1, 0.0);
+            let tm = p.eval(&TaylorModels { ctx: &ctx }, &[tx, ty]).unwrap();
+            assert!(tm[1].bound(&ctx.space).contains(floats[1][k]));
+        }
+    }
+
+    #[test]
+    fn shared_subexpressions_compile_once() {
+        let x = Expr::var("x");
+        let s = Expr::func(Func::Sin, &x);
+        let e = Expr::binary(BinOp::Mul, &s, &s);
+        let p = Program::compile(&[e], &["x".into()]).unwrap();
+        assert_eq!(p.ops.len(), 3);
+    }
+
+    #[test]
+    fn unknown_variable_is_named() {
+        let e = Expr::binary(BinOp::Add, &Expr::var("x"), &Expr::var("z"));
+        let err = Program::compile(&[e], &["x".into()]).unwrap_err();
+        assert!(err.to_string().contains("'z'"));
+    }
+
+    #[test]
+    fn where_is_sound_on_sets() {
+        // clip(x, -1, 1) on a model of x in [-2, 0]: values in [-1, 0].
+        let x = Expr::var("x");
+        let e = x.clip(&Expr::constant(-1.0), &Expr::constant(1.0));
+        let p = Program::compile(&[e], &["x".into()]).unwrap();
+        let ctx = Ctx::new(Space::get(1, 3, 0).unwrap(), 3, 0.0);
+        let tm = p.eval(&TaylorModels { ctx: &ctx }, &[TaylorModel::affine(&ctx, -1.0, 0, 1.0)]).unwrap();
+        let b = tm[0].bound(&ctx.space);
+        assert!(b.contains(-1.0) && b.contains(0.0));
+        let iv = p.eval(&Intervals, &[Interval::new(-2.0, 0.0).unwrap()]).unwrap();
+        assert!(iv[0].lo() >= -1.0 && iv[0].hi() <= 0.0);
+    }
+}

@@ -1,0 +1,322 @@
+//! A parser for Flow*'s expression syntax: `(1 - x^2)*y - x`, `sin(theta)`, `[0.1, 0.2]*u`,
+//! and the comparisons of guards and invariants (`x <= 0.5`). Precedence, loosest first:
+//! `+ -`, `* /`, unary minus, `^` (right-associative), so `-x^2` is `-(x^2)` as in Flow*.
+use crate::error::{Result, TaylorError};
+use crate::expr::{BinOp, Cmp, Expr};
+use crate::functions::Func;
+use crate::interval::Interval;
+
+#[derive(Clone, Debug, PartialEq)]
+enum Token {
+    Num(f64),
+    Ident(String),
+    Sym(char),
+    Cmp(Cmp),
+}
+
+struct Parser<'a> {
+    src: &'a str,
+    tokens: Vec<(Token, usize)>,
+    pos: usize,
+}
+
+fn lex(src: &str) -> Result<Vec<(Token, usize)>> {
+    let bytes = src.as_bytes();
+    let mut out = Vec::new();
+    let mut i = 0;
+    while i < bytes.len() {
+        let c = bytes[i] as char;
+        if c.is_whitespace() {
+            i += 1;
+        } else if c.is_ascii_digit() || (c == '.' && i + 1 < bytes.len() && (bytes[i + 1] as char).is_ascii_digit()) {
+            let start = i;
+            while i < bytes.len() && ((bytes[i] as char).is_ascii_digit() || bytes[i] == b'.') {
+                i += 1;
+            }
+            if i < bytes.len() && (bytes[i] == b'e' || bytes[i] == b'E') {
+                let mut j = i + 1;
+                if j < bytes.len() && (bytes[j] == b'+' || bytes[j] == b'-') {
+                    j += 1;
+                }
+                if j < bytes.len() && (bytes[j] as char).is_ascii_digit() {
+                    i = j;
+                    while i < bytes.len() && (bytes[i] as char).is_ascii_digit() {
+                        i += 1;
+                    }
+                }
+            }
+            let text = &src[start..i];
+            let v: f64 = text.parse().map_err(|_| err(src, start, &format!("bad number '{text}'")))?;
+            out.push((Token::Num(v), start));
+        } else if c.is_ascii_alphabetic() || c == '_' {
+            let start = i;
+            while i < bytes.len() && ((bytes[i] as char).is_ascii_alphanumeric() || bytes[i] == b'_') {
+                i += 1;
+            }
+            out.push((Token::Ident(src[start..i].to_string()), start));
+        } else if c == '<' || c == '>' || c == '=' {
+            let start = i;
+            let eq = i + 1 < bytes.len() && bytes[i + 1] == b'=';
+            let cmp = match (c, eq) {
+                ('<', true) => Cmp::Le,
+                ('<', false) => Cmp::Lt,
+                ('>', true) => Cmp::Ge,
+                ('>', false) => Cmp::Gt,
+                _ => return Err(err(src, start, "'=' is not an expression operator (use <= or >=)")),
+            };
+            i += if eq { 2 } else { 1 };
+            out.push((Token::Cmp(cmp), start));
+        } else if "+-*/^(),[]".contains(c) {
+            out.push((Token::Sym(c), i));
+            i += 1;
+        } else {
+            return Err(err(src, i, &format!("unexpected character '{c}'")));
+        }
+    }
+    Ok(out)
+}
+
+fn err(src: &str, column: usize, message: &str) -> TaylorError {
+    TaylorError::Parse { message: message.to_string(), column: column + 1, source_text: src.to_string() }
+}
+
+impl Parser<'_> {
+    fn peek(&self) -> Option<&Token> {
+        self.tokens.get(self.pos).map(|t| &t.0)
+    }
+    fn column(&self) -> usize {
+        self.tokens.get(self.pos).map_or(self.src.len(), |t| t.1)
+    }
+    fn fail<T>(&self, message: &str) -> Result<T> {
+        Err(err(self.src, self.column(), message))
+    }
+    fn expect(&mut self, c: char) -> Result<()> {
+        if self.peek() == Some(&Token::Sym(c)) {
+            self.pos += 1;
+            Ok(())
+        } else {
+            self.fail(&format!("expected '{c}'"))
+        }
+    }
+
+    fn sum(&mut self) -> Result<Expr> {
+        let mut lhs = self.product()?;
+        while let Some(Token::Sym(c @ ('+' | '-'))) = self.peek().cloned() {
+            self.pos += 1;
+            let rhs = self.product()?;
+            lhs = Expr::binary(if c == '+' { BinOp::Add } else { BinOp::Sub }, &lhs, &rhs);
+        }
+        Ok(lhs)
+    }
+
+    fn product(&mut self) -> Result<Expr> {
+        let mut lhs = self.unary()?;
+        while let Some(Token::Sym(c @ ('*' | '/'))) = self.peek().cloned() {
+            self.pos += 1;
+            let rhs = self.unary()?;
+            lhs = Expr::binary(if c == '*' { BinOp::Mul } else { BinOp::Div }, &lhs, &rhs);
+        }
+        Ok(lhs)
+    }
+
+    fn unary(&mut self) -> Result<Expr> {
+        match self.peek() {
+            Some(Token::Sym('-')) => {
+                self.pos += 1;
+                Ok(self.unary()?.neg())
+            }
+            Some(Token::Sym('+')) => {
+                self.pos += 1;
+                self.unary()
+            }
+            _ => self.power(),
+        }
+    }
+
+    fn power(&mut self) -> Result<Expr> {
+        let base = self.atom()?;
+        if self.peek() == Some(&Token::Sym('^')) {
+            self.pos += 1;
+            let negative = if self.peek() == Some(&Token::Sym('-')) {
+                self.pos += 1;
+                true
+            } else {
+                false
+            };
+            let exponent = match self.peek().cloned() {
+                Some(Token::Num(v)) => {
+                    self.pos += 1;
+                    if negative {
+                        -v
+                    } else {
+                        v
+                    }
+                }
+                _ => return self.fail("expected a number after '^' (exponents must be constants)"),
+            };
+            // Right-associative: x^2^3 = x^(2^3) is rare; reject to avoid surprises.
+            if self.peek() == Some(&Token::Sym('^')) {
+                return self.fail("chained '^' is ambiguous; add parentheses");
+            }
+            return Ok(base.powf(exponent));
+        }
+        Ok(base)
+    }
+
+    fn atom(&mut self) -> Result<Expr> {
+        match self.peek().cloned() {
+            Some(Token::Num(v)) => {
+                self.pos += 1;
+                Ok(Expr::constant(v))
+            }
+            Some(Token::Sym('(')) => {
+                self.pos += 1;
+                let e = self.sum()?;
+                self.expect(')')?;
+                Ok(e)
+            }
+            Some(Token::Sym('[')) => {
+                self.pos += 1;
+                let lo = self.signed_number()?;
+                self.expect(',')?;
+                let hi = self.signed_number()?;
+                self.expect(']')?;
+                let iv = Interval::new(lo, hi).map_err(|e| err(self.src, self.column(), &e.to_string()))?;
+                Ok(Expr::uncertain(iv))
+            }
+            Some(Token::Ident(name)) => {
+                self.pos += 1;
+                if self.peek() == Some(&Token::Sym('(')) {
+                    self.pos += 1;
+                    let mut args = vec![self.sum()?];
+                    while self.peek() == Some(&Token::Sym(',')) {
+                        self.pos += 1;
+                        args.push(self.sum()?);
+                    }
+                    self.expect(')')?;
+                    return self.call(&name, args);
+                }
+                Ok(Expr::var(&name))
+            }
+            _ => self.fail("expected a number, variable, function call, '(' or '['"),
+        }
+    }
+
+    fn signed_number(&mut self) -> Result<f64> {
+        let negative = if self.peek() == Some(&Token::Sym('-')) {
+            self.pos += 1;
+            true
+        } else {
+            false
+        };
+        match self.peek().cloned() {
+            Some(Token::Num(v)) => {
+                self.pos += 1;
+                Ok(if negative { -v } else { v })
+            }
+            _ => self.fail("expected a number"),
+        }
+    }
+
+    fn call(&self, name: &str, args: Vec<Expr>) -> Result<Expr> {
+        let arity = |n: usize| -> Result<()> {
+            if args.len() == n {
+                Ok(())
+            } else {
+                self.fail(&format!("{name} takes {n} argument(s), got {}", args.len()))
+            }
+        };
+        match name {
+            "min" | "max" => {
+                arity(2)?;
+                Ok(Expr::binary(if name == "min" { BinOp::Min } else { BinOp::Max }, &args[0], &args[1]))
+            }
+            "clip" => {
+                arity(3)?;
+                Ok(args[0].clip(&args[1], &args[2]))
+            }
+            _ => match Func::from_name(name) {
+                Some(f) => {
+                    arity(1)?;
+                    Ok(Expr::func(f, &args[0]))
+                }
+                None => self.fail(&format!(
+                    "unknown function '{name}' (known: exp log sqrt sin cos tan atan tanh sigmoid abs min max clip)"
+                )),
+            },
+        }
+    }
+}
+
+/// Parses one expression.
+pub fn parse_expr(src: &str) -> Result<Expr> {
+    let mut p = Parser { src, tokens: lex(src)?, pos: 0 };
+    if p.tokens.is_empty() {
+        return Err(err(src, 0, "empty expression"));
+    }
+    let e = p.sum()?;
+    if p.pos != p.tokens.len() {
+        return p.fail("unexpected text after the expression");
+    }
+    Ok(e)
+}
+
+/// Parses a constraint `lhs <= rhs` (or <, >=, >) into (lhs, cmp, rhs).
+pub fn parse_constraint(src: &str) -> Result<(Expr, Cmp, Expr)> {
+    let mut p = Parser { src, tokens: lex(src)?, pos: 0 };
+    let lhs = p.sum()?;
+    let cmp = match p.peek() {
+        Some(Token::Cmp(c)) => *c,
+        _ => return p.fail("expected a comparison (<, <=, >, >=)"),
+    };
+    p.pos += 1;
+    let rhs = p.sum()?;
+    if p.pos != p.tokens.len() {
+        return p.fail("unexpected text after the constraint");
+    }
+    Ok((lhs, cmp, rhs))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::expr::{FloatBatch, Program};
+
+    fn eval(src: &str, x: f64, y: f64) -> f64 {
+        let e = parse_expr(src).unwrap();
+        let p = Program::compile(&[e], &["x".into(), "y".into()]).unwrap();
+        p.eval(&FloatBatch { n: 1 }, &[vec![x], vec![y]]).unwrap()[0][0]
+    }
+
+    #[test]
+    fn precedence_matches_flowstar() {
+        assert_eq!(eval("(1 - x^2)*y - x", 2.0, 3.0), (1.0 - 4.0) * 3.0 - 2.0);
+        assert_eq!(eval("-x^2", 3.0, 0.0), -9.0);
+        assert_eq!(eval("x - y - 1", 5.0, 1.0), 3.0);
+        assert_eq!(eval("x / y / 2", 8.0, 2.0), 2.0);
+        assert_eq!(eval("2e-1*x + .5", 1.0, 0.0), 0.7);
+        assert!((eval("sin(x)^2 + cos(x)^2", 0.7, 0.0) - 1.0).abs() < 1e-15);
+        assert_eq!(eval("x^-1", 4.0, 0.0), 0.25);
+        assert_eq!(eval("clip(x, -1, 1)", 4.0, 0.0), 1.0);
+    }
+
+    #[test]
+    fn errors_point_at_the_problem() {
+        let e = parse_expr("x + * y").unwrap_err().to_string();
+        assert!(e.contains("column 5"), "{e}");
+        assert!(parse_expr("foo(x)").unwrap_err().to_string().contains("unknown function"));
+        assert!(parse_expr("x $ y").is_err());
+        assert!(parse_expr("").is_err());
+        assert!(parse_expr("(x + y").is_err());
+    }
+
+    #[test]
+    fn interval_constants_and_constraints() {
+        let e = parse_expr("[0.1, 0.2] * x").unwrap();
+        assert!(e.to_string().contains("0.1"));
+        let (l, c, r) = parse_constraint("x + y <= 0.5").unwrap();
+        assert_eq!(c, Cmp::Le);
+        assert_eq!(l.variables(), vec!["x", "y"]);
+        assert!(r.variables().is_empty());
+    }
+}

@@ -1,0 +1,510 @@
+//! Taylor models: a float polynomial over the normalised domain plus an interval remainder.
+//!
+//! Coefficients are plain f64 (fast, like the Flow* toolbox), but unlike the toolbox every
+//! operation bounds its own floating-point error a posteriori and adds it to the remainder:
+//! a sum of m products computed in round-to-nearest is off by at most gamma_m times the sum
+//! of the products' magnitudes (Higham, Accuracy and Stability, eq. 3.5), and every monomial
+//! is bounded by 1 on the domain, so the error of the whole polynomial is bounded by norms.
+//! Terms above the truncation order and below the cutoff are swept into the remainder with
+//! the monomial's range. The invariant is: for every point of the domain, the function being
+//! modelled lies in `poly(point) + rem`.
+use crate::interval::{add_up, mul_up, Interval};
+use crate::space::Space;
+use std::sync::Arc;
+
+/// Unit roundoff of binary64.
+pub const U: f64 = 1.0 / 9007199254740992.0;
+/// Smallest subnormal: the absolute error a product may lose to underflow.
+const ETA: f64 = 4.9406564584124654e-324;
+
+/// gamma_n = n u / (1 - n u), rounded up.
+pub fn gamma(n: usize) -> f64 {
+    let nu = (n as f64 + 1.0) * U;
+    (nu / (1.0 - nu)).next_up()
+}
+
+/// Sum of |x| rounded up.
+pub fn abs_sum(v: &[f64]) -> f64 {
+    let s: f64 = v.iter().map(|x| x.abs()).sum();
+    mul_up(s, 1.0 + gamma(v.len()))
+}
+
+/// The truncation order, cutoff and monomial space in force for an operation.
+#[derive(Clone)]
+pub struct Ctx {
+    pub space: Arc<Space>,
+    pub order: usize,
+    pub cutoff: f64,
+}
+
+impl Ctx {
+    pub fn new(space: Arc<Space>, order: usize, cutoff: f64) -> Ctx {
+        let order = order.min(space.order);
+        Ctx { space, order, cutoff }
+    }
+    pub fn with_order(&self, order: usize) -> Ctx {
+        Ctx { space: self.space.clone(), order: order.min(self.space.order), cutoff: self.cutoff }
+    }
+    pub fn nvars(&self) -> usize {
+        self.space.nvars
+    }
+}
+
+#[derive(Clone, Debug, PartialEq)]
+pub struct TaylorModel {
+    /// Coefficients in the graded layout of the space; a prefix (trailing terms are zero).
+    pub coef: Vec<f64>,
+    pub rem: Interval,
+}
+
+impl TaylorModel {
+    pub fn zero() -> TaylorModel {
+        TaylorModel { coef: vec![], rem: Interval::ZERO }
+    }
+
+    pub fn constant(c: f64) -> TaylorModel {
+        TaylorModel { coef: vec![c], rem: Interval::ZERO }
+    }
+
+    /// The constant function whose value is only known to lie in `iv`.
+    pub fn from_interval(iv: Interval) -> TaylorModel {
+        let m = iv.mid();
+        TaylorModel { coef: vec![m], rem: iv - Interval::point(m) }
+    }
+
+    /// The domain variable x_v itself.
+    pub fn var(ctx: &Ctx, v: usize) -> TaylorModel {
+        let mut coef = vec![0.0; ctx.space.var_index(v) + 1];
+        coef[ctx.space.var_index(v)] = 1.0;
+        TaylorModel { coef, rem: Interval::ZERO }
+    }
+
+    /// c + r x_v with c, r exact floats: the affine map of [-1, 1] onto a box side.
+    pub fn affine(ctx: &Ctx, c: f64, v: usize, r: f64) -> TaylorModel {
+        let mut t = TaylorModel::var(ctx, v);
+        t.coef[0] = c;
+        t.coef[ctx.space.var_index(v)] = r;
+        t
+    }
+
+    pub fn constant_term(&self) -> f64 {
+        self.coef.first().copied().unwrap_or(0.0)
+    }
+
+    pub fn degree(&self, space: &Space) -> usize {
+        self.coef.len().checked_sub(1).map_or(0, |i| space.deg[i] as usize)
+    }
+
+    /// Range of the polynomial part by monomial-wise interval evaluation (Flow*'s bound).
+    pub fn poly_bound(&self, space: &Space) -> Interval {
+        let Some(&c0) = self.coef.first() else { return Interval::ZERO };
+        let (mut lo, mut hi) = (c0, c0);
+        for (i, &c) in self.coef.iter().enumerate().skip(1) {
+            if c == 0.0 {
+                continue;
+            }
+            if space.nonneg[i] {
+                if c < 0.0 {
+                    lo = (lo + c).next_down();
+                } else {
+                    hi = (hi + c).next_up();
+                }
+            } else {
+                let a = c.abs();
+                lo = (lo - a).next_down();
+                hi = (hi + a).next_up();
+            }
+        }
+        Interval::raw(lo, hi)
+    }
+
+    /// Range of polynomial plus remainder.
+    pub fn bound(&self, space: &Space) -> Interval {
+        self.poly_bound(space) + self.rem
+    }
+
+    fn trim(&mut self) {
+        while self.coef.len() > 1 && self.coef.last() == Some(&0.0) {
+            self.coef.pop();
+        }
+    }
+
+    /// Moves terms with |c| < cutoff (all but the constant) and terms above `order` into the
+    /// remainder, each with its monomial's range.
+    pub fn sweep(&mut self, ctx: &Ctx) {
+        let space = &ctx.space;
+        let keep = space.len_upto(ctx.order).min(self.coef.len());
+        let (mut lo, mut hi) = (0.0f64, 0.0f64);
+        for i in 1..self.coef.len() {
+            let c = self.coef[i];
+            if c != 0.0 && (i >= keep || c.abs() < ctx.cutoff) {
+                if space.nonneg[i] {
+                    if c < 0.0 {
+                        lo = (lo + c).next_down();
+                    } else {
+                        hi = (hi + c).next_up();
+                    }
+                } else {
+                    lo = (lo - c.abs()).next_down();
+                    hi = (hi + c.abs()).next_up();
+                }
+                self.coef[i] = 0.0;
+            }
+        }
+        self.coef.truncate(keep.max(1));
+        self.rem = self.rem + Interval::raw(lo, hi);
+        self.trim();
+    }
+
+    pub fn neg(&self) -> TaylorModel {
+        TaylorModel { coef: self.coef.iter().map(|c| -c).collect(), rem: -self.rem }
+    }
+
+    fn combine(&self, o: &TaylorModel, sign: f64) -> TaylorModel {
+        let n = self.coef.len().max(o.coef.len());
+        let mut coef = vec![0.0; n];
+        for (i, c) in coef.iter_mut().enumerate() {
+            let a = self.coef.get(i).copied().unwrap_or(0.0);
+            let b = o.coef.get(i).copied().unwrap_or(0.0);
+            *c = a + sign * b;
+        }
+        // fl(a + b) is within u |fl(a + b)| / (1 - u) of a + b; bounded by 2u |c|.
+        let err = mul_up(abs_sum(&coef), 2.0 * U);
+        let rem = if sign > 0.0 { self.rem + o.rem } else { self.rem - o.rem };
+        let mut t = TaylorModel { coef, rem: rem.inflate(err) };
+        t.trim();
+        t
+    }
+
+    pub fn add(&self, o: &TaylorModel) -> TaylorModel {
+        self.combine(o, 1.0)
+    }
+
+    pub fn sub(&self, o: &TaylorModel) -> TaylorModel {
+        self.combine(o, -1.0)
+    }
+
+    pub fn add_constant(&self, c: f64) -> TaylorModel {
+        self.add(&TaylorModel::constant(c))
+    }
+
+    pub fn add_interval(&self, iv: Interval) -> TaylorModel {
+        let mut t = self.clone();
+        t.rem = t.rem + iv;
+        t
+    }
+
+    /// s * self for an exact float s.
+    pub fn scale(&self, s: f64) -> TaylorModel {
+        if s == 0.0 {
+            return TaylorModel::zero();
+        }
+        let coef: Vec<f64> = self.coef.iter().map(|c| c * s).collect();
+        let err = add_up(mul_up(abs_sum(&coef), 2.0 * U), ETA * coef.len() as f64);
+        TaylorModel { coef, rem: (self.rem * Interval::point(s)).inflate(err) }
+    }
+
+    /// s * self for an interval s: the midpoint scales the polynomial, the rest goes to the
+    /// remainder through the polynomial's range.
+    pub fn scale_interval(&self, s: Interval, space: &Space) -> TaylorModel {
+        let m = s.mid();
+        let mut t = self.scale(m);
+        let dev = s - Interval::point(m);
+        t.rem = t.rem + dev * self.poly_bound(space) + dev * self.rem;
+        t
+    }
+
+    /// The product, truncated at `ctx.order`, with cutoff applied.
+    pub fn mul(&self, o: &TaylorModel, ctx: &Ctx) -> TaylorModel {
+        let space = &ctx.space;
+        let (la, lb) = (self.coef.len(), o.coef.len());
+        if la == 0 || lb == 0 {
+            let rem = self.bound(space) * o.bound(space);
+            return TaylorModel { coef: vec![], rem };
+        }
+        let (a, b) = (&self.coef, &o.coef);
+        let out_deg = (self.degree(space) + o.degree(space)).min(ctx.order);
+        let mut c = vec![0.0; space.len_upto(out_deg)];
+        // suffix[j] = sum of |b_k| for k >= j, rounded up: the truncated part of a row.
+        let mut suffix = vec![0.0; lb + 1];
+        for j in (0..lb).rev() {
+            suffix[j] = add_up(suffix[j + 1], b[j].abs());
+        }
+        let mut trunc = 0.0;
+        for i in 0..la {
+            let ai = a[i];
+            if ai == 0.0 {
+                continue;
+            }
+            let di = space.deg[i] as usize;
+            if di > ctx.order {
+                trunc = add_up(trunc, mul_up(ai.abs(), suffix[0]));
+                continue;
+            }
+            let lim = lb.min(space.len_upto(ctx.order - di));
+            for &(j, k) in space.pairs_of(i) {
+                let j = j as usize;
+                if j >= lim {
+                    break;
+                }
+                c[k as usize] += ai * b[j];
+            }
+            trunc = add_up(trunc, mul_up(ai.abs(), suffix[lim]));
+        }
+        let rounding = add_up(
+            mul_up(gamma(la.min(lb)), mul_up(abs_sum(a), suffix[0])),
+            ETA * (la as f64) * (lb as f64),
+        );
+        let (pa, pb) = (self.poly_bound(space), o.poly_bound(space));
+        let rem = pa * o.rem + self.rem * pb + self.rem * o.rem;
+        let mut t = TaylorModel { coef: c, rem: rem.inflate(add_up(trunc, rounding)) };
+        t.sweep(ctx);
+        t
+    }
+
+    pub fn square(&self, ctx: &Ctx) -> TaylorModel {
+        self.mul(self, ctx)
+    }
+
+    /// Integer power by repeated squaring.
+    pub fn powi(&self, n: u32, ctx: &Ctx) -> TaylorModel {
+        let mut acc = TaylorModel::constant(1.0);
+        let mut base = self.clone();
+        let mut e = n;
+        let mut first = true;
+        while e > 0 {
+            if e & 1 == 1 {
+                acc = if first { base.clone() } else { acc.mul(&base, ctx) };
+                first = false;
+            }
+            e >>= 1;
+            if e > 0 {
+                base = base.square(ctx);
+            }
+        }
+        acc
+    }
+
+    /// The antiderivative in the unit variable v from 0: x_v^e -> x_v^(e+1) / (e+1).
+    /// The remainder r(x_v) integrates to a value in hull(0, R) since x_v is in [0, 1].
+    pub fn integrate(&self, v: usize, ctx: &Ctx) -> TaylorModel {
+        let space = &ctx.space;
+        debug_assert!(space.is_unit(v), "integration variable must range over [0, 1]");
+        let out_deg = (self.degree(space) + 1).min(ctx.order);
+        let mut c = vec![0.0; space.len_upto(out_deg)];
+        let (mut lo, mut hi) = (0.0f64, 0.0f64);
+        let mut out_abs = 0.0;
+        for (i, &ci) in self.coef.iter().enumerate() {
+            if ci == 0.0 {
+                continue;
+            }
+            let q = ci / (space.exponent(i, v) as f64 + 1.0);
+            match space.times_var(i, v).filter(|&k| (space.deg[k] as usize) <= ctx.order) {
+                Some(k) => {
+                    c[k] = q;
+                    out_abs += q.abs();
+                }
+                None => {
+                    // Dropped: the monomial's range times the rounded-outward quotient.
+                    let m = up_abs(q);
+                    if space.nonneg[i] && q > 0.0 {
+                        hi = add_up(hi, m);
+                    } else if space.nonneg[i] {
+                        lo = (lo - m).next_down();
+                    } else {
+                        lo = (lo - m).next_down();
+                        hi = add_up(hi, m);
+                    }
+                }
+            }
+        }
+        let err = add_up(mul_up(out_abs * (1.0 + 4.0 * U), 2.0 * U), ETA * self.coef.len() as f64);
+        let rem = self.rem.hull(&Interval::ZERO) + Interval::raw(lo, hi);
+        let mut t = TaylorModel { coef: c, rem: rem.inflate(err) };
+        t.sweep(ctx);
+        t
+    }
+
+    /// Substitutes the variable v by a value in `value` (which must lie in v's domain).
+    pub fn substitute(&self, v: usize, value: Interval, ctx: &Ctx) -> TaylorModel {
+        let space = &ctx.space;
+        let mut c = vec![0.0; self.coef.len()];
+        let mut extra = Interval::ZERO;
+        let mut max_len = 1;
+        let mut abs_terms = 0.0;
+        for (i, &ci) in self.coef.iter().enumerate() {
+            if ci == 0.0 {
+                continue;
+            }
+            let e = space.exponent(i, v);
+            let k = space.without_var(i, v);
+            if e == 0 {
+                c[k] += ci;
+                abs_terms += ci.abs();
+            } else {
+                let p = value.powi(e as i32).unwrap_or(Interval::ENTIRE);
+                let m = p.mid();
+                let q = ci * m;
+                c[k] += q;
+                abs_terms += q.abs();
+                // Range of the rest of the monomial is within [-1, 1].
+                let dev = (Interval::point(ci) * (p - Interval::point(m))).mag();
+                extra = extra + Interval::symmetric(up_abs(dev + q.abs() * 2.0 * U));
+            }
+            max_len = max_len.max(k + 1);
+        }
+        c.truncate(max_len);
+        let err = mul_up(abs_terms, gamma(self.coef.len()));
+        let mut t = TaylorModel { coef: c, rem: (self.rem + extra).inflate(err) };
+        t.trim();
+        t
+    }
+
+    /// p(args): substitutes every domain variable v by the Taylor model `args[v]` (which must
+    /// range within v's domain). Monomials are built as products in graded order.
+    pub fn compose(&self, args: &[TaylorModel], ctx: &Ctx) -> TaylorModel {
+        let space = &ctx.space;
+        let n = self.coef.len();
+        let mut monomials: Vec<TaylorModel> = Vec::with_capacity(n);
+        let mut acc = TaylorModel::zero();
+        for i in 0..n {
+            let m = if i == 0 {
+                TaylorModel::constant(1.0)
+            } else {
+                let (j, v) = space.parent(i);
+                if j == 0 {
+                    args[v].clone()
+                } else {
+                    monomials[j].mul(&args[v], ctx)
+                }
+            };
+            let ci = self.coef[i];
+            if ci != 0.0 {
+                acc = acc.add(&m.scale(ci));
+            }
+            monomials.push(m);
+        }
+        acc.rem = acc.rem + self.rem;
+        acc.sweep(ctx);
+        acc
+    }
+
+    /// Float evaluation of the polynomial part at a point of the domain (not rigorous).
+    pub fn eval_poly(&self, space: &Space, x: &[f64]) -> f64 {
+        let mut values = vec![1.0; self.coef.len()];
+        let mut s = self.coef.first().copied().unwrap_or(0.0);
+        for i in 1..self.coef.len() {
+            let (j, v) = space.parent(i);
+            values[i] = values[j] * x[v];
+            s += self.coef[i] * values[i];
+        }
+        s
+    }
+
+    /// Rigorous enclosure of the model's values at a point: polynomial in intervals plus rem.
+    pub fn eval_interval(&self, space: &Space, x: &[Interval]) -> Interval {
+        let mut values = vec![Interval::ONE; self.coef.len()];
+        let mut s = Interval::point(self.coef.first().copied().unwrap_or(0.0));
+        for i in 1..self.coef.len() {
+            let (j, v) = space.parent(i);
+            values[i] = values[j] * x[v];
+            if self.coef[i] != 0.0 {
+                s = s + Interval::point(self.coef[i]) * values[i];
+            }
+        }
+        s + self.rem
+    }
+
+    /// Coefficient of x_v (the linear part).
+    pub fn linear_coefficient(&self, space: &Space, v: usize) -> f64 {
+        self.coef.get(space.var_index(v)).copied().unwrap_or(0.0)
+    }
+}
+
+fn up_abs(x: f64) -> f64 {
+    x.abs().next_up()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn ctx(n: usize, k: usize, unit: u64) -> Ctx {
+        Ctx::new(Space::get(n, k, unit).unwrap(), k, 0.0)
+    }
+
+    /// Deterministic points of [-1, 1]^n (or [0, 1] for unit variables) for sampling tests.
+    pub(crate) fn sample_points(ctx: &Ctx, count: usize, seed: u64) -> Vec<Vec<f64>> {
+        let mut state = seed.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+        let mut next = || {
+            state = state.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+            ((state >> 11) as f64) / ((1u64 << 53) as f64)
+        };
+        (0..count)
+            .map(|_| {
+                (0..ctx.nvars())
+                    .map(|v| if ctx.space.is_unit(v) { next() } else { 2.0 * next() - 1.0 })
+                    .collect()
+            })
+            .collect()
+    }
+
+    #[test]
+    fn product_encloses_pointwise_product() {
+        let c = ctx(3, 4, 1);
+        let x = TaylorModel::affine(&c, 0.3, 1, 0.7);
+        let y = TaylorModel::affine(&c, -1.1, 2, 0.2).add(&TaylorModel::var(&c, 0));
+        let xy = x.mul(&y, &c);
+        let cube = xy.mul(&xy, &c).mul(&x, &c); // degree 5 > order 4: truncation
+        for p in sample_points(&c, 2000, 7) {
+            let xv = 0.3 + 0.7 * p[1];
+            let yv = -1.1 + 0.2 * p[2] + p[0];
+            let truth = xv * yv * xv * yv * xv;
+            let enclosure = cube.eval_interval(&c.space, &p.iter().map(|&t| Interval::point(t)).collect::<Vec<_>>());
+            assert!(enclosure.contains(truth), "{enclosure} misses {truth}");
+            assert!(cube.bound(&c.space).contains(truth));
+        }
+    }
+
+    #[test]
+    fn integration_and_substitution() {
+        let c = ctx(2, 5, 1);
+        // f = 1 + x1 * s; integral from 0 to s: s + x1 s^2 / 2; at s = 1: 1 + x1 / 2.
+        let f = TaylorModel::constant(1.0).add(&TaylorModel::var(&c, 1).mul(&TaylorModel::var(&c, 0), &c));
+        let g = f.integrate(0, &c);
+        let end = g.substitute(0, Interval::ONE, &c);
+        for p in sample_points(&c, 500, 3) {
+            let at = |t: &TaylorModel| t.eval_interval(&c.space, &[Interval::point(p[0]), Interval::point(p[1])]);
+            assert!(at(&g).contains(p[0] + p[1] * p[0] * p[0] / 2.0));
+            assert!(at(&end).contains(1.0 + p[1] / 2.0));
+        }
+    }
+
+    #[test]
+    fn cutoff_and_truncation_move_to_remainder() {
+        let c = Ctx::new(Space::get(2, 3, 0).unwrap(), 3, 1e-3);
+        let mut t = TaylorModel::affine(&c, 1.0, 0, 1e-4);
+        t.sweep(&c);
+        assert_eq!(t.coef, vec![1.0]);
+        assert!(t.rem.contains(1e-4) && t.rem.contains(-1e-4));
+    }
+
+    #[test]
+    fn composition_encloses() {
+        let c = ctx(3, 5, 1);
+        // p(x1, x2) = x1^2 - x1 x2 + 0.5; substitute x1 = 0.5 x2 + 0.2 s, x2 = 0.9 x1
+        let x1 = TaylorModel::var(&c, 1);
+        let x2 = TaylorModel::var(&c, 2);
+        let p = x1.square(&c).sub(&x1.mul(&x2, &c)).add_constant(0.5);
+        let a1 = x2.scale(0.5).add(&TaylorModel::var(&c, 0).scale(0.2));
+        let a2 = x1.scale(0.9);
+        let args = vec![TaylorModel::var(&c, 0), a1, a2];
+        let q = p.compose(&args, &c);
+        for pt in sample_points(&c, 1000, 11) {
+            let (u, v) = (0.5 * pt[2] + 0.2 * pt[0], 0.9 * pt[1]);
+            let truth = u * u - u * v + 0.5;
+            let e = q.eval_interval(&c.space, &pt.iter().map(|&t| Interval::point(t)).collect::<Vec<_>>());
+            assert!(e.contains(truth));
+        }
+    }
+}

@@ -1,0 +1,1 @@
+"""Readers and writers of file formats: networks (ONNX, Verisig .yml), Flow* models, benchmarks."""

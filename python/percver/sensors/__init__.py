@@ -1,0 +1,5 @@
+"""Canonical sensor models: first-principles measurement functions g_c of the state."""
+
+from percver.sensors import lidar
+
+__all__ = ["lidar"]

@@ -1,0 +1,316 @@
+"""Tracks of straight walls and a planar LiDAR cast against them: the canonical scan g_c.
+
+This numpy ray caster is the float reference of the canonical LiDAR: the piecewise ``Expr``
+form used for verification must agree with it. States are ``(x, y, theta)`` in the track's
+world frame (metres, radians, theta measured from the x axis, counter-clockwise); ray
+angles are relative to the heading, negative to the right. A ray that hits nothing within
+the maximum range reads the maximum range.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from percver.errors import InputError
+from percver.validate.models import SensorModel
+
+# Rows of poses cast per batch, so that a (rows x rays x walls) block stays near 4 million numbers.
+_BLOCK = 4_000_000
+
+
+@dataclass(frozen=True)
+class Hallway:
+    """A straight stretch the car drives along: entry at ``start`` (centre of the entry edge),
+    driving direction ``heading`` (radians), ``length`` along it and ``width`` across it."""
+
+    start: tuple
+    heading: float
+    length: float
+    width: float
+
+    def local(self, x, y):
+        """(along, across) coordinates; across is positive to the left of the driving direction."""
+        dx, dy = np.asarray(x) - self.start[0], np.asarray(y) - self.start[1]
+        c, s = np.cos(self.heading), np.sin(self.heading)
+        return dx * c + dy * s, -dx * s + dy * c
+
+    def world(self, along, across):
+        c, s = np.cos(self.heading), np.sin(self.heading)
+        return self.start[0] + along * c - across * s, self.start[1] + along * s + across * c
+
+
+class Track:
+    """Walls as line segments (K x 2 x 2, metres) and the hallways a car drives through.
+
+    Wall coordinates run along the segments in order (segment k covers
+    ``offsets[k] .. offsets[k] + lengths[k]``), so a place on any wall is one number; the
+    specular-reflection effect describes its panel that way. Progress runs along the hallways.
+    """
+
+    def __init__(self, segments, hallways=(), name: str = "track"):
+        segments = np.asarray(segments, dtype=float)
+        if segments.ndim != 3 or segments.shape[1:] != (2, 2) or len(segments) == 0:
+            raise InputError(f"track segments must have shape (K, 2, 2), got {segments.shape}")
+        self.segments = segments
+        self.lengths = np.hypot(*(segments[:, 1] - segments[:, 0]).T)
+        if np.any(self.lengths <= 0):
+            raise InputError(f"track segments {np.flatnonzero(self.lengths <= 0).tolist()} have zero length")
+        self.offsets = np.concatenate([[0.0], np.cumsum(self.lengths)[:-1]])
+        self.hallways = tuple(hallways)
+        self.name = name
+
+    @property
+    def wall_length(self) -> float:
+        return float(self.lengths.sum())
+
+    def __repr__(self) -> str:
+        return f"Track({self.name!r}, {len(self.segments)} walls, {len(self.hallways)} hallways)"
+
+    def wall_point(self, s):
+        """World (x, y) of wall coordinates ``s``."""
+        s = np.asarray(s, dtype=float)
+        k = np.clip(np.searchsorted(self.offsets, s, side="right") - 1, 0, len(self.segments) - 1)
+        fraction = (s - self.offsets[k]) / self.lengths[k]
+        p0, p1 = self.segments[k, 0], self.segments[k, 1]
+        point = p0 + fraction[..., None] * (p1 - p0)
+        return point[..., 0], point[..., 1]
+
+    def sample_poses(self, n: int, seed=None, *, margin: float = 0.25, heading_spread_deg: float = 30.0):
+        """``n`` poses (x, y, theta) uniformly inside the hallways, at least ``margin`` from the
+        side and front walls, heading within ``heading_spread_deg`` of the driving direction."""
+        if not self.hallways:
+            raise InputError(f"track {self.name!r} has no hallways to sample poses in")
+        rng = np.random.default_rng(seed)
+        lengths = np.array([h.length for h in self.hallways])
+        which = rng.choice(len(self.hallways), size=n, p=lengths / lengths.sum())
+        poses = np.empty((n, 3))
+        for k, hallway in enumerate(self.hallways):
+            rows = which == k
+            count = int(rows.sum())
+            half = hallway.width / 2 - margin
+            if half <= 0:
+                raise InputError(f"margin {margin} leaves no room in a hallway {hallway.width} m wide")
+            along = rng.uniform(0, hallway.length - margin, count)
+            across = rng.uniform(-half, half, count)
+            poses[rows, 0], poses[rows, 1] = hallway.world(along, across)
+            spread = np.radians(heading_spread_deg)
+            poses[rows, 2] = _wrap(hallway.heading + rng.uniform(-spread, spread, count))
+        return poses
+
+    def locate(self, states) -> dict:
+        """Where poses are: ``hallway`` index (-1 outside all), ``progress`` along the loop (m),
+        ``across`` (m, left positive) and ``heading`` relative to the hallway (radians)."""
+        states = np.atleast_2d(np.asarray(states, dtype=float))
+        out = {key: np.full(len(states), np.nan) for key in ("progress", "across", "heading")}
+        out["hallway"] = np.full(len(states), -1)
+        done = np.zeros(len(states), dtype=bool)
+        offset = 0.0
+        for k, hallway in enumerate(self.hallways):
+            along, across = hallway.local(states[:, 0], states[:, 1])
+            inside = ~done & (along >= 0) & (along <= hallway.length) & (np.abs(across) <= hallway.width / 2)
+            out["hallway"][inside] = k
+            out["progress"][inside] = offset + along[inside]
+            out["across"][inside] = across[inside]
+            out["heading"][inside] = _wrap(states[inside, 2] - hallway.heading)
+            done |= inside
+            offset += hallway.length
+        return out
+
+
+def _wrap(angle):
+    return (np.asarray(angle) + np.pi) % (2 * np.pi) - np.pi
+
+
+def square_track(width: float = 1.5, length: float = 20.0) -> Track:
+    """The F1/10 square loop: outer walls ``length`` m square, hallways ``width`` m wide, driven
+    clockwise so that every turn is a right turn. The outer square spans [0, length]^2.
+
+    Each hallway ends with the corner in which the car turns (a pinwheel split of the loop),
+    so hallway-local coordinates match the single-turn verification models.
+    """
+    if not 0 < 2 * width < length:
+        raise InputError(f"a square track needs 0 < 2 * width < length, got width={width}, length={length}")
+    L, w = float(length), float(width)
+    outer = [(0, 0), (0, L), (L, L), (L, 0)]
+    inner = [(w, w), (w, L - w), (L - w, L - w), (L - w, w)]
+    segments = [(outer[i], outer[(i + 1) % 4]) for i in range(4)] + [(inner[i], inner[(i + 1) % 4]) for i in range(4)]
+    straight = L - w
+    hallways = [
+        Hallway((w / 2, w), np.pi / 2, straight, w),  # west side, driving north
+        Hallway((w, L - w / 2), 0.0, straight, w),  # north side, driving east
+        Hallway((L - w / 2, L - w), -np.pi / 2, straight, w),  # east side, driving south
+        Hallway((L - w, w / 2), np.pi, straight, w),  # south side, driving west
+    ]
+    return Track(segments, hallways, name=f"square {L:g} m x {w:g} m")
+
+
+@dataclass(frozen=True)
+class Hits:
+    """Where each ray first meets a wall (N poses x R rays).
+
+    ``range`` is the unclipped distance (inf when nothing is hit), ``segment`` the wall index
+    (-1 for none), ``along`` the distance of the hit from the segment's start, and
+    ``cos_incidence`` the cosine of the angle between the ray and the wall's normal
+    (1 = head-on, 0 = grazing).
+    """
+
+    range: np.ndarray
+    segment: np.ndarray
+    along: np.ndarray
+    cos_incidence: np.ndarray
+
+    def wall_coordinate(self, track: Track) -> np.ndarray:
+        """Hit positions as track wall coordinates (NaN where nothing is hit)."""
+        hit = self.segment >= 0
+        return np.where(hit, track.offsets[np.maximum(self.segment, 0)] + self.along, np.nan)
+
+
+class Lidar:
+    """A planar scanning range sensor: ray angles relative to the heading and a range limit."""
+
+    def __init__(self, angles_deg, max_range: float):
+        self.angles_deg = np.asarray(angles_deg, dtype=float).ravel()
+        if self.angles_deg.size == 0:
+            raise InputError("a LiDAR needs at least one ray angle")
+        if not max_range > 0:
+            raise InputError(f"max_range must be positive, got {max_range}")
+        self.max_range = float(max_range)
+        self.angles = np.radians(self.angles_deg)
+
+    @classmethod
+    def f1tenth21(cls) -> "Lidar":
+        """The 21 rays the F1/10 controllers read: -115..115 degrees in 11.5 degree steps, 5 m."""
+        return cls(np.linspace(-115.0, 115.0, 21), 5.0)
+
+    @classmethod
+    def f1tenth1081(cls) -> "Lidar":
+        """The full F1/10 sensor: 1081 rays over -135..135 degrees (0.25 degree steps), 10 m."""
+        return cls(np.linspace(-135.0, 135.0, 1081), 10.0)
+
+    @property
+    def names(self) -> tuple:
+        return tuple(f"ray{i}" for i in range(len(self.angles)))
+
+    def __repr__(self) -> str:
+        return (
+            f"Lidar({len(self.angles)} rays, {self.angles_deg[0]:g}..{self.angles_deg[-1]:g} deg, "
+            f"max_range={self.max_range:g} m)"
+        )
+
+    def cast(self, track: Track, x, y, theta) -> Hits:
+        """Cast every ray from every pose against every wall (vectorised, in blocks of poses)."""
+        x, y, theta = (np.atleast_1d(np.asarray(v, dtype=float)) for v in (x, y, theta))
+        n, n_rays = len(x), len(self.angles)
+        p0 = track.segments[:, 0]
+        edge = track.segments[:, 1] - p0
+        out = Hits(
+            range=np.empty((n, n_rays)),
+            segment=np.empty((n, n_rays), dtype=np.int64),
+            along=np.empty((n, n_rays)),
+            cos_incidence=np.empty((n, n_rays)),
+        )
+        block = max(1, _BLOCK // (n_rays * len(p0)))
+        for lo in range(0, n, block):
+            rows = slice(lo, min(n, lo + block))
+            angle = theta[rows, None] + self.angles[None, :]
+            dx, dy = np.cos(angle)[..., None], np.sin(angle)[..., None]
+            # Ray p + t d meets segment p0 + u e where t, u solve a 2x2 system (Cramer's rule).
+            wx = (p0[:, 0] - x[rows, None])[:, None, :]
+            wy = (p0[:, 1] - y[rows, None])[:, None, :]
+            det = dx * edge[:, 1] - dy * edge[:, 0]
+            with np.errstate(divide="ignore", invalid="ignore"):
+                t = (wx * edge[:, 1] - wy * edge[:, 0]) / det
+                u = (wx * dy - wy * dx) / det
+            valid = (np.abs(det) > 1e-12) & (t > 0) & (u >= 0) & (u <= 1)
+            t = np.where(valid, t, np.inf)
+            first = np.argmin(t, axis=-1)
+            distance = np.take_along_axis(t, first[..., None], axis=-1)[..., 0]
+            hit = np.isfinite(distance)
+            out.range[rows] = distance
+            out.segment[rows] = np.where(hit, first, -1)
+            out.along[rows] = np.where(hit, np.take_along_axis(u, first[..., None], -1)[..., 0] * track.lengths[first], np.nan)
+            cos = np.abs(np.take_along_axis(det, first[..., None], -1)[..., 0]) / track.lengths[first]
+            out.cos_incidence[rows] = np.where(hit, cos, np.nan)
+        return out
+
+    def scan(self, track: Track, states) -> np.ndarray:
+        """Canonical ranges (N x R), clipped at ``max_range``."""
+        states = np.atleast_2d(np.asarray(states, dtype=float))
+        return np.minimum(self.cast(track, states[:, 0], states[:, 1], states[:, 2]).range, self.max_range)
+
+
+class LidarModel(SensorModel):
+    """The canonical LiDAR on a track with a stack of effects (``percver.validate.effects``).
+
+    Effects that move the sensor (mounting yaw and position) act before the rays are cast,
+    in order; the others act on the ranges afterwards, in order; then ranges are clipped at
+    the range limit (which a ``max_range`` effect may change).
+    """
+
+    kind = "lidar"
+
+    def __init__(self, track: Track, lidar: Lidar, effects=()):
+        super().__init__(("x", "y", "theta"), lidar.names, effects)
+        self.track = track
+        self.lidar = lidar
+        self._cache = None
+
+    def describe(self) -> str:
+        effects = ", ".join(repr(e) for e in self.effects) or "no effects"
+        return f"canonical LiDAR, {self.lidar!r} on {self.track!r} ({effects})"
+
+    def range_limit(self) -> float:
+        limit = self.lidar.max_range
+        for effect in self.deterministic_effects:
+            limit = effect.limit(limit)
+        return limit
+
+    def hits(self, states) -> Hits:
+        """Ray hits from the sensor pose implied by ``states`` and the mounting effects.
+
+        Fitting re-predicts the same states many times while only range effects change, so
+        the last cast is reused when the states array and the mounting are the same.
+        """
+        mounting = tuple((e.name, tuple(sorted(e.params.items()))) for e in self.effects if e.moves_sensor)
+        key = (id(states), states.shape, mounting)
+        if self._cache is not None and self._cache[0] == key and self._cache[1] is states:
+            return self._cache[2]
+        x, y, theta = states[:, 0], states[:, 1], states[:, 2]
+        for effect in self.effects:
+            if effect.moves_sensor:
+                x, y, theta = effect.mount(x, y, theta)
+        hits = self.lidar.cast(self.track, x, y, theta)
+        self._cache = (key, states, hits)
+        return hits
+
+    def predict_inputs(self, inputs):
+        states = inputs["states"]
+        hits = self.hits(states)
+        ranges = hits.range
+        for effect in self.deterministic_effects:
+            ranges = effect.ranges(ranges, hits, self)
+        return np.minimum(ranges, self.range_limit())
+
+    def clip(self, values):
+        return np.clip(values, 0.0, self.range_limit())
+
+    def features(self, states):
+        where = self.track.locate(states)
+        return {
+            "x": states[:, 0],
+            "y": states[:, 1],
+            "theta": states[:, 2],
+            "progress": where["progress"],
+            "heading_deg": np.degrees(where["heading"]),
+        }
+
+    @property
+    def region_variables(self):
+        return ("progress", "heading_deg") if self.track.hallways else ("x", "y")
+
+
+def canonical(track: Track | None = None, lidar: Lidar | None = None) -> LidarModel:
+    """The canonical LiDAR model g_c: ``lidar`` (F1/10's 21 rays) on ``track`` (the square loop)."""
+    return LidarModel(track if track is not None else square_track(), lidar if lidar is not None else Lidar.f1tenth21())
