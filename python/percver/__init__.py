@@ -13,3 +13,7 @@ from percver.errors import (
 
 __version__ = _core.__version__
 from percver.networks import Network, chain, load_network
+
+from percver import sensors, validate
+from percver.measurements import Measurements
+from percver.validate import compare, diagnose

@@ -69,7 +69,10 @@ def _finite_array(value, ndim: int, label: str) -> np.ndarray:
 def _checked_layer(layer, index: int, where: str, n_prev: int | None) -> Layer:
     label = f"{where}layer {index}"
     if not isinstance(layer, Layer):
-        layer = Layer(*layer)
+        try:
+            layer = Layer(*layer)
+        except TypeError:
+            raise NetworkFormatError(f"{label} must be a Layer or a (weight, bias, activation) tuple") from None
     activation = layer.activation.lower() if isinstance(layer.activation, str) else layer.activation
     if activation not in ACTIVATIONS:
         raise NetworkFormatError(f"{label}: unknown activation {layer.activation!r}; expected one of {ACTIVATIONS}")

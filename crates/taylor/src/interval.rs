@@ -162,7 +162,6 @@ impl Interval {
     pub fn contains_interval(&self, other: &Interval) -> bool {
         other.is_empty() || (self.lo <= other.lo && other.hi <= self.hi)
     }
-    /// Interior containment, used where Schauder's fixed point test needs strictness.
     pub fn hull(&self, other: &Interval) -> Interval {
         if self.is_empty() {
             return *other;

@@ -4,17 +4,22 @@
 //! intervals ([`interval`]) -> monomial layout ([`space`]) -> Taylor models ([`tm`]) ->
 //! elementary functions ([`functions`]) and range bounding ([`bound`]) -> expressions
 //! ([`expr`], [`parser`]) -> ODE flowpipes ([`flowpipe`], [`precondition`]).
+pub mod bound;
 pub mod error;
 pub mod expr;
+pub mod flowpipe;
 pub mod functions;
 pub mod interval;
 pub mod parser;
+pub mod precondition;
 pub mod space;
 pub mod tm;
 
 pub use error::{Result, TaylorError};
 pub use expr::{Algebra, BinOp, Cmp, Expr, Program};
+pub use flowpipe::{reach, Flowpipe, Ode, OrderPolicy, Segment, Settings, StepSize};
 pub use functions::Func;
+pub use precondition::Precondition;
 pub use interval::Interval;
 pub use space::Space;
 pub use tm::{Ctx, TaylorModel};

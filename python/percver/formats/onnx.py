@@ -132,6 +132,11 @@ def _conv(x: np.ndarray, lead: int, weight: np.ndarray, strides, pads, dilations
     return y.reshape(outer + y.shape[1:])
 
 
+def _transposed(x: np.ndarray, lead: int) -> np.ndarray:
+    """Swap the two matrix axes (Gemm's transA/transB)."""
+    return np.swapaxes(x, -1, -2)
+
+
 def _reshaped(value, shape):
     return _apply(value, lambda x, lead: x.reshape(x.shape[:lead] + tuple(shape)))
 
@@ -220,13 +225,11 @@ class _GraphReader:
             attributes = {a.name: helper.get_attribute_value(a) for a in node.attribute}
             try:
                 value = self.evaluate(node.op_type, args, attributes)
-                if node.op_type == "Constant":
-                    value = self.finite(value, node.output[0])
-                self.values[node.output[0]] = value
             except _NodeError as error:
                 raise self.error(f"{label} ({node.op_type}): {error}") from None
             except ValueError as error:  # numpy's complaint about shapes that do not fit
                 raise self.error(f"{label} ({node.op_type}): operand shapes do not fit ({error})") from None
+            self.values[node.output[0]] = self.finite(value, node.output[0]) if node.op_type == "Constant" else value
 
         output = self.graph.output[0].name
         if not isinstance(self.values.get(output), _Affine):
@@ -313,11 +316,10 @@ class _GraphReader:
         c = _as_float(args[2]) if len(args) > 2 else None
         if len(_shape(a)) != 2 or len(_shape(b)) != 2:
             raise _NodeError(f"Gemm needs 2-D operands, got shapes {_shape(a)} and {_shape(b)}")
-        transpose = lambda x, lead: np.swapaxes(x, -1, -2)  # noqa: E731
         if attributes.get("transA", 0):
-            a = _apply(a, transpose)
+            a = _apply(a, _transposed)
         if attributes.get("transB", 0):
-            b = _apply(b, transpose)
+            b = _apply(b, _transposed)
         y = _scaled(_matmul(a, b), attributes.get("alpha", 1.0))
         return y if c is None else _add(y, _scaled(c, attributes.get("beta", 1.0)))
 

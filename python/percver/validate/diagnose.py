@@ -1,0 +1,177 @@
+"""``diagnose(model, data)``: add the best effect, refit, repeat until no candidate helps."""
+
+from __future__ import annotations
+
+import json
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+from percver.errors import InputError
+from percver.validate.effects import GaussianNoise
+from percver.validate.fitting import _plain, model_errors, rank, refit
+from percver.validate.models import as_model
+from percver.validate.report import _json_default, compare
+
+
+@dataclass
+class Step:
+    """One added effect: its parameters after the joint refit, the in-sample error before and
+    after, and the held-out share of the baseline squared error it removed."""
+
+    effect: str
+    params: dict
+    error_before: float
+    error_after: float
+    explained_fraction: float
+
+
+class Diagnosis:
+    """The outcome of ``diagnose``: the error-fall steps, the final model and what is left.
+
+    ``unexplained`` lists regions and dimensions that still carry significant error, with
+    their share of the final error (empty when the residual looks like noise);
+    ``noise_sigma`` is the white-noise floor of the final model's residuals.
+    """
+
+    def __init__(self, baseline, steps, final, rankings, noise_sigma):
+        self.baseline = baseline
+        self.steps = steps
+        self.final = final
+        self.rankings = rankings
+        self.noise_sigma = noise_sigma
+        where = final.where()
+        self.unexplained = [
+            {"kind": "region", "where": r.describe(), "bounds": r.bounds, "share": r.share, "lift": r.lift}
+            for r in where.significant_regions
+        ] + [{"kind": "dimension", "where": d.name, "share": d.share} for d in where.significant_dimensions]
+
+    @property
+    def baseline_error(self) -> float:
+        return self.baseline.error
+
+    @property
+    def final_error(self) -> float:
+        return self.final.error
+
+    @property
+    def final_model(self):
+        return self.final.model
+
+    @property
+    def effects(self) -> list:
+        return [step.effect for step in self.steps]
+
+    def table(self) -> str:
+        lines = [f"baseline {self.baseline.metric}: {self.baseline_error:.4g}"]
+        for i, s in enumerate(self.steps, 1):
+            params = ", ".join(f"{k}={v:.4g}" if isinstance(v, float) else f"{k}={v}" for k, v in s.params.items())
+            lines.append(
+                f"step {i}: + {s.effect:<20} {s.error_before:.4g} -> {s.error_after:.4g} "
+                f"(held-out gain {s.explained_fraction:.1%})  {params}"
+            )
+        lines.append(f"final {self.final.metric}: {self.final_error:.4g} ({self.final_error / max(self.baseline_error, 1e-300):.1%} of baseline)")
+        if self.noise_sigma is not None:
+            lines.append(f"noise floor sigma: {self.noise_sigma:.4g}")
+        for u in self.unexplained:
+            lines.append(f"unexplained {u['kind']}: {u['where']} ({u['share']:.1%} of the remaining error)")
+        return "\n".join(lines)
+
+    def __str__(self) -> str:
+        return self.table()
+
+    def __repr__(self) -> str:
+        return f"Diagnosis({' + '.join(self.effects) or 'no effect'}: {self.baseline_error:.4g} -> {self.final_error:.4g})"
+
+    def plot(self, path=None):
+        """The error-fall curve (a matplotlib figure; saved as PNG when ``path`` is given)."""
+        from percver.validate import html
+
+        return html.error_fall(self, path)
+
+    def to_dict(self) -> dict:
+        return {
+            "baseline_error": self.baseline_error,
+            "final_error": self.final_error,
+            "metric": self.final.metric,
+            "steps": [{**asdict(s), "params": _plain(s.params)} for s in self.steps],
+            "final_model": self.final_model.describe(),
+            "noise_sigma": self.noise_sigma,
+            "unexplained": self.unexplained,
+            "rankings": [r.to_dict() for r in self.rankings],
+        }
+
+    def to_json(self, path=None) -> str:
+        text = json.dumps(self.to_dict(), indent=2, default=_json_default)
+        if path is not None:
+            Path(path).write_text(text)
+        return text
+
+    def to_html(self, directory) -> Path:
+        from percver.validate import html
+
+        return html.write_diagnosis(self, directory)
+
+
+def diagnose(
+    model,
+    data,
+    effects=None,
+    *,
+    max_steps: int = 6,
+    folds: int = 3,
+    bootstrap: int = 200,
+    min_gain: float = 0.02,
+    metric: str = "rmse",
+    learn: bool = False,
+    seed: int = 0,
+    progress: bool = False,
+) -> Diagnosis:
+    """Compare, explain, add the best claimed effect, refit all added effects, repeat.
+
+    Gains are shares of the *baseline* squared error, so an effect must explain at least
+    ``min_gain`` of the original misfit (lower end of its bootstrap interval) to be added:
+    small leftovers of an effect already found are not promoted to new mechanisms.
+    Systematic effects are preferred to random ones (dropout) at equal evidence.
+    """
+    if learn:
+        raise InputError(
+            "diagnose(learn=True) trains the paper's learned noise models with percver.noise, which this "
+            "installation does not provide yet; run without learn=True and train a noise model on the "
+            "regions listed in Diagnosis.unexplained"
+        )
+    model = as_model(model, data)
+    evaluation = model.evaluate(data)
+    baseline = compare(model, data, metric=metric)
+    reference = model_errors(model, evaluation)
+    bar = _progress(progress)
+    current, steps, rankings = model, [], []
+    try:
+        for _ in range(max_steps):
+            ranking = rank(current, evaluation, effects, folds=folds, bootstrap=bootstrap, min_gain=min_gain,
+                           reference=reference, seed=seed, progress=bar)
+            rankings.append(ranking)
+            if not ranking or not ranking[0].claimed:
+                break
+            best = ranking[0]
+            before = compare(current, data, metric=metric).error
+            current = refit(current.with_effect(best.effect), evaluation)
+            after = compare(current, data, metric=metric).error
+            steps.append(Step(best.name, dict(current.effects[-1].params), before, after, best.gain))
+            if bar is not None:
+                bar.set_postfix_str(f"+{best.name}")
+    finally:
+        if bar is not None:
+            bar.close()
+    final = compare(current, data, metric=metric)
+    noise = None
+    if current.kind in GaussianNoise.kinds:
+        noise = GaussianNoise().fit_stochastic(current, evaluation, final.predicted).params["sigma"]
+    return Diagnosis(baseline, steps, final, rankings, noise)
+
+
+def _progress(enabled):
+    if not enabled:
+        return None
+    from tqdm import tqdm
+
+    return tqdm(desc="diagnose (candidates fitted)", unit="fit")

@@ -1,0 +1,124 @@
+"""Camera effects on images (N x H x W, values in [0, 1])."""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy import ndimage
+
+from percver.validate.effects.base import Effect
+
+
+class ImageEffect(Effect):
+    """Base of image effects: ``apply(images, states, model, before)`` maps images to images.
+
+    ``before`` is the stack of effects applied so far, for effects (blur) that must render
+    other states through the same stack.
+    """
+
+    kinds = ("image",)
+
+    def apply(self, images, states, model, before):
+        raise NotImplementedError
+
+
+class Contrast(ImageEffect):
+    """Lighting contrast: pixel values move away from (``factor`` > 1) or towards (< 1) the image's
+    mean grey, as PIL's ``ImageEnhance.Contrast`` does (0 gives a flat grey image)."""
+
+    name = "contrast"
+    defaults = {"factor": 1.0}
+    bounds = {"factor": (0.0, 3.0)}
+
+    def apply(self, images, states, model, before):
+        mean = images.mean(axis=(1, 2), keepdims=True)
+        return np.clip(mean + self.params["factor"] * (images - mean), 0.0, 1.0)
+
+
+class Brightness(ImageEffect):
+    """Exposure: every pixel is scaled by ``factor`` (PIL's ``ImageEnhance.Brightness``)."""
+
+    name = "brightness"
+    defaults = {"factor": 1.0}
+    bounds = {"factor": (0.0, 3.0)}
+
+    def apply(self, images, states, model, before):
+        return np.clip(self.params["factor"] * images, 0.0, 1.0)
+
+
+class Blur(ImageEffect):
+    """Motion blur as in the paper: lighter copies of the scene at position -/+ ``delta`` overlay the
+    image (0.5, 1, 0.5 weights), then the image is rescaled to [0, 1]."""
+
+    name = "blur"
+    defaults = {"delta": 0.0}
+    bounds = {"delta": (0.0, np.inf)}
+
+    def search_bounds(self, model, evaluation):
+        column = model.state_names.index(model.position)
+        span = np.ptp(evaluation.states[:, column])
+        return {"delta": (0.0, 0.25 * span if span > 0 else 1.0)}
+
+    def starts(self, model, evaluation, predicted):
+        hi = self.search_bounds(model, evaluation)["delta"][1]
+        return [{"delta": hi * f} for f in (0.05, 0.2, 0.5)]
+
+    def apply(self, images, states, model, before):
+        delta = self.params["delta"]
+        column = model.state_names.index(model.position)
+        shifted = []
+        for sign in (-1.0, 1.0):
+            moved = states.copy()
+            moved[:, column] += sign * delta
+            shifted.append(model.images(moved, before))
+        overlay = 0.5 * shifted[0] + images + 0.5 * shifted[1]
+        low = overlay.min(axis=(1, 2), keepdims=True)
+        span = overlay.max(axis=(1, 2), keepdims=True) - low
+        return (overlay - low) / np.where(span > 0, span, 1.0)
+
+
+class Shift(ImageEffect):
+    """Camera misalignment: the image moves by ``rows`` and ``cols`` pixels (bilinear, edges repeated)."""
+
+    name = "shift"
+    defaults = {"rows": 0.0, "cols": 0.0}
+    bounds = {"rows": (-3.0, 3.0), "cols": (-3.0, 3.0)}
+    units = {"rows": "px", "cols": "px"}
+
+    def apply(self, images, states, model, before):
+        return ndimage.shift(images, (0.0, self.params["rows"], self.params["cols"]), order=1, mode="nearest")
+
+
+class Glare(ImageEffect):
+    """Glare: a disc of ``radius`` pixels around (``row``, ``col``) is saturated (white)."""
+
+    name = "glare"
+    defaults = {"row": 0.0, "col": 0.0, "radius": 0.0}
+    bounds = {"row": (0.0, np.inf), "col": (0.0, np.inf), "radius": (0.0, np.inf)}
+    units = {"row": "px", "col": "px", "radius": "px"}
+    smooth = False
+    repeatable = True
+
+    def search_bounds(self, model, evaluation):
+        h, w = model.shape
+        return {"row": (0.0, h - 1.0), "col": (0.0, w - 1.0), "radius": (0.0, max(h, w) / 2)}
+
+    def search_width(self, model, evaluation):
+        return {"row": 4.0, "col": 4.0, "radius": 4.0}
+
+    def starts(self, model, evaluation, predicted):
+        """Centre the disc on the pixels that read brighter than predicted most often."""
+        brighter = ((evaluation.measured - predicted) > 0.25).mean(axis=0).reshape(model.shape)
+        if brighter.max() <= 0:
+            return [{}]
+        bright = brighter >= 0.5 * brighter.max()
+        rows, cols = np.nonzero(bright)
+        return [{"row": float(rows.mean()), "col": float(cols.mean()), "radius": float(np.sqrt(bright.sum() / np.pi))}]
+
+    def apply(self, images, states, model, before):
+        h, w = model.shape
+        r, c = np.mgrid[0:h, 0:w]
+        disc = (r - self.params["row"]) ** 2 + (c - self.params["col"]) ** 2 <= self.params["radius"] ** 2
+        return np.where(disc, 1.0, images)
+
+
+EFFECTS = (Contrast, Brightness, Blur, Shift, Glare)

@@ -1,0 +1,168 @@
+"""Dynamics effects: forces and actuator behaviour that a plant model may be missing.
+
+They act before the plant's step: actuator effects on the control history (N x lags x p,
+most recent first), drag and friction on one velocity state over one control period.
+Coefficients are per period, so they do not depend on the plant's time step.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from percver.validate.effects.base import Effect
+
+
+class DynamicsEffect(Effect):
+    kinds = ("dynamics",)
+
+    def actuate(self, history):
+        return history
+
+    def pre_step(self, states, model):
+        return states
+
+
+class _Resistance(DynamicsEffect):
+    """Shared machinery of drag and friction: one velocity state, slowed by ``slow(v)``."""
+
+    defaults = {"state": None, "coefficient": 0.0}
+
+    @classmethod
+    def variants(cls, model):
+        return [cls(state=name) for name in model.velocity_names]
+
+    def _speed_scale(self, model, evaluation):
+        column = model.state_names.index(self.params["state"])
+        scale = float(np.max(np.abs(evaluation.states[:, column])))
+        return scale if scale > 0 else 1.0
+
+    def pre_step(self, states, model):
+        column = model.state_names.index(self.params["state"])
+        states = states.copy()
+        states[:, column] = self.slow(states[:, column])
+        return states
+
+    def slow(self, v):
+        raise NotImplementedError
+
+
+class LinearDrag(_Resistance):
+    """Viscous drag: a force proportional to the velocity removes ``coefficient`` of it per period."""
+
+    name = "linear_drag"
+    bounds = {"coefficient": (0.0, 0.5)}
+
+    def slow(self, v):
+        return v * (1.0 - self.params["coefficient"])
+
+
+class QuadraticDrag(_Resistance):
+    """Aerodynamic drag: a force proportional to the squared velocity; per period v -= c v |v|."""
+
+    name = "quadratic_drag"
+    bounds = {"coefficient": (0.0, np.inf)}
+
+    def search_bounds(self, model, evaluation):
+        return {"coefficient": (0.0, 0.5 / self._speed_scale(model, evaluation))}
+
+    def starts(self, model, evaluation, predicted):
+        return [{"coefficient": 0.01 / self._speed_scale(model, evaluation)}]
+
+    def slow(self, v):
+        return v - self.params["coefficient"] * v * np.abs(v)
+
+
+class CoulombFriction(_Resistance):
+    """Dry friction: a constant force against the motion removes ``coefficient`` of speed per
+    period, and stops the body rather than reversing it."""
+
+    name = "coulomb_friction"
+    bounds = {"coefficient": (0.0, np.inf)}
+
+    def search_bounds(self, model, evaluation):
+        return {"coefficient": (0.0, 0.5 * self._speed_scale(model, evaluation))}
+
+    def starts(self, model, evaluation, predicted):
+        return [{"coefficient": 0.01 * self._speed_scale(model, evaluation)}]
+
+    def slow(self, v):
+        return np.sign(v) * np.maximum(np.abs(v) - self.params["coefficient"], 0.0)
+
+
+def _control_scale(evaluation):
+    scale = float(np.max(np.abs(evaluation.inputs["history"][:, 0])))
+    return scale if scale > 0 else 1.0
+
+
+class ActuatorGain(DynamicsEffect):
+    """Actuator gain: the plant receives ``gain`` times the commanded control (motor constant, battery level)."""
+
+    name = "actuator_gain"
+    defaults = {"gain": 1.0}
+    bounds = {"gain": (0.2, 3.0)}
+
+    def actuate(self, history):
+        return history * self.params["gain"]
+
+
+class ActuatorBias(DynamicsEffect):
+    """Actuator bias: a constant ``bias`` adds to every control (trim, steering offset)."""
+
+    name = "actuator_bias"
+    defaults = {"bias": 0.0}
+    bounds = {"bias": (-np.inf, np.inf)}
+
+    def search_bounds(self, model, evaluation):
+        scale = _control_scale(evaluation)
+        return {"bias": (-scale, scale)}
+
+    def actuate(self, history):
+        return history + self.params["bias"]
+
+
+class ActuatorSaturation(DynamicsEffect):
+    """Actuator saturation: controls beyond +-``limit`` are clipped (the actuator's physical range)."""
+
+    name = "actuator_saturation"
+    defaults = {"limit": np.inf}
+    bounds = {"limit": (0.0, np.inf)}
+    smooth = False
+
+    def search_bounds(self, model, evaluation):
+        scale = _control_scale(evaluation)
+        return {"limit": (0.05 * scale, scale)}
+
+    def starts(self, model, evaluation, predicted):
+        return [{"limit": _control_scale(evaluation)}]
+
+    def actuate(self, history):
+        limit = self.params["limit"]
+        return np.clip(history, -limit, limit)
+
+
+class ActuatorDelay(DynamicsEffect):
+    """Actuator delay: the plant receives the control commanded ``periods`` control periods earlier
+    (fractions blend the two neighbouring commands)."""
+
+    name = "actuator_delay"
+    defaults = {"periods": 0.0}
+    bounds = {"periods": (0.0, np.inf)}
+    units = {"periods": "periods"}
+    smooth = False
+
+    def applicable(self, model, evaluation):
+        return evaluation.has_history
+
+    def search_bounds(self, model, evaluation):
+        return {"periods": (0.0, evaluation.inputs["history"].shape[1] - 1.0)}
+
+    def actuate(self, history):
+        lags = history.shape[1]
+        position = np.minimum(np.arange(lags) + self.params["periods"], lags - 1)
+        below = np.floor(position).astype(int)
+        above = np.minimum(below + 1, lags - 1)
+        weight = (position - below)[None, :, None]
+        return (1 - weight) * history[:, below] + weight * history[:, above]
+
+
+EFFECTS = (LinearDrag, QuadraticDrag, CoulombFriction, ActuatorGain, ActuatorBias, ActuatorSaturation, ActuatorDelay)

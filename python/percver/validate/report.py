@@ -1,0 +1,314 @@
+"""``compare(model, data) -> Report``: residuals, errors, where the model fails, candidate effects."""
+
+from __future__ import annotations
+
+import json
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+import numpy as np
+
+from percver.errors import InputError
+from percver.validate.fitting import Ranking, rank, row_errors
+from percver.validate.models import as_model
+
+METRICS = ("rmse", "mae", "max")
+
+# A region or dimension "carries significant error" when its mean error is this many standard
+# errors above the rest and at least LIFT times the overall mean.
+SIGNIFICANCE = 4.0
+LIFT = 1.5
+
+
+@dataclass
+class Region:
+    """A box in the chosen state variables with its share of the total squared error.
+
+    ``lift`` is the region's mean error over the overall mean; ``significant`` when the
+    region's error clearly stands out from the rest of the data.
+    """
+
+    bounds: dict
+    count: int
+    share: float
+    lift: float
+    rmse: float
+    significant: bool
+
+    def describe(self) -> str:
+        return ", ".join(f"{name} in [{lo:.3g}, {hi:.3g}]" for name, (lo, hi) in self.bounds.items())
+
+    def contains(self, features: dict) -> np.ndarray:
+        inside = None
+        for name, (lo, hi) in self.bounds.items():
+            here = (features[name] >= lo) & (features[name] <= hi)
+            inside = here if inside is None else inside & here
+        return inside
+
+
+@dataclass
+class Dimension:
+    """One measured dimension (ray, pixel, state) with its share of the squared error."""
+
+    name: str
+    share: float
+    rmse: float
+    significant: bool
+
+
+@dataclass
+class Where:
+    """Where a model fails: regions of state space and measured dimensions, largest share first."""
+
+    variables: tuple
+    regions: list
+    dimensions: list
+    outside: int = 0
+
+    @property
+    def significant_regions(self) -> list:
+        return [r for r in self.regions if r.significant]
+
+    @property
+    def significant_dimensions(self) -> list:
+        return [d for d in self.dimensions if d.significant]
+
+    def table(self, rows: int = 8) -> str:
+        lines = [f"{'share':>6} {'lift':>6} {'n':>6}  region ({', '.join(self.variables)})"]
+        for r in self.regions[:rows]:
+            lines.append(f"{r.share:>6.1%} {r.lift:>6.2f} {r.count:>6}  {r.describe()}{'  *' if r.significant else ''}")
+        lines.append(f"{'share':>6} {'rmse':>10}  dimension")
+        for d in self.dimensions[:rows]:
+            lines.append(f"{d.share:>6.1%} {d.rmse:>10.4g}  {d.name}{'  *' if d.significant else ''}")
+        return "\n".join(lines)
+
+    def __str__(self) -> str:
+        return self.table()
+
+    def to_dict(self) -> dict:
+        return {
+            "variables": list(self.variables),
+            "regions": [{**asdict(r), "bounds": {k: list(v) for k, v in r.bounds.items()}} for r in self.regions],
+            "dimensions": [asdict(d) for d in self.dimensions],
+            "outside": self.outside,
+        }
+
+
+def _standout(inside: np.ndarray, values: np.ndarray) -> tuple:
+    """(lift, t statistic) of the mean of ``values[inside]`` against the rest."""
+    a, b = values[inside], values[~inside]
+    overall = values.mean() if values.mean() > 0 else 1.0
+    if len(a) < 2 or len(b) < 2:
+        return a.mean() / overall if len(a) else 0.0, 0.0
+    spread = np.sqrt(a.var(ddof=1) / len(a) + b.var(ddof=1) / len(b))
+    t = (a.mean() - b.mean()) / spread if spread > 0 else (np.inf if a.mean() > b.mean() else 0.0)
+    return a.mean() / overall, t
+
+
+def _split_regions(table: np.ndarray, errors: np.ndarray, max_regions: int, min_count: int) -> list:
+    """Adaptive binning: a regression tree on per-row error, splitting where error changes most."""
+    leaves = [np.arange(len(errors))]
+    while len(leaves) < max_regions:
+        best = None
+        for index, rows in enumerate(leaves):
+            if len(rows) < 2 * min_count:
+                continue
+            e = errors[rows]
+            for column in range(table.shape[1]):
+                values = table[rows, column]
+                for cut in np.unique(np.quantile(values, np.linspace(0.1, 0.9, 9))):
+                    left = values <= cut
+                    n_left = left.sum()
+                    if n_left < min_count or len(rows) - n_left < min_count:
+                        continue
+                    gain = n_left * (e[left].mean() - e.mean()) ** 2 + (len(rows) - n_left) * (e[~left].mean() - e.mean()) ** 2
+                    if best is None or gain > best[0]:
+                        best = (gain, index, column, cut)
+        if best is None or best[0] <= 0:
+            break
+        _, index, column, cut = best
+        rows = leaves.pop(index)
+        left = table[rows, column] <= cut
+        leaves += [rows[left], rows[~left]]
+    return leaves
+
+
+class Report:
+    """Residuals of a model on data, with errors, localisation and candidate effects.
+
+    ``residuals`` are measured minus predicted (rows x dimensions, in measurement units).
+    ``error`` is the chosen metric (RMSE by default) of the weighted residuals over all
+    entries, where entries that a stochastic effect of the model explains (a dropped ray)
+    count as explained. ``downstream`` holds the paper's control and state-estimation errors
+    when a controller or estimator was given.
+    """
+
+    def __init__(self, model, data, evaluation, metric="rmse", downstream=None):
+        if metric not in METRICS:
+            raise InputError(f"unknown metric '{metric}'; use one of {METRICS}")
+        self.model = model
+        self.data = data
+        self.evaluation = evaluation
+        self.metric = metric
+        self.predicted = model.predict_inputs(evaluation.inputs)
+        self.residuals = evaluation.measured - self.predicted
+        self.explained = model.accounted(self.predicted, evaluation.measured)
+        weighted = np.where(self.explained, 0.0, self.residuals * evaluation.weights)
+        self.row_errors = row_errors(evaluation, self.predicted, self.explained)
+        self.rmse = float(np.sqrt(np.mean(weighted**2)))
+        self.mae = float(np.mean(np.abs(weighted)))
+        self.max_error = float(np.max(np.abs(weighted)))
+        self.error = {"rmse": self.rmse, "mae": self.mae, "max": self.max_error}[metric]
+        unexplained = np.where(self.explained, 0.0, self.residuals)
+        self.per_dimension = dict(zip(model.measurement_names, np.sqrt(np.mean(unexplained**2, axis=0)).tolist()))
+        self.downstream = dict(downstream or {})
+        self._where = {}
+        self._explain = {}
+
+    def __repr__(self) -> str:
+        extra = "".join(f", {k}={v:.4g}" for k, v in self.downstream.items())
+        return f"Report({self.metric}={self.error:.4g}, rows={len(self.evaluation)}{extra})"
+
+    # ---------------------------------------------------------------- where
+    def features(self) -> dict:
+        return self.model.features(self.evaluation.states)
+
+    def where(self, by=None, *, max_regions: int = 8, min_count: int | None = None) -> Where:
+        """Regions of state space (adaptive bins over ``by``, the model's region variables by
+        default) and measured dimensions that carry most of the error, ranked by share."""
+        by = tuple(by or self.model.region_variables)
+        key = (by, max_regions, min_count)
+        if key in self._where:
+            return self._where[key]
+        features = self.features()
+        unknown = [name for name in by if name not in features]
+        if unknown:
+            raise InputError(f"cannot localise by {unknown}: the model offers {sorted(features)}")
+        table = np.column_stack([np.asarray(features[name], dtype=float) for name in by])
+        known = np.all(np.isfinite(table), axis=1)
+        errors = self.row_errors
+        total = float(errors.sum()) or 1.0
+        rows = np.flatnonzero(known)
+        min_count = min_count or max(10, len(rows) // 40)
+        regions = []
+        for leaf in _split_regions(table[rows], errors[rows], max_regions, min_count):
+            members = rows[leaf]
+            inside = np.zeros(len(errors), dtype=bool)
+            inside[members] = True
+            lift, t = _standout(inside, errors)
+            regions.append(
+                Region(
+                    bounds={name: (float(table[members, j].min()), float(table[members, j].max())) for j, name in enumerate(by)},
+                    count=len(members),
+                    share=float(errors[members].sum() / total),
+                    lift=float(lift),
+                    rmse=float(np.sqrt(errors[members].mean())),
+                    significant=bool(t > SIGNIFICANCE and lift > LIFT),
+                )
+            )
+        regions.sort(key=lambda r: -r.share)
+        result = Where(by, regions, self._dimensions(), outside=int((~known).sum()))
+        self._where[key] = result
+        return result
+
+    def _dimensions(self) -> list:
+        squared = (np.where(self.explained, 0.0, self.residuals) * self.evaluation.weights) ** 2
+        per_dim = squared.mean(axis=0)
+        total = float(per_dim.sum()) or 1.0
+        overall = float(per_dim.mean()) or 1.0
+        n = len(squared)
+        dims = []
+        for j, name in enumerate(self.model.measurement_names):
+            others = np.delete(per_dim, j).mean() if len(per_dim) > 1 else 0.0
+            sd = squared[:, j].std(ddof=1) / np.sqrt(n) if n > 1 else np.inf
+            t = (per_dim[j] - others) / sd if sd > 0 else 0.0
+            dims.append(
+                Dimension(
+                    name=name,
+                    share=float(per_dim[j] / total),
+                    rmse=float(np.sqrt(per_dim[j]) / self.evaluation.weights[j]),
+                    significant=bool(t > SIGNIFICANCE and per_dim[j] / overall > LIFT),
+                )
+            )
+        dims.sort(key=lambda d: -d.share)
+        return dims
+
+    # ---------------------------------------------------------------- explain
+    def explain(self, effects=None, *, folds: int = 3, bootstrap: int = 200, min_gain: float = 0.02, seed: int = 0,
+                progress=None) -> Ranking:
+        """Candidate effects fitted and scored on held-out data, best first (see ``fitting.rank``)."""
+        key = (None if effects is None else tuple(map(repr, effects)), folds, bootstrap, min_gain, seed)
+        if key not in self._explain:
+            self._explain[key] = rank(
+                self.model, self.evaluation, effects, folds=folds, bootstrap=bootstrap, min_gain=min_gain, seed=seed,
+                progress=progress,
+            )
+        return self._explain[key]
+
+    def explained_ranking(self):
+        """The last ranking computed by ``explain``, if any (for reports)."""
+        return next(reversed(self._explain.values()), None)
+
+    # ---------------------------------------------------------------- output
+    def to_dict(self) -> dict:
+        ranking = self.explained_ranking()
+        return {
+            "model": self.model.describe(),
+            "rows": len(self.evaluation),
+            "metric": self.metric,
+            "error": self.error,
+            "rmse": self.rmse,
+            "mae": self.mae,
+            "max": self.max_error,
+            "per_dimension": self.per_dimension,
+            "downstream": self.downstream,
+            "where": self.where().to_dict(),
+            "explain": None if ranking is None else ranking.to_dict(),
+        }
+
+    def to_json(self, path=None) -> str:
+        text = json.dumps(self.to_dict(), indent=2, default=_json_default)
+        if path is not None:
+            Path(path).write_text(text)
+        return text
+
+    def to_html(self, directory, *, explain: bool = True) -> Path:
+        """Write ``index.html`` with PNG plots into ``directory``; returns the page's path."""
+        from percver.validate import html
+
+        if explain:
+            self.explain()
+        return html.write_report(self, directory)
+
+
+def _json_default(value):
+    if isinstance(value, (np.floating, np.integer)):
+        return value.item()
+    if isinstance(value, np.ndarray):
+        return value.tolist()
+    return str(value)
+
+
+def _downstream(function, measured, predicted) -> float:
+    """Mean distance between a network's outputs on measured and on modelled data (paper, Sec. 3.3)."""
+    real = np.asarray(function(measured), dtype=float).reshape(len(measured), -1)
+    modelled = np.asarray(function(predicted), dtype=float).reshape(len(measured), -1)
+    return float(np.mean(np.linalg.norm(real - modelled, axis=1)))
+
+
+def compare(model, data, *, controller=None, estimator=None, metric: str = "rmse") -> Report:
+    """Compare ``model`` with measured ``data``.
+
+    ``controller`` and ``estimator`` (callables on measurement batches, e.g. a ``Network``)
+    add the paper's downstream metrics: the mean distance between their outputs on measured
+    and on predicted measurements (``control_error``, ``estimation_error``).
+    """
+    model = as_model(model, data)
+    evaluation = model.evaluate(data)
+    report = Report(model, data, evaluation, metric=metric)
+    for key, function in (("control_error", controller), ("estimation_error", estimator)):
+        if function is not None:
+            if model.kind == "dynamics":
+                raise InputError(f"{key.split('_')[0]} metrics apply to sensor models, not to dynamics")
+            report.downstream[key] = _downstream(function, evaluation.measured, report.predicted)
+    return report
