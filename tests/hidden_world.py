@@ -16,6 +16,7 @@ ANGLES = np.radians(np.arange(-115.0, 115.0 + 1e-9, 11.5))
 # (axis, coordinate, lo, hi): axis 0 = wall at x = coordinate spanning y in [lo, hi]; axis 1 the reverse.
 WALLS = [(0, 0.0, 0.0, L), (0, L, 0.0, L), (1, 0.0, 0.0, L), (1, L, 0.0, L),
          (0, W, W, L - W), (0, L - W, W, L - W), (1, W, W, L - W), (1, L - W, W, L - W)]
+NORTH_OUTER = 3
 
 
 def poses(n, seed, margin=0.3, spread_deg=25.0):
@@ -34,13 +35,13 @@ def poses(n, seed, margin=0.3, spread_deg=25.0):
 
 
 def _cast(px, py, angle):
-    """Distance to the nearest wall and, for it, (axis, coordinate, cosine of incidence)."""
+    """Distance to the nearest wall and, for it, (wall index, position along it, cosine of incidence)."""
     dx, dy = np.cos(angle), np.sin(angle)
     best = np.full(angle.shape, np.inf)
-    axis = np.full(angle.shape, -1)
+    wall = np.full(angle.shape, -1)
     where = np.full(angle.shape, np.nan)
     cos_inc = np.full(angle.shape, np.nan)
-    for a, c, lo, hi in WALLS:
+    for index, (a, c, lo, hi) in enumerate(WALLS):
         along, across = (dx, dy) if a == 0 else (dy, dx)
         start, other = (px, py) if a == 0 else (py, px)
         with np.errstate(divide="ignore", invalid="ignore"):
@@ -48,10 +49,10 @@ def _cast(px, py, angle):
         hit_at = other + t * across
         ok = (t > 1e-12) & (hit_at >= lo) & (hit_at <= hi) & (t < best)
         best = np.where(ok, t, best)
-        axis = np.where(ok, a, axis)
+        wall = np.where(ok, index, wall)
         where = np.where(ok, hit_at, where)
         cos_inc = np.where(ok, np.abs(along), cos_inc)
-    return best, axis, where, cos_inc
+    return best, wall, where, cos_inc
 
 
 def scan(states, *, seed=0, yaw_deg=0.0, forward=0.0, left=0.0, bias=0.0, scale=1.0, panel=None, ghost=None,
@@ -68,10 +69,10 @@ def scan(states, *, seed=0, yaw_deg=0.0, forward=0.0, left=0.0, bias=0.0, scale=
     sy = y + forward * np.sin(th) + left * np.cos(th)
     angle = th + np.radians(yaw_deg) + ANGLES[None, :]
     sx, sy = np.broadcast_to(sx, angle.shape), np.broadcast_to(sy, angle.shape)
-    r, axis, where, cos_inc = _cast(sx, sy, angle)
+    r, wall, where, cos_inc = _cast(sx, sy, angle)
     if panel is not None:
         lo, hi, threshold = panel
-        on_panel = (axis == 1) & np.isclose(np.where(axis == 1, sy + r * np.sin(angle), 0), L) & (where >= lo) & (where <= hi)
+        on_panel = (wall == NORTH_OUTER) & (where >= lo) & (where <= hi)
         grazing = np.degrees(np.arccos(np.clip(cos_inc, 0, 1))) > threshold
         r = np.where(on_panel & grazing, np.inf, r)
     if ghost is not None:
@@ -133,9 +134,12 @@ def images(states, *, seed=0, contrast=None, blur=None, glare=None, noise=0.01):
 
 # ---------------------------------------------------------------- dynamics
 def mountain_car_step(states, controls):
+    """The known plant (what the user models): one Mountain Car step with the left wall."""
     p, v = states[:, 0], states[:, 1]
     v = np.clip(v + 0.0015 * controls[:, 0] - 0.0025 * np.cos(3 * p), -0.07, 0.07)
-    return np.column_stack([p + v, v])
+    p = p + v
+    stopped = p < -1.2
+    return np.column_stack([np.where(stopped, -1.2, p), np.where(stopped, 0.0, v)])
 
 
 def runs(n_runs, steps, *, seed=0, drag=0.0, delay=0, gain=1.0, noise=1e-5):

@@ -12,6 +12,36 @@ from percver.errors import (
 )
 
 __version__ = _core.__version__
+
+from percver import formats
+from percver.expr import (
+    Condition,
+    Expr,
+    abs_,
+    atan,
+    bounds,
+    clip,
+    cos,
+    evaluate,
+    exp,
+    log,
+    maximum,
+    minimum,
+    parse,
+    sigmoid,
+    sin,
+    sqrt,
+    tan,
+    tanh,
+    uncertain,
+    variables,
+    where,
+)
+from percver.flowpipe import Flowpipe, flowpipe
+from percver.sets import Box
+
+min = minimum  # noqa: A001 - the design's names pv.min / pv.max, like numpy's
+max = maximum  # noqa: A001
 from percver.networks import Network, chain, load_network
 
 from percver import sensors, validate

@@ -11,6 +11,7 @@ from percver.errors import PercverError
 # whose parser has ``func`` set via ``set_defaults(func=...)``; ``func(args) -> int`` is the exit code.
 COMMANDS = [
     ("percver.commands.demo", "register"),
+    ("percver.commands.validate", "register"),
 ]
 
 

@@ -1,8 +1,24 @@
-//! `percver._core`: the thin pyo3 layer over the Rust crates. One file per core module.
+//! `percver._core`: the thin pyo3 layer over the Rust crates. One file per core module,
+//! errors mapped in `error.rs`; no algorithm lives here.
 use pyo3::prelude::*;
+
+mod error;
+mod expr;
+mod flowpipe;
+mod interval;
 
 #[pymodule]
 fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add("__version__", env!("CARGO_PKG_VERSION"))?;
+    m.add_class::<interval::PyInterval>()?;
+    m.add_class::<expr::PyExpr>()?;
+    m.add_class::<expr::PyCondition>()?;
+    m.add_class::<expr::PyTaylorModels>()?;
+    m.add_class::<flowpipe::PyFlowpipe>()?;
+    m.add_function(wrap_pyfunction!(expr::eval_float, m)?)?;
+    m.add_function(wrap_pyfunction!(expr::eval_interval, m)?)?;
+    m.add_function(wrap_pyfunction!(expr::taylor_models, m)?)?;
+    m.add_function(wrap_pyfunction!(expr::parse_condition, m)?)?;
+    m.add_function(wrap_pyfunction!(flowpipe::flowpipe, m)?)?;
     Ok(())
 }

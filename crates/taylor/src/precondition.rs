@@ -4,7 +4,11 @@
 //!
 //! Flow* only translates and scales (M diagonal; "identity"); "QR" additionally rotates by the
 //! orthogonal factor of the linear part (Makino and Berz' QR preconditioning), which keeps
-//! sheared sets from being boxed in the wrong axes. The inverse of the float matrix used for
+//! sheared sets from being boxed in the wrong axes. Caveat, measured: the interval remainder
+//! is then boxed in rotated axes at every step, growing by up to (|cos| + |sin|)^2 per step
+//! for rotating flows, so identity is the default (and what Flow* 2.1.0 actually runs for
+//! both keywords). Keeping the remainder on the left instead was tried and was worse still:
+//! it then passes through the Picard validation as an interval (wrapping). The inverse of the float matrix used for
 //! the right model is enclosed rigorously, and its error goes into x0's remainder, so
 //! x = c + M (right(z)) holds exactly for every true state.
 use crate::interval::{add_up, mul_up, Interval};
@@ -29,16 +33,7 @@ pub fn precondition(x: &[TaylorModel], kind: Precondition, ctx: &Ctx) -> Precond
     let n = x.len();
     let space = &ctx.space;
     let centre: Vec<f64> = x.iter().map(|t| t.constant_term()).collect();
-    let mut y: Vec<TaylorModel> = x.iter().zip(&centre).map(|(t, &c)| t.add_constant(-c)).collect();
-    // A rotation would box the remainder in rotated axes at every step (growth by up to
-    // (|cos| + |sin|)^2 per step), so QR leaves it in x-space, on the left side.
-    let mut left_remainder = vec![Interval::ZERO; n];
-    if kind == Precondition::Qr {
-        for (t, r) in y.iter_mut().zip(left_remainder.iter_mut()) {
-            *r = t.rem;
-            t.rem = Interval::ZERO;
-        }
-    }
+    let y: Vec<TaylorModel> = x.iter().zip(&centre).map(|(t, &c)| t.add_constant(-c)).collect();
     let q = match kind {
         Precondition::Identity => DMatrix::<f64>::identity(n, n),
         Precondition::Qr => {
@@ -96,7 +91,7 @@ pub fn precondition(x: &[TaylorModel], kind: Precondition, ctx: &Ctx) -> Precond
             err = add_up(err, mul_up(mul_up(delta, row_abs[i]), id.mag()));
         }
         t.coef = coef;
-        t.rem = Interval::symmetric(err) + left_remainder[i];
+        t.rem = Interval::symmetric(err);
         x0.push(t);
     }
     Preconditioned { x0, right }

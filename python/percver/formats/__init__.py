@@ -1,1 +1,2 @@
 """Readers and writers of file formats: networks (ONNX, Verisig .yml), Flow* models, benchmarks."""
+from percver.formats.flowstar import FlowstarModel, load_flowstar

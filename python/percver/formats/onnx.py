@@ -128,7 +128,8 @@ def _conv(x: np.ndarray, lead: int, weight: np.ndarray, strides, pads, dilations
     y = np.zeros((x.shape[0], weight.shape[0], *size))
     for tap in itertools.product(*(range(k) for k in weight.shape[2:])):
         window = tuple(slice(t * d, t * d + (n - 1) * s + 1, s) for t, d, n, s in zip(tap, dilations, size, strides))
-        y += np.einsum("bc...,oc->bo...", x[(slice(None), slice(None), *window)], weight[(slice(None), slice(None), *tap)])
+        taps = weight[(slice(None), slice(None), *tap)]
+        y += np.einsum("bc...,oc->bo...", x[(slice(None), slice(None), *window)], taps)
     return y.reshape(outer + y.shape[1:])
 
 
@@ -356,7 +357,8 @@ class _GraphReader:
         if op == "Flatten":
             axis = attributes.get("axis", 1)
             axis = axis + len(shape) if axis < 0 else axis
-            return _reshaped(x, (int(np.prod(shape[:axis], dtype=np.int64)), int(np.prod(shape[axis:], dtype=np.int64))))
+            rows, columns = np.prod(shape[:axis], dtype=np.int64), np.prod(shape[axis:], dtype=np.int64)
+            return _reshaped(x, (int(rows), int(columns)))
         if len(args) > 1 and args[1] is not None:  # opset 13: axes as an input
             node_axes = [int(a) for a in np.ravel(self.constant(args[1], f"the {op} axes"))]
         else:

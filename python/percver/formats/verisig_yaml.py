@@ -16,7 +16,7 @@ import yaml
 from percver.errors import NetworkFormatError
 from percver.networks import Layer, Network
 
-# The C loader/dumper is ~20x faster on the 1.7 MB Mountain Car generator; PyYAML may lack it.
+# The C loader/dumper is ~4x faster on the 1.7 MB Mountain Car generator; some PyYAML builds lack it.
 _Loader = getattr(yaml, "CSafeLoader", yaml.SafeLoader)
 _Dumper = getattr(yaml, "CSafeDumper", yaml.SafeDumper)
 
@@ -99,7 +99,9 @@ def _weights(rows, index: int, path: Path) -> np.ndarray:
         )
     for number, row in enumerate(rows, start=1):
         if len(row) != len(rows[0]):
-            raise NetworkFormatError(f"{path}: {label}: row {number} has {len(row)} entries but row 1 has {len(rows[0])}")
+            raise NetworkFormatError(
+                f"{path}: {label}: row {number} has {len(row)} entries but row 1 has {len(rows[0])}"
+            )
     return _numeric(rows, label, path)
 
 
@@ -116,10 +118,10 @@ def _activation(value, index: int, path: Path) -> str:
     if value in _FROM_VERISIG:
         return _FROM_VERISIG[value]
     if value.capitalize() in _FROM_VERISIG:
-        # Verisig compares case-sensitively and would silently read this layer as linear.
+        # The format reads any other name as linear; a miscased one is a typo that would silently become linear.
         raise NetworkFormatError(
-            f"{path}: layer {index} activation {value!r}: Verisig reads only 'Sigmoid', 'Tanh' and 'Relu' "
-            f"(exact case) and would treat this layer as linear; write {value.capitalize()!r} or 'Linear'"
+            f"{path}: layer {index} activation {value!r}: the format names 'Sigmoid', 'Tanh' and 'Relu' "
+            f"(exact case) and reads anything else as linear; write {value.capitalize()!r} or 'Linear'"
         )
     return "identity"
 

@@ -14,7 +14,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from percver.errors import InputError
-from percver.validate.models import SensorModel
+from percver.validate.models import BatchCache, SensorModel
 
 # Rows of poses cast per batch, so that a (rows x rays x walls) block stays near 4 million numbers.
 _BLOCK = 4_000_000
@@ -255,7 +255,7 @@ class LidarModel(SensorModel):
         super().__init__(("x", "y", "theta"), lidar.names, effects)
         self.track = track
         self.lidar = lidar
-        self._cache = None
+        self._cache = BatchCache()
 
     def describe(self) -> str:
         effects = ", ".join(repr(e) for e in self.effects) or "no effects"
@@ -268,22 +268,17 @@ class LidarModel(SensorModel):
         return limit
 
     def hits(self, states) -> Hits:
-        """Ray hits from the sensor pose implied by ``states`` and the mounting effects.
+        """Ray hits from the sensor pose implied by ``states`` and the mounting effects
+        (cached per states array and mounting: range effects do not need a new cast)."""
+        mounting = tuple(e for e in self.effects if e.moves_sensor)
 
-        Fitting re-predicts the same states many times while only range effects change, so
-        the last cast is reused when the states array and the mounting are the same.
-        """
-        mounting = tuple((e.name, tuple(sorted(e.params.items()))) for e in self.effects if e.moves_sensor)
-        key = (id(states), states.shape, mounting)
-        if self._cache is not None and self._cache[0] == key and self._cache[1] is states:
-            return self._cache[2]
-        x, y, theta = states[:, 0], states[:, 1], states[:, 2]
-        for effect in self.effects:
-            if effect.moves_sensor:
+        def cast():
+            x, y, theta = states[:, 0], states[:, 1], states[:, 2]
+            for effect in mounting:
                 x, y, theta = effect.mount(x, y, theta)
-        hits = self.lidar.cast(self.track, x, y, theta)
-        self._cache = (key, states, hits)
-        return hits
+            return self.lidar.cast(self.track, x, y, theta)
+
+        return self._cache.get(states, mounting, cast)
 
     def predict_inputs(self, inputs):
         states = inputs["states"]

@@ -120,7 +120,7 @@ def diagnose(
     max_steps: int = 6,
     folds: int = 3,
     bootstrap: int = 200,
-    min_gain: float = 0.02,
+    min_gain: float = 0.05,
     metric: str = "rmse",
     learn: bool = False,
     seed: int = 0,
@@ -154,9 +154,10 @@ def diagnose(
                 break
             best = ranking[0]
             before = compare(current, data, metric=metric).error
+            index = current.insertion_index(best.effect)
             current = refit(current.with_effect(best.effect), evaluation)
             after = compare(current, data, metric=metric).error
-            steps.append(Step(best.name, dict(current.effects[-1].params), before, after, best.gain))
+            steps.append(Step(best.name, dict(current.effects[index].params), before, after, best.gain))
             if bar is not None:
                 bar.set_postfix_str(f"+{best.name}")
     finally:

@@ -16,6 +16,13 @@ from scipy.optimize import least_squares
 
 from percver.errors import MeasurementError
 from percver.validate.effects import Effect, candidates
+from percver.validate.effects.base import robust_sigma
+from percver.validate.regions import feature_table, split_regions, standout
+
+# Random effects are not claimed when their events crowd into a region this many times denser
+# than on average (with SIGNIFICANCE standard errors): then they have a cause to find.
+CROWDING = 3.0
+SIGNIFICANCE = 4.0
 
 
 def row_errors(evaluation, predicted, explained=None) -> np.ndarray:
@@ -33,56 +40,68 @@ def model_errors(model, evaluation) -> np.ndarray:
 
 def _robust_scale(residual: np.ndarray) -> float:
     """Where the soft-L1 loss turns from quadratic to linear: the noise level, robustly."""
-    mad = 1.4826 * np.median(np.abs(residual - np.median(residual)))
-    rms = np.sqrt(np.mean(residual**2))
-    return float(max(mad, 0.05 * rms, 1e-12))
+    rms = np.sqrt(np.mean(residual**2)) if residual.size else 0.0
+    return float(max(robust_sigma(residual), 0.05 * rms, 1e-12))
 
 
-def _fit_slot(model, index, evaluation, starts, widths, refine):
-    """Fit the parameters of ``model.effects[index]`` with everything else fixed."""
-    effect = model.effects[index]
-    bounds = effect.search_bounds(model, evaluation)
-    names = list(bounds)
-    if not names:
+def _fit_slots(model, indices, evaluation, starts=(), widths=None, rounds=7):
+    """Fit the parameters of the effects at ``indices`` together, every other effect fixed.
+
+    Robust least squares when all of them are smooth, else the refined grid. ``starts`` are
+    extra starting points (dicts of parameters) for a single effect; the current values are
+    always one. ``widths`` maps (index, parameter) to the first grid's width.
+    """
+    effects = list(model.effects)
+    coordinates, lo, hi = [], [], []
+    for index in indices:
+        for name, (a, b) in effects[index].search_bounds(model, evaluation).items():
+            coordinates.append((index, name))
+            lo.append(a)
+            hi.append(b)
+    if not coordinates:
         return model
-    if len(evaluation) < len(names):
+    if len(evaluation) < len(coordinates):
+        names = ", ".join(effects[i].name for i in indices)
         raise MeasurementError(
-            f"effect '{effect.name}' has {len(names)} parameters to fit but only {len(evaluation)} samples are "
+            f"fitting {names} needs {len(coordinates)} parameters but only {len(evaluation)} samples are "
             "available: measure more samples or fit fewer effects"
         )
-    lo = np.array([bounds[n][0] for n in names], dtype=float)
-    hi = np.array([bounds[n][1] for n in names], dtype=float)
-    base = model.with_effects(model.effects[:index] + model.effects[index + 1 :])
+    lo, hi = np.array(lo, dtype=float), np.array(hi, dtype=float)
+    base = model.with_effects([e for i, e in enumerate(effects) if i not in indices])
     base_predicted = base.predict_inputs(evaluation.inputs)
     explained = base.accounted(base_predicted, evaluation.measured)
     scale = _robust_scale(((evaluation.measured - base_predicted) * evaluation.weights)[~explained])
 
     def build(theta):
-        return effect.replace(**dict(zip(names, (float(t) for t in theta))))
+        params = {index: {} for index in indices}
+        for (index, name), value in zip(coordinates, theta):
+            params[index][name] = float(value)
+        return model.with_effects([effects[i].replace(**params[i]) if i in params else e for i, e in enumerate(effects)])
 
     def residual(theta):
-        trial = model.with_effects(model.effects[:index] + (build(theta),) + model.effects[index + 1 :])
-        r = (trial.predict_inputs(evaluation.inputs) - evaluation.measured) * evaluation.weights
+        r = (build(theta).predict_inputs(evaluation.inputs) - evaluation.measured) * evaluation.weights
         return np.where(explained, 0.0, r).ravel() / scale
 
     def cost(theta):
         z = residual(theta) ** 2
         return float(np.sum(np.sqrt(1.0 + z) - 1.0))
 
-    points = []
-    for start in starts:
-        values = {**effect.params, **start}
-        theta = np.array([values[n] if values[n] is not None else (lo[i] + hi[i]) / 2 for i, n in enumerate(names)])
-        points.append(_inside(theta, lo, hi))
-    costs = [cost(p) for p in points]
-    theta = points[int(np.argmin(costs))]
-    if effect.smooth:
+    def point(overrides):
+        values = [overrides.get(name, effects[index].params[name]) if len(indices) == 1 else effects[index].params[name]
+                  for index, name in coordinates]
+        theta = np.array([(l + h) / 2 if v is None else v for v, l, h in zip(values, lo, hi)], dtype=float)
+        return _inside(theta, lo, hi)
+
+    points = [point({})] + [point(start) for start in starts if start]
+    theta = min(points, key=cost)
+    if all(effects[i].smooth for i in indices):
         span = np.where(np.isfinite(hi - lo), hi - lo, np.maximum(np.abs(theta), 1.0))
         theta = least_squares(residual, theta, bounds=(lo, hi), loss="soft_l1", x_scale=span / 10, diff_step=1e-5).x
     else:
-        theta = _grid_refine(cost, theta, lo, hi, np.array([widths.get(n, hi[i] - lo[i]) for i, n in enumerate(names)]),
-                             rounds=6 if refine else 7)
-    return model.with_effects(model.effects[:index] + (build(theta),) + model.effects[index + 1 :])
+        widths = widths or {}
+        first = np.array([widths.get(c, h - l) for c, l, h in zip(coordinates, lo, hi)])
+        theta = _grid_refine(cost, theta, lo, hi, first, rounds)
+    return build(theta)
 
 
 def _inside(theta, lo, hi):
@@ -114,23 +133,28 @@ def fit_effect(model, effect: Effect, evaluation) -> Effect:
     if effect.stochastic:
         return effect.fit_stochastic(model, evaluation, model.predict_inputs(evaluation.inputs))
     trial = model.with_effect(effect)
-    index = len(trial.effects) - 1
+    index = model.insertion_index(effect)
     starts = effect.starts(trial, evaluation, model.predict_inputs(evaluation.inputs))
-    fitted = _fit_slot(trial, index, evaluation, starts, effect.search_width(trial, evaluation), refine=False)
-    return fitted.effects[index]
+    widths = {(index, name): w for name, w in effect.search_width(trial, evaluation).items()}
+    return _fit_slots(trial, [index], evaluation, starts, widths).effects[index]
 
 
-def refit(model, evaluation, sweeps: int = 2):
-    """Refit all deterministic effects together by block-coordinate descent (each effect in turn,
-    from its current values, with a narrower search), then the stochastic ones on the result."""
-    for _ in range(sweeps):
-        for index, effect in enumerate(model.effects):
-            if effect.stochastic:
-                continue
-            widths = {n: w / 4 for n, w in effect.search_width(model, evaluation).items()}
+def refit(model, evaluation):
+    """Refit all deterministic effects together: the non-smooth ones one at a time on a narrowed
+    grid around their values, the smooth ones jointly by least squares (twice, when both kinds
+    are present, since they interact); then the stochastic ones on the result."""
+    deterministic = [i for i, e in enumerate(model.effects) if not e.stochastic]
+    rough = [i for i in deterministic if not model.effects[i].smooth]
+    smooth = [i for i in deterministic if model.effects[i].smooth]
+    for _ in range(2 if rough else 1):
+        for index in rough:
+            effect = model.effects[index]
             bounds = effect.search_bounds(model, evaluation)
-            widths = {n: widths.get(n, (hi - lo) / 10) for n, (lo, hi) in bounds.items()}
-            model = _fit_slot(model, index, evaluation, [{}], widths, refine=True)
+            narrow = effect.search_width(model, evaluation)
+            widths = {(index, n): narrow[n] / 4 if n in narrow else (b - a) / 10 for n, (a, b) in bounds.items()}
+            model = _fit_slots(model, [index], evaluation, widths=widths, rounds=6)
+        if smooth:
+            model = _fit_slots(model, smooth, evaluation)
     effects = list(model.effects)
     for index, effect in enumerate(effects):
         if effect.stochastic:
@@ -139,13 +163,31 @@ def refit(model, evaluation, sweeps: int = 2):
     return model.with_effects(effects)
 
 
+def _crowded(model, evaluation) -> bool:
+    """Whether the entries a random effect explains concentrate in a region of state space."""
+    predicted = model.predict_inputs(evaluation.inputs)
+    events = model.accounted(predicted, evaluation.measured).sum(axis=1).astype(float)
+    _, table, known = feature_table(model, evaluation.states)
+    rows = np.flatnonzero(known)
+    if events[rows].sum() == 0:
+        return False
+    for leaf in split_regions(table[rows], events[rows], 8, max(10, len(rows) // 40)):
+        inside = np.zeros(len(rows), dtype=bool)
+        inside[leaf] = True
+        lift, t = standout(inside, events[rows])
+        if lift > CROWDING and t > SIGNIFICANCE:
+            return True
+    return False
+
+
 @dataclass
 class Candidate:
     """A fitted candidate effect and how much held-out error it removes.
 
     ``gain`` is the removed share of the reference squared error (the model's own, or the
     baseline's in a diagnosis) with a bootstrap interval ``ci``; ``claimed`` when the lower
-    end of that interval clears the ranking's ``min_gain``.
+    end of that interval clears the ranking's ``min_gain`` and, for a random effect, its
+    events are not crowded into one region (then something there causes them).
     """
 
     name: str
@@ -241,7 +283,7 @@ def rank(
     *,
     folds: int = 3,
     bootstrap: int = 200,
-    min_gain: float = 0.02,
+    min_gain: float = 0.05,
     reference=None,
     seed: int = 0,
     progress=None,
@@ -272,6 +314,9 @@ def rank(
         boot = removed[draws].sum(axis=1) / np.maximum(weight[draws].sum(axis=1), 1e-300)
         ci = (float(np.percentile(boot, 2.5)), float(np.percentile(boot, 97.5)))
         fitted = fit_effect(model, effect, evaluation)
+        claimed = ci[0] > min_gain
+        if claimed and effect.stochastic:
+            claimed = not _crowded(model.with_effect(fitted), evaluation)
         items.append(
             Candidate(
                 name=effect.name,
@@ -280,7 +325,7 @@ def rank(
                 ci=ci,
                 error_before=float(np.sqrt(np.mean(before))),
                 error_after=float(np.sqrt(np.mean(after))),
-                claimed=ci[0] > min_gain,
+                claimed=claimed,
                 stochastic=effect.stochastic,
                 cause=effect.cause(),
             )

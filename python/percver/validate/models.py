@@ -25,6 +25,27 @@ from percver.errors import InputError, MeasurementError
 HISTORY = 6
 
 
+class BatchCache:
+    """Results of an expensive canonical computation (ray casting, rendering) for recent batches.
+
+    Fitting re-predicts the same states many times while only cheap effects change, through
+    many copies of one model; the copies share this cache. Entries are keyed by the identity
+    of the states array (kept alive by the entry) and a tuple of whatever else matters.
+    """
+
+    def __init__(self, size: int = 4):
+        self.size = size
+        self.entries = []
+
+    def get(self, states, key, compute):
+        for entry_states, entry_key, value in self.entries:
+            if entry_states is states and entry_key == key:
+                return value
+        value = compute()
+        self.entries = [(states, key, value)] + self.entries[: self.size - 1]
+        return value
+
+
 @dataclass(frozen=True)
 class Evaluation:
     """The rows of a data set as one model sees them.
@@ -68,7 +89,11 @@ class Model:
 
     # ---------------------------------------------------------------- effects
     def with_effect(self, effect) -> "Model":
-        """A new model with ``effect`` (an ``Effect`` or a ranked ``Candidate``) composed last."""
+        """A new model with ``effect`` (an ``Effect`` or a ranked ``Candidate``) composed in.
+
+        The effect goes after every effect of the same or an earlier physical ``stage``, so a
+        contrast found after a blur still acts before it, as light does before motion.
+        """
         effect = getattr(effect, "effect", effect)
         kinds = getattr(effect, "kinds", None)
         if kinds is None:
@@ -77,7 +102,13 @@ class Model:
             raise InputError(
                 f"effect '{effect.name}' applies to {'/'.join(kinds)} models, not to a {self.kind} model"
             )
-        return self.with_effects(self.effects + (effect,))
+        index = self.insertion_index(effect)
+        return self.with_effects(self.effects[:index] + (effect,) + self.effects[index:])
+
+    def insertion_index(self, effect) -> int:
+        """Where ``with_effect`` puts ``effect`` in the stack."""
+        later = [i for i, e in enumerate(self.effects) if e.stage > effect.stage]
+        return later[0] if later else len(self.effects)
 
     def with_effects(self, effects) -> "Model":
         """A copy with exactly ``effects`` (the original is unchanged)."""
@@ -209,6 +240,7 @@ class ImageModel(SensorModel):
         names = [f"px{r}_{c}" for r in range(self.shape[0]) for c in range(self.shape[1])]
         super().__init__(state_names, names, effects)
         self.render = render
+        self._cache = BatchCache()
         self.position = position or self.state_names[0]
         if self.position not in self.state_names:
             raise InputError(f"position '{self.position}' is not a state of the model {list(self.state_names)}")
@@ -216,11 +248,16 @@ class ImageModel(SensorModel):
     def images(self, states, effects=None) -> np.ndarray:
         """Images (N x H x W) in ``states`` after ``effects`` (the model's deterministic ones by default)."""
         states = np.asarray(states, dtype=float)
-        images = np.asarray(self.render(states), dtype=float).reshape((len(states),) + self.shape)
+        images = self._render(states)
         stack = self.deterministic_effects if effects is None else effects
         for i, effect in enumerate(stack):
             images = effect.apply(images, states, self, stack[:i])
         return images
+
+    def _render(self, states):
+        return self._cache.get(
+            states, None, lambda: np.asarray(self.render(states), dtype=float).reshape((len(states),) + self.shape)
+        )
 
     def predict_inputs(self, inputs):
         return self.images(inputs["states"]).reshape(len(inputs["states"]), -1)

@@ -9,15 +9,19 @@ from pathlib import Path
 import numpy as np
 
 from percver.errors import InputError
+from percver.validate.effects.base import robust_sigma
 from percver.validate.fitting import Ranking, rank, row_errors
 from percver.validate.models import as_model
+from percver.validate.regions import feature_table, split_regions, standout
 
 METRICS = ("rmse", "mae", "max")
 
 # A region or dimension "carries significant error" when its mean error is this many standard
-# errors above the rest and at least LIFT times the overall mean.
+# errors above the rest, at least LIFT times the overall mean, and EXCESS times the noise floor.
 SIGNIFICANCE = 4.0
 LIFT = 1.5
+EXCESS = 3.0
+
 
 
 @dataclass
@@ -94,45 +98,6 @@ class Where:
         }
 
 
-def _standout(inside: np.ndarray, values: np.ndarray) -> tuple:
-    """(lift, t statistic) of the mean of ``values[inside]`` against the rest."""
-    a, b = values[inside], values[~inside]
-    overall = values.mean() if values.mean() > 0 else 1.0
-    if len(a) < 2 or len(b) < 2:
-        return a.mean() / overall if len(a) else 0.0, 0.0
-    spread = np.sqrt(a.var(ddof=1) / len(a) + b.var(ddof=1) / len(b))
-    t = (a.mean() - b.mean()) / spread if spread > 0 else (np.inf if a.mean() > b.mean() else 0.0)
-    return a.mean() / overall, t
-
-
-def _split_regions(table: np.ndarray, errors: np.ndarray, max_regions: int, min_count: int) -> list:
-    """Adaptive binning: a regression tree on per-row error, splitting where error changes most."""
-    leaves = [np.arange(len(errors))]
-    while len(leaves) < max_regions:
-        best = None
-        for index, rows in enumerate(leaves):
-            if len(rows) < 2 * min_count:
-                continue
-            e = errors[rows]
-            for column in range(table.shape[1]):
-                values = table[rows, column]
-                for cut in np.unique(np.quantile(values, np.linspace(0.1, 0.9, 9))):
-                    left = values <= cut
-                    n_left = left.sum()
-                    if n_left < min_count or len(rows) - n_left < min_count:
-                        continue
-                    gain = n_left * (e[left].mean() - e.mean()) ** 2 + (len(rows) - n_left) * (e[~left].mean() - e.mean()) ** 2
-                    if best is None or gain > best[0]:
-                        best = (gain, index, column, cut)
-        if best is None or best[0] <= 0:
-            break
-        _, index, column, cut = best
-        rows = leaves.pop(index)
-        left = table[rows, column] <= cut
-        leaves += [rows[left], rows[~left]]
-    return leaves
-
-
 class Report:
     """Residuals of a model on data, with errors, localisation and candidate effects.
 
@@ -162,12 +127,23 @@ class Report:
         unexplained = np.where(self.explained, 0.0, self.residuals)
         self.per_dimension = dict(zip(model.measurement_names, np.sqrt(np.mean(unexplained**2, axis=0)).tolist()))
         self.downstream = dict(downstream or {})
+        self.noise_floor = self._noise_floor(weighted)
         self._where = {}
         self._explain = {}
 
     def __repr__(self) -> str:
         extra = "".join(f", {k}={v:.4g}" for k, v in self.downstream.items())
         return f"Report({self.metric}={self.error:.4g}, rows={len(self.evaluation)}{extra})"
+
+    def _noise_floor(self, weighted) -> np.ndarray:
+        """Squared (weighted) residual that noise alone explains, per dimension.
+
+        Robust spreads ignore the few large residuals of a failure; the pooled spread is a
+        floor for dimensions whose own spread collapses (pixels clipped at black).
+        """
+        pooled = robust_sigma(weighted[~self.explained]) ** 2
+        own = np.array([robust_sigma(weighted[~self.explained[:, j], j]) ** 2 for j in range(weighted.shape[1])])
+        return np.maximum(own, pooled)
 
     # ---------------------------------------------------------------- where
     def features(self) -> dict:
@@ -176,26 +152,20 @@ class Report:
     def where(self, by=None, *, max_regions: int = 8, min_count: int | None = None) -> Where:
         """Regions of state space (adaptive bins over ``by``, the model's region variables by
         default) and measured dimensions that carry most of the error, ranked by share."""
-        by = tuple(by or self.model.region_variables)
-        key = (by, max_regions, min_count)
+        key = (tuple(by or ()), max_regions, min_count)
         if key in self._where:
             return self._where[key]
-        features = self.features()
-        unknown = [name for name in by if name not in features]
-        if unknown:
-            raise InputError(f"cannot localise by {unknown}: the model offers {sorted(features)}")
-        table = np.column_stack([np.asarray(features[name], dtype=float) for name in by])
-        known = np.all(np.isfinite(table), axis=1)
+        by, table, known = feature_table(self.model, self.evaluation.states, by)
         errors = self.row_errors
         total = float(errors.sum()) or 1.0
         rows = np.flatnonzero(known)
         min_count = min_count or max(10, len(rows) // 40)
         regions = []
-        for leaf in _split_regions(table[rows], errors[rows], max_regions, min_count):
+        for leaf in split_regions(table[rows], errors[rows], max_regions, min_count):
             members = rows[leaf]
             inside = np.zeros(len(errors), dtype=bool)
             inside[members] = True
-            lift, t = _standout(inside, errors)
+            lift, t = standout(inside, errors)
             regions.append(
                 Region(
                     bounds={name: (float(table[members, j].min()), float(table[members, j].max())) for j, name in enumerate(by)},
@@ -203,7 +173,9 @@ class Report:
                     share=float(errors[members].sum() / total),
                     lift=float(lift),
                     rmse=float(np.sqrt(errors[members].mean())),
-                    significant=bool(t > SIGNIFICANCE and lift > LIFT),
+                    significant=bool(
+                        t > SIGNIFICANCE and lift > LIFT and errors[members].mean() > EXCESS * self.noise_floor.mean()
+                    ),
                 )
             )
         regions.sort(key=lambda r: -r.share)
@@ -215,26 +187,23 @@ class Report:
         squared = (np.where(self.explained, 0.0, self.residuals) * self.evaluation.weights) ** 2
         per_dim = squared.mean(axis=0)
         total = float(per_dim.sum()) or 1.0
-        overall = float(per_dim.mean()) or 1.0
-        n = len(squared)
+        fair = 0.5 / len(per_dim)
         dims = []
         for j, name in enumerate(self.model.measurement_names):
-            others = np.delete(per_dim, j).mean() if len(per_dim) > 1 else 0.0
-            sd = squared[:, j].std(ddof=1) / np.sqrt(n) if n > 1 else np.inf
-            t = (per_dim[j] - others) / sd if sd > 0 else 0.0
+            share = float(per_dim[j] / total)
             dims.append(
                 Dimension(
                     name=name,
-                    share=float(per_dim[j] / total),
+                    share=share,
                     rmse=float(np.sqrt(per_dim[j]) / self.evaluation.weights[j]),
-                    significant=bool(t > SIGNIFICANCE and per_dim[j] / overall > LIFT),
+                    significant=bool(share > fair and per_dim[j] > EXCESS * self.noise_floor[j]),
                 )
             )
         dims.sort(key=lambda d: -d.share)
         return dims
 
     # ---------------------------------------------------------------- explain
-    def explain(self, effects=None, *, folds: int = 3, bootstrap: int = 200, min_gain: float = 0.02, seed: int = 0,
+    def explain(self, effects=None, *, folds: int = 3, bootstrap: int = 200, min_gain: float = 0.05, seed: int = 0,
                 progress=None) -> Ranking:
         """Candidate effects fitted and scored on held-out data, best first (see ``fitting.rank``)."""
         key = (None if effects is None else tuple(map(repr, effects)), folds, bootstrap, min_gain, seed)

@@ -18,7 +18,9 @@ class Effect:
     when the candidate is made). ``smooth`` effects are fitted by robust least squares,
     the others (thresholds, regions, delays) by a grid that is refined around its best point.
     A stochastic effect does not change the expected measurement: it is fitted by maximum
-    likelihood on the residuals and explains entries through ``accounts``.
+    likelihood on the residuals and explains entries through ``accounts``. ``stage`` places
+    the effect in the physical chain (lighting before motion blur before the lens), since
+    effects do not commute; within a stage, effects apply in the order added.
     """
 
     name: ClassVar[str] = "effect"
@@ -28,6 +30,7 @@ class Effect:
     units: ClassVar[dict] = {}
     smooth: ClassVar[bool] = True
     stochastic: ClassVar[bool] = False
+    stage: ClassVar[int] = 0
     repeatable: ClassVar[bool] = False
     moves_sensor: ClassVar[bool] = False
 
@@ -88,6 +91,22 @@ class Effect:
         return hash((self.name, tuple(sorted((k, repr(v)) for k, v in self.params.items()))))
 
 
+# Second moment of a standard normal restricted to its central 90%: rescales a trimmed variance.
+_TRIMMED_MOMENT = 0.6226
+
+
+def robust_sigma(values) -> float:
+    """Standard deviation of the Gaussian core of ``values``: the RMS of the central 90%
+    about the median, rescaled. Unlike the median absolute deviation it stays sensible
+    when many values sit exactly on a bound (pixels clipped at black)."""
+    values = np.asarray(values, dtype=float).ravel()
+    if values.size == 0:
+        return 0.0
+    spread = np.abs(values - np.median(values))
+    core = spread[spread <= np.quantile(spread, 0.9)]
+    return float(np.sqrt(np.mean(core**2) / _TRIMMED_MOMENT))
+
+
 def _short(value):
     return f"{value:.4g}" if isinstance(value, float) else repr(value)
 
@@ -97,6 +116,8 @@ class GaussianNoise(Effect):
 
     White noise cannot be predicted, so it removes no error; its fitted ``sigma`` is the
     noise floor left once systematic effects are modelled, and ``sample`` reproduces it.
+    ``sigma`` is fitted robustly (``robust_sigma``), so that errors no effect explains (a ghost
+    obstacle) do not pass for noise.
     """
 
     name = "gaussian_noise"
@@ -104,10 +125,11 @@ class GaussianNoise(Effect):
     defaults = {"sigma": 0.0}
     bounds = {"sigma": (0.0, np.inf)}
     stochastic = True
+    stage = 9
 
     def fit_stochastic(self, model, evaluation, predicted):
         residual = (evaluation.measured - predicted)[~model.accounted(predicted, evaluation.measured)]
-        return self.replace(sigma=float(np.sqrt(np.mean(residual**2))) if residual.size else 0.0)
+        return self.replace(sigma=robust_sigma(residual))
 
     def sample(self, values, rng, model):
         noisy = values + rng.normal(0.0, self.params["sigma"], values.shape)

@@ -26,6 +26,7 @@ class Contrast(ImageEffect):
     mean grey, as PIL's ``ImageEnhance.Contrast`` does (0 gives a flat grey image)."""
 
     name = "contrast"
+    stage = 1
     defaults = {"factor": 1.0}
     bounds = {"factor": (0.0, 3.0)}
 
@@ -38,6 +39,7 @@ class Brightness(ImageEffect):
     """Exposure: every pixel is scaled by ``factor`` (PIL's ``ImageEnhance.Brightness``)."""
 
     name = "brightness"
+    stage = 1
     defaults = {"factor": 1.0}
     bounds = {"factor": (0.0, 3.0)}
 
@@ -50,6 +52,7 @@ class Blur(ImageEffect):
     image (0.5, 1, 0.5 weights), then the image is rescaled to [0, 1]."""
 
     name = "blur"
+    stage = 2
     defaults = {"delta": 0.0}
     bounds = {"delta": (0.0, np.inf)}
 
@@ -80,6 +83,7 @@ class Shift(ImageEffect):
     """Camera misalignment: the image moves by ``rows`` and ``cols`` pixels (bilinear, edges repeated)."""
 
     name = "shift"
+    stage = 3
     defaults = {"rows": 0.0, "cols": 0.0}
     bounds = {"rows": (-3.0, 3.0), "cols": (-3.0, 3.0)}
     units = {"rows": "px", "cols": "px"}
@@ -92,6 +96,7 @@ class Glare(ImageEffect):
     """Glare: a disc of ``radius`` pixels around (``row``, ``col``) is saturated (white)."""
 
     name = "glare"
+    stage = 4
     defaults = {"row": 0.0, "col": 0.0, "radius": 0.0}
     bounds = {"row": (0.0, np.inf), "col": (0.0, np.inf), "radius": (0.0, np.inf)}
     units = {"row": "px", "col": "px", "radius": "px"}

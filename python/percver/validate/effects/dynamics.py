@@ -50,6 +50,7 @@ class LinearDrag(_Resistance):
     """Viscous drag: a force proportional to the velocity removes ``coefficient`` of it per period."""
 
     name = "linear_drag"
+    stage = 3
     bounds = {"coefficient": (0.0, 0.5)}
 
     def slow(self, v):
@@ -60,6 +61,7 @@ class QuadraticDrag(_Resistance):
     """Aerodynamic drag: a force proportional to the squared velocity; per period v -= c v |v|."""
 
     name = "quadratic_drag"
+    stage = 3
     bounds = {"coefficient": (0.0, np.inf)}
 
     def search_bounds(self, model, evaluation):
@@ -77,6 +79,7 @@ class CoulombFriction(_Resistance):
     period, and stops the body rather than reversing it."""
 
     name = "coulomb_friction"
+    stage = 3
     bounds = {"coefficient": (0.0, np.inf)}
 
     def search_bounds(self, model, evaluation):
@@ -98,6 +101,7 @@ class ActuatorGain(DynamicsEffect):
     """Actuator gain: the plant receives ``gain`` times the commanded control (motor constant, battery level)."""
 
     name = "actuator_gain"
+    stage = 1
     defaults = {"gain": 1.0}
     bounds = {"gain": (0.2, 3.0)}
 
@@ -109,6 +113,7 @@ class ActuatorBias(DynamicsEffect):
     """Actuator bias: a constant ``bias`` adds to every control (trim, steering offset)."""
 
     name = "actuator_bias"
+    stage = 1
     defaults = {"bias": 0.0}
     bounds = {"bias": (-np.inf, np.inf)}
 
@@ -124,6 +129,7 @@ class ActuatorSaturation(DynamicsEffect):
     """Actuator saturation: controls beyond +-``limit`` are clipped (the actuator's physical range)."""
 
     name = "actuator_saturation"
+    stage = 2
     defaults = {"limit": np.inf}
     bounds = {"limit": (0.0, np.inf)}
     smooth = False

@@ -37,6 +37,7 @@ class RangeBias(LidarEffect):
     Positive bias reads walls farther than they are."""
 
     name = "range_bias"
+    stage = 3
     defaults = {"bias": 0.0}
     bounds = {"bias": (-0.5, 0.5)}
     units = {"bias": "m"}
@@ -49,6 +50,7 @@ class RangeScale(LidarEffect):
     """Range scale error: echoes read ``scale`` times the true distance (clock-rate error)."""
 
     name = "range_scale"
+    stage = 3
     defaults = {"scale": 1.0}
     bounds = {"scale": (0.8, 1.25)}
 
@@ -89,6 +91,7 @@ class MaxRange(LidarEffect):
     so rays read at most ``limit``."""
 
     name = "max_range"
+    stage = 2
     defaults = {"limit": None}
     bounds = {"limit": (0.0, np.inf)}
     units = {"limit": "m"}
@@ -116,6 +119,7 @@ class SpecularReflection(LidarEffect):
     ``Track.wall_point``). Each instance is one panel; several may be stacked."""
 
     name = "specular_reflection"
+    stage = 1
     defaults = {"start": 0.0, "end": 0.0, "threshold_deg": 90.0}
     bounds = {"start": (0.0, np.inf), "end": (0.0, np.inf), "threshold_deg": (0.0, 90.0)}
     units = {"start": "m", "end": "m", "threshold_deg": "deg"}
@@ -135,7 +139,7 @@ class SpecularReflection(LidarEffect):
         return {"start": (0.0, total), "end": (0.0, total), "threshold_deg": (0.0, 90.0)}
 
     def search_width(self, model, evaluation):
-        return {"start": 2.0, "end": 2.0, "threshold_deg": 30.0}
+        return {"start": 4.0, "end": 4.0, "threshold_deg": 30.0}
 
     def applicable(self, model, evaluation):
         return hasattr(model, "track")
@@ -152,7 +156,8 @@ class SpecularReflection(LidarEffect):
         edges = np.arange(0.0, model.track.wall_length + bin_width, bin_width)
         lost_count = np.histogram(where[lost], edges)[0]
         hit_count = np.histogram(where[np.isfinite(where)], edges)[0]
-        share = lost_count / np.maximum(hit_count, 1)
+        # Smoothed over a metre, so that stretches hit only head-on do not split the panel.
+        share = np.convolve(lost_count / np.maximum(hit_count, 1), np.ones(5) / 5, mode="same")
         peak = int(np.argmax(lost_count))
         lo = hi = peak
         while lo > 0 and share[lo - 1] >= 0.2 * share[peak]:
@@ -171,6 +176,7 @@ class Dropout(LidarEffect):
     (dust, absorbing spots, interference)."""
 
     name = "dropout"
+    stage = 9
     defaults = {"rate": 0.0}
     bounds = {"rate": (0.0, 1.0)}
     stochastic = True

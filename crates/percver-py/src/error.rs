@@ -1,0 +1,39 @@
+//! Maps Rust errors to the exception classes of `percver.errors` (defined in Python so that
+//! pure-Python modules raise the same types).
+use pyo3::prelude::*;
+use pyo3::types::PyAnyMethods;
+use taylor::TaylorError;
+
+/// Builds an instance of `percver.errors.<class>` with `message`.
+pub fn percver_error(py: Python<'_>, class: &str, message: String) -> PyErr {
+    match py.import("percver.errors").and_then(|m| m.getattr(class)) {
+        Ok(cls) => match cls.call1((message.clone(),)) {
+            Ok(instance) => PyErr::from_value(instance),
+            Err(e) => e,
+        },
+        Err(_) => pyo3::exceptions::PyValueError::new_err(message),
+    }
+}
+
+pub fn to_py(error: TaylorError) -> PyErr {
+    Python::with_gil(|py| {
+        let class = match &error {
+            TaylorError::Input(_) => "InputError",
+            TaylorError::Domain { .. } => "DomainError",
+            TaylorError::Parse { .. } => "ParseError",
+            TaylorError::BlowUp { .. } => "BlowUpError",
+        };
+        percver_error(py, class, error.to_string())
+    })
+}
+
+/// `?`-friendly conversion for core results.
+pub trait IntoPy<T> {
+    fn py_err(self) -> PyResult<T>;
+}
+
+impl<T> IntoPy<T> for Result<T, TaylorError> {
+    fn py_err(self) -> PyResult<T> {
+        self.map_err(to_py)
+    }
+}

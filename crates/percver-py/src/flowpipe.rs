@@ -1,0 +1,149 @@
+//! `percver._core.flowpipe`: ODE reachability, the GIL released while integrating.
+use crate::error::IntoPy;
+use crate::expr::{to_intervals, PyExpr};
+use numpy::{PyArray2, PyArray3, ToPyArray};
+use pyo3::prelude::*;
+use pyo3::types::PyDict;
+use taylor::{reach, Flowpipe, Ode, OrderPolicy, Precondition, Settings, StepSize};
+
+#[pyclass(name = "FlowpipeResult", module = "percver._core", frozen)]
+pub struct PyFlowpipe(pub Flowpipe);
+
+/// Step: a float (fixed) or (min, max) (adaptive). Order: an int or (min, max).
+#[derive(FromPyObject)]
+pub enum StepArg {
+    Fixed(f64),
+    Adaptive((f64, f64)),
+}
+
+#[derive(FromPyObject)]
+pub enum OrderArg {
+    Fixed(usize),
+    Adaptive((usize, usize)),
+}
+
+#[pyfunction]
+#[pyo3(signature = (names, rhs, init, t_end, step, order, cutoff=1e-10, remainder=None, precondition="identity", refinements=2, progress=None))]
+#[allow(clippy::too_many_arguments)]
+pub fn flowpipe(
+    py: Python<'_>,
+    names: Vec<String>,
+    rhs: Vec<PyExpr>,
+    init: Vec<(f64, f64)>,
+    t_end: f64,
+    step: StepArg,
+    order: OrderArg,
+    cutoff: f64,
+    remainder: Option<Vec<f64>>,
+    precondition: &str,
+    refinements: usize,
+    progress: Option<PyObject>,
+) -> PyResult<PyFlowpipe> {
+    let ode = Ode::new(names.clone(), rhs.into_iter().map(|e| e.0).collect()).py_err()?;
+    let init = to_intervals(&init, &names)?;
+    let precondition = match precondition.to_ascii_lowercase().as_str() {
+        "identity" => Precondition::Identity,
+        "qr" => Precondition::Qr,
+        other => {
+            return Err(crate::error::to_py(taylor::TaylorError::input(format!(
+                "unknown precondition '{other}' (use 'identity' or 'qr')"
+            ))))
+        }
+    };
+    let settings = Settings {
+        step: match step {
+            StepArg::Fixed(h) => StepSize::Fixed(h),
+            StepArg::Adaptive((min, max)) => StepSize::Adaptive { min, max },
+        },
+        order: match order {
+            OrderArg::Fixed(k) => OrderPolicy::Fixed(k),
+            OrderArg::Adaptive((min, max)) => OrderPolicy::Adaptive { min, max },
+        },
+        t_end,
+        cutoff,
+        remainder_estimate: remainder.unwrap_or_else(|| vec![1e-4; names.len()]),
+        precondition,
+        refinements,
+    };
+    let mut interrupted: Option<PyErr> = None;
+    let result = py.allow_threads(|| {
+        let mut observer = |t: f64| -> bool {
+            Python::with_gil(|py| {
+                if let Err(e) = py.check_signals() {
+                    interrupted = Some(e);
+                    return false;
+                }
+                if let Some(cb) = &progress {
+                    if let Err(e) = cb.call1(py, (t,)) {
+                        interrupted = Some(e);
+                        return false;
+                    }
+                }
+                true
+            })
+        };
+        reach(&ode, &init, &settings, &mut observer)
+    });
+    if let Some(e) = interrupted {
+        return Err(e);
+    }
+    Ok(PyFlowpipe(result.py_err()?))
+}
+
+#[pymethods]
+impl PyFlowpipe {
+    #[getter]
+    fn names(&self) -> Vec<String> {
+        self.0.names.clone()
+    }
+    /// (S, 2) array of segment start and end times.
+    #[getter]
+    fn times<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray2<f64>> {
+        let s = &self.0.segments;
+        numpy::ndarray::Array2::from_shape_fn((s.len(), 2), |(i, j)| if j == 0 { s[i].t0 } else { s[i].t1 }).to_pyarray(py)
+    }
+    /// (S, n, 2) array: the box of each segment, lower and upper bounds per variable.
+    #[getter]
+    fn boxes<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray3<f64>> {
+        let s = &self.0.segments;
+        let n = self.0.names.len();
+        numpy::ndarray::Array3::from_shape_fn((s.len(), n, 2), |(i, v, j)| {
+            let b = s[i].bounds[v];
+            if j == 0 {
+                b.lo()
+            } else {
+                b.hi()
+            }
+        })
+        .to_pyarray(py)
+    }
+    #[getter]
+    fn final_box(&self) -> Vec<(f64, f64)> {
+        self.0.final_box.iter().map(|b| (b.lo(), b.hi())).collect()
+    }
+    #[getter]
+    fn time_reached(&self) -> f64 {
+        self.0.time_reached
+    }
+    /// Why integration stopped early (None when it reached the horizon).
+    #[getter]
+    fn failure(&self) -> Option<String> {
+        self.0.failure.as_ref().map(|e| e.to_string())
+    }
+    #[getter]
+    fn orders(&self) -> Vec<usize> {
+        self.0.segments.iter().map(|s| s.order).collect()
+    }
+    #[getter]
+    fn stats<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
+        let s = &self.0.stats;
+        let d = PyDict::new(py);
+        d.set_item("steps", s.steps)?;
+        d.set_item("rejected_steps", s.rejected_steps)?;
+        d.set_item("seconds", s.seconds)?;
+        d.set_item("picard_seconds", s.picard_seconds)?;
+        d.set_item("validation_seconds", s.validation_seconds)?;
+        d.set_item("composition_seconds", s.composition_seconds)?;
+        Ok(d)
+    }
+}

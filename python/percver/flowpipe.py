@@ -1,0 +1,174 @@
+"""ODE reachability: ``pv.flowpipe({x: v, v: ...}, init=..., t_end=...)`` over the Rust engine."""
+
+from __future__ import annotations
+
+import json
+from typing import Mapping, Optional, Sequence, Union
+
+import numpy as np
+
+from percver import _core
+from percver.errors import BlowUpError, InputError
+from percver.expr import ExprLike, as_expr, name_of
+from percver.sets import Box, BoxLike
+
+
+class Flowpipe:
+    """The reach set of an ODE: one box per integration step plus the final state's box.
+
+    Every box is a sound enclosure of all trajectories from the initial set over the step's
+    time interval ``times[i]``.
+    """
+
+    def __init__(self, raw, settings: dict):
+        self._raw = raw
+        self.names = list(raw.names)
+        self.times = np.asarray(raw.times)  # (S, 2)
+        self.array = np.asarray(raw.boxes)  # (S, n, 2)
+        self.time_reached = raw.time_reached
+        self.failure: Optional[str] = raw.failure
+        self.orders = list(raw.orders)
+        self.stats = dict(raw.stats)
+        self.settings = settings
+
+    def final_box(self) -> dict:
+        """Box of the state at ``time_reached`` (LDB-refined range of the final Taylor models)."""
+        return {n: tuple(b) for n, b in zip(self.names, self._raw.final_box)}
+
+    def boxes(self) -> list:
+        """Per-step boxes as dicts ``{"t": (t0, t1), name: (lo, hi), ...}``."""
+        return [
+            {"t": tuple(self.times[i]), **{n: tuple(self.array[i, j]) for j, n in enumerate(self.names)}}
+            for i in range(len(self.times))
+        ]
+
+    def hull(self) -> Box:
+        """One box containing the whole flowpipe."""
+        return Box(tuple(self.names), tuple((float(self.array[:, j, 0].min()), float(self.array[:, j, 1].max())) for j in range(len(self.names))))
+
+    def contains(self, t: np.ndarray, states: np.ndarray, tol: float = 0.0) -> np.ndarray:
+        """Whether states (N x n) at times t (N) lie in the box of a step covering their time."""
+        t = np.asarray(t, dtype=float)
+        states = np.atleast_2d(states)
+        ok = np.zeros(len(t), dtype=bool)
+        for i, ti in enumerate(t):
+            steps = np.nonzero((self.times[:, 0] <= ti) & (ti <= self.times[:, 1]))[0]
+            ok[i] = any(
+                np.all((states[i] >= self.array[s, :, 0] - tol) & (states[i] <= self.array[s, :, 1] + tol)) for s in steps
+            )
+        return ok
+
+    def to_json(self, path: Optional[str] = None) -> str:
+        doc = {
+            "names": self.names,
+            "settings": self.settings,
+            "time_reached": self.time_reached,
+            "failure": self.failure,
+            "final_box": self.final_box(),
+            "times": self.times.tolist(),
+            "boxes": self.array.tolist(),
+            "stats": self.stats,
+        }
+        text = json.dumps(doc, indent=1)
+        if path:
+            with open(path, "w") as f:
+                f.write(text)
+        return text
+
+    def plot(self, x: str, y: str, path: Optional[str] = None, ax=None, samples: Optional[np.ndarray] = None):
+        """Draw the step boxes in the (x, y) plane (``y`` may be "t" for a time plot)."""
+        import matplotlib
+
+        if ax is None:
+            matplotlib.use("Agg")
+        import matplotlib.pyplot as plt
+        from matplotlib.collections import PatchCollection
+        from matplotlib.patches import Rectangle
+
+        def column(name):
+            if name == "t":
+                return self.times
+            if name not in self.names:
+                raise InputError(f"no variable '{name}' in the flowpipe (have {self.names} and 't')")
+            return self.array[:, self.names.index(name), :]
+
+        cx, cy = column(x), column(y)
+        own = ax is None
+        if own:
+            fig, ax = plt.subplots(figsize=(6, 5))
+        rects = [Rectangle((a[0], b[0]), a[1] - a[0], b[1] - b[0]) for a, b in zip(cx, cy)]
+        ax.add_collection(PatchCollection(rects, facecolor="tab:green", edgecolor="darkgreen", linewidth=0.3, alpha=0.5))
+        if samples is not None:
+            ax.plot(samples[..., 0].T, samples[..., 1].T, color="tab:red", linewidth=0.5)
+        ax.set_xlim(cx[:, 0].min(), cx[:, 1].max())
+        ax.set_ylim(cy[:, 0].min(), cy[:, 1].max())
+        ax.autoscale_view()
+        ax.set_xlabel(x)
+        ax.set_ylabel(y)
+        ax.set_title(f"flowpipe, {len(self.times)} steps to t = {self.time_reached:g}")
+        if own and path:
+            fig.tight_layout()
+            fig.savefig(path, dpi=120)
+            plt.close(fig)
+        return ax
+
+
+def flowpipe(
+    ode: Mapping[Union[str, object], ExprLike],
+    init: BoxLike,
+    t_end: float,
+    *,
+    order: Union[int, Sequence[int]] = 6,
+    step: Union[float, Sequence[float]] = 0.02,
+    adaptive: Optional[Sequence[float]] = None,
+    precondition: str = "identity",
+    cutoff: float = 1e-10,
+    remainder: Union[float, Mapping[str, float]] = 1e-4,
+    refinements: int = 2,
+    progress: bool = False,
+    on_failure: str = "raise",
+) -> Flowpipe:
+    """Sound flowpipe of ``ode`` ({variable: right-hand side}) from the box ``init``.
+
+    ``step`` is fixed, or give ``adaptive=(min, max)``; ``order`` is an int or (min, max) for
+    adaptive orders. If the enclosure blows up, :class:`BlowUpError` says when (its
+    ``partial`` attribute holds the sound part computed so far) unless ``on_failure="return"``.
+    """
+    names = [name_of(k) for k in ode]
+    rhs = [as_expr(v) for v in ode.values()]
+    box = Box.coerce(init, names)
+    if not (isinstance(t_end, (int, float)) and t_end >= 0 and np.isfinite(t_end)):
+        raise InputError(f"t_end must be a finite non-negative number, got {t_end!r}")
+    step_arg = tuple(float(s) for s in adaptive) if adaptive is not None else float(step)
+    if isinstance(step_arg, tuple) and len(step_arg) != 2:
+        raise InputError("adaptive must be (min_step, max_step)")
+    order_arg = tuple(int(k) for k in order) if isinstance(order, (list, tuple)) else int(order)
+    if isinstance(remainder, Mapping):
+        rem = [float(remainder[n]) for n in names]
+    else:
+        rem = [float(remainder)] * len(names)
+    if on_failure not in ("raise", "return"):
+        raise InputError("on_failure must be 'raise' or 'return'")
+    settings = dict(t_end=t_end, order=order_arg, step=step_arg, precondition=precondition, cutoff=cutoff, remainder=rem, refinements=refinements)
+    bar = None
+    callback = None
+    if progress:
+        from tqdm import tqdm
+
+        bar = tqdm(total=float(t_end), unit="t", desc="flowpipe", bar_format="{l_bar}{bar}| t={n:.3g}/{total:.3g} [{elapsed}<{remaining}]")
+
+        def callback(t):
+            bar.n = t
+            bar.refresh()
+
+    try:
+        raw = _core.flowpipe(names, rhs, list(box.bounds), float(t_end), step_arg, order_arg, cutoff, rem, precondition, refinements, callback)
+    finally:
+        if bar is not None:
+            bar.close()
+    result = Flowpipe(raw, settings)
+    if result.failure and on_failure == "raise":
+        error = BlowUpError(result.failure)
+        error.partial = result
+        raise error
+    return result
