@@ -37,11 +37,16 @@ def residual_map(report, path=None):
     if len(names) >= 2:
         second = np.asarray(features[names[1]], dtype=float)
         known &= np.isfinite(second)
-        total, xe, ye = np.histogram2d(first[known], second[known], bins=(30, 16), weights=errors[known])
+        # Bins at quantiles of the data, so that sparse corners of state space do not leave the map empty.
+        xe, ye = (np.unique(np.quantile(v[known], np.linspace(0, 1, n + 1))) for v, n in ((first, 24), (second, 8)))
+        total, xe, ye = np.histogram2d(first[known], second[known], bins=(xe, ye), weights=errors[known])
         count, _, _ = np.histogram2d(first[known], second[known], bins=(xe, ye))
         with np.errstate(invalid="ignore"):
             mean = total / count
-        image = axes.pcolormesh(xe, ye, mean.T, cmap="magma", shading="flat")
+        from matplotlib import colormaps
+
+        cmap = colormaps["magma"].with_extremes(bad="#dddddd")  # grey: no samples there
+        image = axes.pcolormesh(xe, ye, np.ma.masked_invalid(mean.T), cmap=cmap, shading="flat")
         figure.colorbar(image, ax=axes, label="RMS error per sample")
         from matplotlib.patches import Rectangle
 
