@@ -125,13 +125,15 @@ def flowpipe(
     cutoff: float = 1e-10,
     remainder: Union[float, Mapping[str, float]] = 1e-4,
     refinements: int = 2,
+    symbolic_queue: int = 100,
     progress: bool = False,
     on_failure: str = "raise",
 ) -> Flowpipe:
     """Sound flowpipe of ``ode`` ({variable: right-hand side}) from the box ``init``.
 
     ``step`` is fixed, or give ``adaptive=(min, max)``; ``order`` is an int or (min, max) for
-    adaptive orders. If the enclosure blows up, :class:`BlowUpError` says when (its
+    adaptive orders. ``symbolic_queue`` is the number of past step remainders kept symbolically
+    (linear images of boxes, boxed only when read) before older ones are merged. If the enclosure blows up, :class:`BlowUpError` says when (its
     ``partial`` attribute holds the sound part computed so far) unless ``on_failure="return"``.
     """
     names = [name_of(k) for k in ode]
@@ -149,7 +151,7 @@ def flowpipe(
         rem = [float(remainder)] * len(names)
     if on_failure not in ("raise", "return"):
         raise InputError("on_failure must be 'raise' or 'return'")
-    settings = dict(t_end=t_end, order=order_arg, step=step_arg, precondition=precondition, cutoff=cutoff, remainder=rem, refinements=refinements)
+    settings = dict(t_end=t_end, order=order_arg, step=step_arg, precondition=precondition, cutoff=cutoff, remainder=rem, refinements=refinements, symbolic_queue=symbolic_queue)
     bar = None
     callback = None
     if progress:
@@ -162,7 +164,7 @@ def flowpipe(
             bar.refresh()
 
     try:
-        raw = _core.flowpipe(names, rhs, list(box.bounds), float(t_end), step_arg, order_arg, cutoff, rem, precondition, refinements, callback)
+        raw = _core.flowpipe(names, rhs, list(box.bounds), float(t_end), step_arg, order_arg, cutoff, rem, precondition, refinements, symbolic_queue, callback)
     finally:
         if bar is not None:
             bar.close()

@@ -23,7 +23,7 @@ pub enum OrderArg {
 }
 
 #[pyfunction]
-#[pyo3(signature = (names, rhs, init, t_end, step, order, cutoff=1e-10, remainder=None, precondition="identity", refinements=2, progress=None))]
+#[pyo3(signature = (names, rhs, init, t_end, step, order, cutoff=1e-10, remainder=None, precondition="identity", refinements=2, symbolic_queue=100, progress=None))]
 #[allow(clippy::too_many_arguments)]
 pub fn flowpipe(
     py: Python<'_>,
@@ -37,6 +37,7 @@ pub fn flowpipe(
     remainder: Option<Vec<f64>>,
     precondition: &str,
     refinements: usize,
+    symbolic_queue: usize,
     progress: Option<PyObject>,
 ) -> PyResult<PyFlowpipe> {
     let ode = Ode::new(names.clone(), rhs.into_iter().map(|e| e.0).collect()).py_err()?;
@@ -64,6 +65,7 @@ pub fn flowpipe(
         remainder_estimate: remainder.unwrap_or_else(|| vec![1e-4; names.len()]),
         precondition,
         refinements,
+        symbolic_queue,
     };
     let mut interrupted: Option<PyErr> = None;
     let result = py.allow_threads(|| {

@@ -17,6 +17,7 @@ use crate::expr::{Expr, Program, TaylorModels};
 use crate::interval::Interval;
 use crate::precondition::{precondition, Precondition};
 use crate::space::Space;
+use crate::symbolic::{mat_mul, mat_vec, SymbolicRemainder};
 use crate::tm::{Ctx, TaylorModel};
 use std::time::Instant;
 
@@ -76,6 +77,8 @@ pub struct Settings {
     pub precondition: Precondition,
     /// Extra applications of the Picard operator to shrink a verified remainder.
     pub refinements: usize,
+    /// Length of the symbolic remainder queue (Flow*'s `nonpoly ode { N }`).
+    pub symbolic_queue: usize,
 }
 
 impl Settings {
@@ -189,9 +192,12 @@ pub fn reach(ode: &Ode, init: &[Interval], settings: &Settings, observer: &mut d
     let mut t = 0.0;
     let mut segments = Vec::new();
     let mut failure = None;
+    let mut symbolic = SymbolicRemainder::new(n, settings.symbolic_queue);
     while t < settings.t_end {
         let ctx = full.with_order(k);
-        let pre = precondition(&state, settings.precondition, &ctx);
+        let r_box = symbolic.enclosure();
+        let extra: Vec<f64> = r_box.iter().map(|r| r.mag()).collect();
+        let pre = precondition(&state, &extra, settings.precondition, &ctx);
         let mut h_try = h.min(settings.t_end - t);
         let left = loop {
             match picard_step(ode, &pre.x0, h_try, &ctx, settings, &mut stats) {
@@ -216,15 +222,34 @@ pub fn reach(ode: &Ode, init: &[Interval], settings: &Settings, observer: &mut d
         }
         let Some(left) = left else { continue }; // order raised: redo the step
         let composing = Instant::now();
+        // The symbolic remainder in normalised coordinates: x̂_true = right(z) + T R.
+        let shift: Vec<f64> = mat_vec(&pre.to_normalised, &r_box, n).iter().map(|v| v.mag()).collect();
         segments.push(Segment {
             t0: t,
             t1: t + h_try,
-            bounds: left.iter().map(|m| m.bound(&space)).collect(),
+            bounds: left
+                .iter()
+                .map(|m| m.bound(&space) + Interval::symmetric(gradient_dot(m, &space, &shift, 1)))
+                .collect(),
             order: k,
         });
         let mut args = vec![TaylorModel::zero()];
         args.extend(pre.right.iter().cloned());
-        state = left.iter().map(|m| m.substitute(0, Interval::ONE, &ctx).compose(&args, &ctx)).collect();
+        let ends: Vec<TaylorModel> = left.iter().map(|m| m.substitute(0, Interval::ONE, &ctx)).collect();
+        // Step map on the symbolic part: its linear part A T exactly, the rest bounded.
+        let a: Vec<Interval> = (0..n * n).map(|ij| Interval::point(ends[ij / n].linear_coefficient(&space, ij % n + 1))).collect();
+        symbolic.transform(&mat_mul(&a, &pre.to_normalised, n));
+        let mut entering = Vec::with_capacity(n);
+        state = ends
+            .iter()
+            .map(|m| {
+                let mut x = m.compose(&args, &ctx);
+                entering.push(x.rem + Interval::symmetric(gradient_dot(m, &space, &shift, 2)));
+                x.rem = Interval::ZERO;
+                x
+            })
+            .collect();
+        symbolic.push(entering);
         stats.composition_seconds += composing.elapsed().as_secs_f64();
         stats.steps += 1;
         t = if settings.t_end - (t + h_try) < 1e-12 * settings.t_end.max(1.0) { settings.t_end } else { t + h_try };
@@ -232,7 +257,7 @@ pub fn reach(ode: &Ode, init: &[Interval], settings: &Settings, observer: &mut d
             h = (h_try * 1.1).min(max);
         }
         k = (k.saturating_sub(1)).max(k_min);
-        if state.iter().any(|m| !m.bound(&space).is_bounded()) {
+        if state.iter().any(|m| !m.bound(&space).is_bounded()) || symbolic.enclosure().iter().any(|r| !r.is_bounded()) {
             failure = Some(TaylorError::BlowUp { time_reached: t, reason: "the state enclosure became unbounded".into() });
             break;
         }
@@ -240,9 +265,32 @@ pub fn reach(ode: &Ode, init: &[Interval], settings: &Settings, observer: &mut d
             break;
         }
     }
+    let r_box = symbolic.enclosure();
+    for (m, r) in state.iter_mut().zip(&r_box) {
+        m.rem = m.rem + *r;
+    }
     let final_box = state.iter().map(|m| crate::bound::range(m, &space)).collect();
     stats.seconds = started.elapsed().as_secs_f64();
     Ok(Flowpipe { names: ode.names.clone(), segments, final_state: state, final_box, time_reached: t, failure, stats })
+}
+
+/// Bound of sum_j |d p / d x̂_j| shift_j over the domain, counting only monomials of degree
+/// >= `min_degree` (1: the whole gradient; 2: the gradient minus its linear part).
+/// |d/dx̂_j of c x^e| <= |c| e_j on the domain, since every monomial is bounded by 1 there.
+fn gradient_dot(m: &TaylorModel, space: &Space, shift: &[f64], min_degree: u8) -> f64 {
+    let mut total = 0.0f64;
+    for (i, &c) in m.coef.iter().enumerate() {
+        if c == 0.0 || space.deg[i] < min_degree {
+            continue;
+        }
+        for (j, &s) in shift.iter().enumerate() {
+            let e = space.exponent(i, j + 1);
+            if e > 0 && s > 0.0 {
+                total = (total + (c.abs() * e as f64 * s).next_up()).next_up();
+            }
+        }
+    }
+    total
 }
 
 /// One Picard step of length h from x0(x̂); returns the left models p(s, x̂) + J.
@@ -339,6 +387,7 @@ mod tests {
             remainder_estimate: vec![1e-4; n],
             precondition: Precondition::Identity,
             refinements: 2,
+            symbolic_queue: 100,
         }
     }
 

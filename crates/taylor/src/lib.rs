@@ -13,6 +13,7 @@ pub mod interval;
 pub mod parser;
 pub mod precondition;
 pub mod space;
+pub mod symbolic;
 pub mod tm;
 
 pub use error::{Result, TaylorError};

@@ -26,10 +26,14 @@ pub struct Preconditioned {
     pub x0: Vec<TaylorModel>,
     /// x̂_j(z): range within [-1, 1] for every true state.
     pub right: Vec<TaylorModel>,
+    /// The linear map T with x̂ = T (x - c), row-major n x n (as used for `right`).
+    pub to_normalised: Vec<Interval>,
 }
 
-/// `x[i]` are models over the initial-set variables z_1..z_n (variables 1..=n; 0 is time).
-pub fn precondition(x: &[TaylorModel], kind: Precondition, ctx: &Ctx) -> Preconditioned {
+/// `x[i]` are models over the initial-set variables z_1..z_n (variables 1..=n; 0 is time);
+/// the true state may differ from them by up to `extra[i]` (a symbolic remainder's box), which
+/// the scaling makes room for.
+pub fn precondition(x: &[TaylorModel], extra: &[f64], kind: Precondition, ctx: &Ctx) -> Preconditioned {
     let n = x.len();
     let space = &ctx.space;
     let centre: Vec<f64> = x.iter().map(|t| t.constant_term()).collect();
@@ -58,8 +62,10 @@ pub fn precondition(x: &[TaylorModel], kind: Precondition, ctx: &Ctx) -> Precond
     };
     let mut inv_d = Vec::with_capacity(n);
     let mut right = Vec::with_capacity(n);
-    for r in &rotated {
-        let b = r.bound(space).mag();
+    let mut to_normalised = vec![Interval::ZERO; n * n];
+    for (i, r) in rotated.iter().enumerate() {
+        let slack = (0..n).fold(0.0, |s, j| add_up(s, mul_up(q[(j, i)].abs(), extra[j])));
+        let b = add_up(r.bound(space).mag(), slack);
         if b == 0.0 {
             inv_d.push(None);
             right.push(TaylorModel::zero());
@@ -68,6 +74,9 @@ pub fn precondition(x: &[TaylorModel], kind: Precondition, ctx: &Ctx) -> Precond
             let d = (1.0 / b).next_down();
             inv_d.push(Some(Interval::point(d).recip().expect("d > 0")));
             right.push(r.scale(d));
+            for j in 0..n {
+                to_normalised[i * n + j] = Interval::point(d) * Interval::point(q[(j, i)]);
+            }
         }
     }
     // Enclose M = Q^{-T} D^{-1} = Q (I - F)^{-1} D^{-1} with F = I - Q^T Q.
@@ -94,7 +103,7 @@ pub fn precondition(x: &[TaylorModel], kind: Precondition, ctx: &Ctx) -> Precond
         t.rem = Interval::symmetric(err);
         x0.push(t);
     }
-    Preconditioned { x0, right }
+    Preconditioned { x0, right, to_normalised }
 }
 
 /// Q of a column-pivoted QR factorisation (columns of largest norm first, as Makino and Berz
@@ -151,7 +160,7 @@ mod tests {
             z1.scale(0.29).add(&z2.scale(0.12)).add(&z1.mul(&z2, &ctx).scale(0.01)).add_constant(-2.0),
         ];
         for kind in [Precondition::Identity, Precondition::Qr] {
-            let p = precondition(&x, kind, &ctx);
+            let p = precondition(&x, &[0.0, 0.0], kind, &ctx);
             let args = vec![TaylorModel::zero(), p.right[0].clone(), p.right[1].clone()];
             for i in 0..2 {
                 let back = p.x0[i].compose(&args, &ctx);

@@ -31,6 +31,7 @@ class FlowstarModel:
     precondition: str = "identity"
     cutoff: float = 1e-10
     ode_kind: str = "nonpoly ode"
+    symbolic_queue: int = 100
     ignored: list = field(default_factory=list)
 
     def run(self, *, progress: bool = False, on_failure: str = "raise", refinements: int = 2):
@@ -51,6 +52,7 @@ class FlowstarModel:
             cutoff=self.cutoff,
             remainder=dict(zip(self.variables, self.remainder)),
             refinements=refinements,
+            symbolic_queue=self.symbolic_queue,
             progress=progress,
             on_failure=on_failure,
         )
@@ -154,9 +156,10 @@ def load_flowstar(path: str) -> FlowstarModel:
         raise ParseError(f"{name}: '{kind}' models are not supported yet; rewrite them as 'nonpoly ode'")
     rest = body[o.end() :]
     after = rest.lstrip()
-    if after.startswith("{") and re.match(r"\{\s*\d+\s*\}", after):
-        # Symbolic-remainder queue size: accepted and ignored (interval remainders are used).
-        rest = after[re.match(r"\{\s*\d+\s*\}", after).end() :]
+    symbolic_queue = 100  # percver always keeps remainders symbolically; the file may size the queue
+    if queue := re.match(r"\{\s*(\d+)\s*\}", after):
+        symbolic_queue = max(1, int(queue.group(1)))
+        rest = after[queue.end() :]
     ode_text, end = _block(rest, 0, name)
     odes = {}
     for raw in ode_text.split("\n"):
@@ -187,4 +190,4 @@ def load_flowstar(path: str) -> FlowstarModel:
     missing = [v for v in variables if v not in init]
     if missing:
         raise ParseError(f"{name}: the init block gives no interval for {', '.join(missing)}")
-    return FlowstarModel(name, variables, odes, init, t_end, step, order, remainder, precondition, cutoff, kind, ignored)
+    return FlowstarModel(name, variables, odes, init, t_end, step, order, remainder, precondition, cutoff, kind, symbolic_queue, ignored)

@@ -8,7 +8,7 @@ from pathlib import Path
 
 from percver.errors import InputError
 from percver.validate.effects import GaussianNoise
-from percver.validate.fitting import _plain, model_errors, rank, refit
+from percver.validate.fitting import _plain, rank, refit
 from percver.validate.models import as_model
 from percver.validate.report import _json_default, compare
 
@@ -128,10 +128,10 @@ def diagnose(
 ) -> Diagnosis:
     """Compare, explain, add the best claimed effect, refit all added effects, repeat.
 
-    Gains are shares of the *baseline* squared error, so an effect must explain at least
-    ``min_gain`` of the original misfit (lower end of its bootstrap interval) to be added:
-    small leftovers of an effect already found are not promoted to new mechanisms.
-    Systematic effects are preferred to random ones (dropout) at equal evidence.
+    An effect is added when it removes at least ``min_gain`` of the current model's squared
+    error on held-out data (lower end of its bootstrap interval), so a small effect is still
+    found once a dominant one is modelled. Systematic effects are preferred to random ones
+    (dropout), and random ones are refused where their events crowd into one region.
     """
     if learn:
         raise InputError(
@@ -142,13 +142,12 @@ def diagnose(
     model = as_model(model, data)
     evaluation = model.evaluate(data)
     baseline = compare(model, data, metric=metric)
-    reference = model_errors(model, evaluation)
     bar = _progress(progress)
     current, steps, rankings = model, [], []
     try:
         for _ in range(max_steps):
             ranking = rank(current, evaluation, effects, folds=folds, bootstrap=bootstrap, min_gain=min_gain,
-                           reference=reference, seed=seed, progress=bar)
+                           seed=seed, progress=bar)
             rankings.append(ranking)
             if not ranking or not ranking[0].claimed:
                 break

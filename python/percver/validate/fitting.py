@@ -184,8 +184,8 @@ def _crowded(model, evaluation) -> bool:
 class Candidate:
     """A fitted candidate effect and how much held-out error it removes.
 
-    ``gain`` is the removed share of the reference squared error (the model's own, or the
-    baseline's in a diagnosis) with a bootstrap interval ``ci``; ``claimed`` when the lower
+    ``gain`` is the removed share of the model's held-out squared error, with a bootstrap
+    interval ``ci``; ``claimed`` when the lower
     end of that interval clears the ranking's ``min_gain`` and, for a random effect, its
     events are not crowded into one region (then something there causes them).
     """
@@ -284,20 +284,18 @@ def rank(
     folds: int = 3,
     bootstrap: int = 200,
     min_gain: float = 0.05,
-    reference=None,
     seed: int = 0,
     progress=None,
 ) -> Ranking:
-    """Fit and score every candidate effect for ``model`` on ``evaluation``.
+    """Fit every candidate effect for ``model`` on training folds and score it on the held-out fold.
 
-    ``reference`` (per-row squared errors) sets what gains are a share of; a diagnosis passes
-    its baseline so that late, small residuals are not mistaken for large effects.
+    The gain is the share of held-out squared error removed; its interval comes from
+    resampling held-out rows (whole trajectories when there are any).
     """
     rng = np.random.default_rng(seed)
     pool = candidates(model, evaluation, effects)
     before = model_errors(model, evaluation)
-    reference = before if reference is None else reference
-    total = float(np.sum(reference)) or 1.0
+    total = float(np.sum(before)) or 1.0
     split = _folds(evaluation, folds, rng)
     parts = [(evaluation.subset(tr), evaluation.subset(te), te) for tr, te in zip(split.train, split.test)]
     n_units = split.units.max() + 1
@@ -309,7 +307,7 @@ def rank(
             fitted = fit_effect(model, effect, train)
             after[rows] = model_errors(model.with_effect(fitted), test)
         removed = np.bincount(split.units, weights=before - after, minlength=n_units)
-        weight = np.bincount(split.units, weights=reference, minlength=n_units)
+        weight = np.bincount(split.units, weights=before, minlength=n_units)
         gain = float(removed.sum() / total)
         boot = removed[draws].sum(axis=1) / np.maximum(weight[draws].sum(axis=1), 1e-300)
         ci = (float(np.percentile(boot, 2.5)), float(np.percentile(boot, 97.5)))
