@@ -1,1 +1,12 @@
+//! `nn2hybrid`: feed-forward networks as sound set maps.
+//!
+//! [`network`] holds the IR; [`propagate`] bounds a network over a box or over Taylor models
+//! directly (matrix products on coefficient matrices, polynomial activation enclosures from
+//! [`activation`]); [`verisig`] does the same through the Verisig translation (each sigmoid or
+//! tanh neuron an ODE over fictitious time) and serves as a cross-check.
+pub mod activation;
+pub mod error;
+pub mod network;
 
+pub use error::{NetworkError, Result};
+pub use network::{Activation, Layer, LayerArrays, Network};
