@@ -124,7 +124,7 @@ def flowpipe(
     precondition: str = "identity",
     cutoff: float = 1e-10,
     remainder: Union[float, Mapping[str, float]] = 1e-4,
-    refinements: int = 2,
+    refinements: int = 30,
     symbolic_queue: int = 100,
     progress: bool = False,
     on_failure: str = "raise",

@@ -23,7 +23,7 @@ pub enum OrderArg {
 }
 
 #[pyfunction]
-#[pyo3(signature = (names, rhs, init, t_end, step, order, cutoff=1e-10, remainder=None, precondition="identity", refinements=2, symbolic_queue=100, progress=None))]
+#[pyo3(signature = (names, rhs, init, t_end, step, order, cutoff=1e-10, remainder=None, precondition="identity", refinements=30, symbolic_queue=100, progress=None))]
 #[allow(clippy::too_many_arguments)]
 pub fn flowpipe(
     py: Python<'_>,

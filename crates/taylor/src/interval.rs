@@ -205,7 +205,8 @@ impl Interval {
             return Ok(Interval::EMPTY);
         }
         if n < 0 {
-            return self.powi(-n)?.recip();
+            // Reciprocal first: x^n may underflow to an enclosure of 0 although 1/x^n is finite.
+            return self.recip()?.powi(-n);
         }
         if n == 0 {
             return Ok(Interval::ONE);
@@ -387,10 +388,15 @@ impl Interval {
             return self.powi(y as i32);
         }
         if y > 0.0 && self.lo >= 0.0 {
-            let positive = Interval::raw(self.lo.max(f64::MIN_POSITIVE), self.hi);
-            let r = (positive.ln()? * Interval::point(y)).exp();
-            let lo = if self.lo == 0.0 { 0.0 } else { r.lo };
-            return Ok(Interval::raw(lo, r.hi));
+            // x^y is increasing; each end separately (0^y = 0), subnormal ends included.
+            let at = |x: f64| -> Result<Interval> {
+                if x == 0.0 {
+                    Ok(Interval::ZERO)
+                } else {
+                    Ok((Interval::point(x).ln()? * Interval::point(y)).exp())
+                }
+            };
+            return Ok(Interval::raw(at(self.lo)?.lo.max(0.0), at(self.hi)?.hi));
         }
         if self.lo <= 0.0 {
             return Err(TaylorError::Domain {
@@ -460,14 +466,20 @@ impl Mul for Interval {
         if self.is_empty() || o.is_empty() {
             return Interval::EMPTY;
         }
-        // 0 * inf is taken as 0: the interval holds reals only, so the product is 0.
-        let p = |a: f64, b: f64| if a == 0.0 || b == 0.0 { 0.0 } else { a * b };
+        // 0 * inf is taken as 0: the interval holds reals only, so the product is 0. A product
+        // is exact (needs no widening) only when an operand is exactly zero; a nonzero product
+        // that underflowed to 0.0 must still be widened to the neighbouring subnormals.
+        let p = |a: f64, b: f64| -> (f64, f64) {
+            if a == 0.0 || b == 0.0 {
+                (0.0, 0.0)
+            } else {
+                let x = a * b;
+                (down(x), up(x))
+            }
+        };
         let c = [p(self.lo, o.lo), p(self.lo, o.hi), p(self.hi, o.lo), p(self.hi, o.hi)];
-        let lo = c.iter().cloned().fold(f64::INFINITY, f64::min);
-        let hi = c.iter().cloned().fold(f64::NEG_INFINITY, f64::max);
-        // Exact zero products need no widening, which keeps [0, x] * [0, y] anchored at 0.
-        let lo = if lo == 0.0 { 0.0 } else { down(lo) };
-        let hi = if hi == 0.0 { 0.0 } else { up(hi) };
+        let lo = c.iter().map(|x| x.0).fold(f64::INFINITY, f64::min);
+        let hi = c.iter().map(|x| x.1).fold(f64::NEG_INFINITY, f64::max);
         Interval::raw(lo, hi)
     }
 }

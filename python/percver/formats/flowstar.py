@@ -34,7 +34,7 @@ class FlowstarModel:
     symbolic_queue: int = 100
     ignored: list = field(default_factory=list)
 
-    def run(self, *, progress: bool = False, on_failure: str = "raise", refinements: int = 2):
+    def run(self, *, progress: bool = False, on_failure: str = "raise", refinements: int = 30):
         """Integrate with the file's settings; returns a :class:`percver.flowpipe.Flowpipe`."""
         from percver.flowpipe import flowpipe
 
