@@ -321,8 +321,10 @@ fn picard_step(ode: &Ode, x0: &[TaylorModel], h: f64, ctx: &Ctx, settings: &Sett
     }
     stats.picard_seconds += started.elapsed().as_secs_f64();
     let started = Instant::now();
-    // P(p + I): f at order k - 1 (the integral adds one degree), integrated at order k.
-    let low = ctx.with_order(k.saturating_sub(1).max(1));
+    // P(p + I): f at order k, integrated at order k. Evaluating f at k - 1 (as Flow* does) is
+    // cheaper but sweeps f's degree-k terms into the remainder whole, where integration would
+    // have divided them by (e + 1): measured 3-10x larger step remainders on Brusselator.
+    let low = ctx.clone();
     let apply = |rem: &[Interval]| -> std::result::Result<Vec<Interval>, String> {
         let x: Vec<TaylorModel> = p.iter().zip(rem).map(|(m, r)| TaylorModel { coef: m.coef.clone(), rem: *r }).collect();
         let f = ode.program.eval(&TaylorModels { ctx: &low }, &x).map_err(|e| e.to_string())?;
@@ -362,7 +364,13 @@ fn picard_step(ode: &Ode, x0: &[TaylorModel], h: f64, ctx: &Ctx, settings: &Sett
     for _ in 0..settings.refinements {
         let next = apply(&rem)?;
         let shrunk: Vec<Interval> = next.iter().zip(&rem).map(|(a, b)| a.intersect(b)).collect();
-        let gain = shrunk.iter().zip(&rem).map(|(a, b)| a.width() / b.width().max(f64::MIN_POSITIVE)).fold(0.0, f64::max);
+        // Stop when no component shrinks by 1% any more (components already at 0 do not count).
+        let gain = shrunk
+            .iter()
+            .zip(&rem)
+            .filter(|(_, b)| b.width() > 0.0)
+            .map(|(a, b)| a.width() / b.width())
+            .fold(1.0, f64::min);
         if shrunk.iter().any(|s| s.is_empty()) {
             break;
         }
