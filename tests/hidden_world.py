@@ -109,8 +109,9 @@ def _pil_contrast(image, factor):
     return np.asarray(ImageEnhance.Contrast(grey).enhance(factor), dtype=float) / 255.0
 
 
-def images(states, *, seed=0, contrast=None, blur=None, glare=None, noise=0.01):
-    """Camera images with hidden effects: PIL contrast, the paper's overlay blur, a glare disc."""
+def images(states, *, seed=0, contrast=None, blur=None, glare=None, shift_cols=0, noise=0.01):
+    """Camera images with hidden effects: PIL contrast, the paper's overlay blur, a glare disc,
+    a camera turned by whole pixels (content moves right by ``shift_cols``, edge repeated)."""
     rng = np.random.default_rng(seed)
 
     def look(s):
@@ -124,6 +125,8 @@ def images(states, *, seed=0, contrast=None, blur=None, glare=None, noise=0.01):
         shifted = [look(states + sign * blur) for sign in (-1, 1)]
         out = 0.5 * shifted[0] + out + 0.5 * shifted[1]
         out = (out - out.min(axis=(1, 2), keepdims=True)) / np.ptp(out, axis=(1, 2), keepdims=True)
+    if shift_cols:
+        out = np.concatenate([np.repeat(out[:, :, :1], shift_cols, axis=2), out[:, :, :-shift_cols]], axis=2)
     if glare is not None:
         r0, c0, radius = glare
         rows, cols = np.mgrid[0:H, 0:WIDTH]

@@ -44,8 +44,9 @@ def test_hits_carry_wall_position_and_incidence():
     hits = lidar.cast(track, np.array([0.75]), np.array([10.0]), np.array([np.pi / 2]))
     assert hits.range[0, 0] == pytest.approx(0.75)
     assert hits.cos_incidence[0, 0] == pytest.approx(1.0)
-    x, y = track.wall_point(hits.wall_coordinate(track)[0, 0])
-    assert (x, y) == (pytest.approx(1.5), pytest.approx(10.0))
+    where = hits.wall_coordinate(track)[0, 0]
+    assert (track.wall_point(where)) == (pytest.approx(1.5), pytest.approx(10.0))
+    assert track.wall_position(1.5, 10.0) == pytest.approx(where)
     assert hits.cos_incidence[0, 2] == pytest.approx(np.cos(np.radians(45)))
     assert hits.range[0, 1] == pytest.approx(10.0)  # north wall exactly at the limit
     assert hits.segment[0, 1] >= 0

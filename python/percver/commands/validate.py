@@ -30,7 +30,8 @@ def register(sub) -> None:
     parser.add_argument("--effects", help="comma-separated effect names to consider (default: the whole library)")
     parser.add_argument("--max-steps", type=int, default=6, help="most effects to add (default: %(default)s)")
     parser.add_argument("--min-gain", type=float, default=0.05,
-                        help="smallest held-out share of the baseline error an effect must remove (default: %(default)s)")
+                        help="smallest held-out share of the current model's squared error an effect must remove "
+                        "(lower end of its bootstrap interval; default: %(default)s)")
     parser.add_argument("--dropna", action="store_true", help="drop rows with NaN or inf instead of refusing the data")
     parser.add_argument("--seed", type=int, default=0, help="seed of the folds and the bootstrap (default: %(default)s)")
     parser.add_argument("--no-progress", action="store_true", help="hide the progress bar")
@@ -77,7 +78,7 @@ def run(args) -> int:
         model, data, effects, max_steps=args.max_steps, min_gain=args.min_gain, seed=args.seed,
         progress=not args.no_progress and not args.json,
     )
-    page = diagnosis.to_html(args.out)
+    page = diagnosis.to_html(args.out).resolve()
     if args.json:
         print(json.dumps({**json.loads(diagnosis.to_json()), "report": str(page)}, indent=2))
         return 0

@@ -77,6 +77,15 @@ class Track:
         point = p0 + fraction[..., None] * (p1 - p0)
         return point[..., 0], point[..., 1]
 
+    def wall_position(self, x, y):
+        """Wall coordinate of the wall point nearest to (``x``, ``y``), e.g. to place a panel."""
+        point = np.stack(np.broadcast_arrays(np.asarray(x, dtype=float), np.asarray(y, dtype=float)), axis=-1)
+        p0, edge = self.segments[:, 0], self.segments[:, 1] - self.segments[:, 0]
+        t = np.clip(((point[..., None, :] - p0) * edge).sum(-1) / self.lengths**2, 0.0, 1.0)
+        distance = np.linalg.norm(p0 + t[..., None] * edge - point[..., None, :], axis=-1)
+        k = np.argmin(distance, axis=-1)
+        return self.offsets[k] + np.take_along_axis(t, k[..., None], -1)[..., 0] * self.lengths[k]
+
     def sample_poses(self, n: int, seed=None, *, margin: float = 0.25, heading_spread_deg: float = 30.0):
         """``n`` poses (x, y, theta) uniformly inside the hallways, at least ``margin`` from the
         side and front walls, heading within ``heading_spread_deg`` of the driving direction."""

@@ -8,15 +8,15 @@ from pathlib import Path
 
 from percver.errors import InputError
 from percver.validate.effects import GaussianNoise
-from percver.validate.fitting import _plain, rank, refit
+from percver.validate.fitting import plain, rank, refit
 from percver.validate.models import as_model
-from percver.validate.report import _json_default, compare
+from percver.validate.report import compare, json_default
 
 
 @dataclass
 class Step:
     """One added effect: its parameters after the joint refit, the in-sample error before and
-    after, and the held-out share of the baseline squared error it removed."""
+    after, and the held-out share of the (then current) model's squared error it removed."""
 
     effect: str
     params: dict
@@ -93,7 +93,7 @@ class Diagnosis:
             "baseline_error": self.baseline_error,
             "final_error": self.final_error,
             "metric": self.final.metric,
-            "steps": [{**asdict(s), "params": _plain(s.params)} for s in self.steps],
+            "steps": [{**asdict(s), "params": plain(s.params)} for s in self.steps],
             "final_model": self.final_model.describe(),
             "noise_sigma": self.noise_sigma,
             "unexplained": self.unexplained,
@@ -101,7 +101,7 @@ class Diagnosis:
         }
 
     def to_json(self, path=None) -> str:
-        text = json.dumps(self.to_dict(), indent=2, default=_json_default)
+        text = json.dumps(self.to_dict(), indent=2, default=json_default)
         if path is not None:
             Path(path).write_text(text)
         return text

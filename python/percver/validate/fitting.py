@@ -9,7 +9,7 @@ say, a range bias; scoring uses plain squared error, the quantity the user sees.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 from scipy.optimize import least_squares
@@ -48,8 +48,8 @@ def _fit_slots(model, indices, evaluation, starts=(), widths=None, rounds=7):
     """Fit the parameters of the effects at ``indices`` together, every other effect fixed.
 
     Robust least squares when all of them are smooth, else the refined grid. ``starts`` are
-    extra starting points (dicts of parameters) for a single effect; the current values are
-    always one. ``widths`` maps (index, parameter) to the first grid's width.
+    extra starting points (dicts of parameters) when fitting a single effect; the current
+    values are always one. ``widths`` maps (index, parameter) to the first grid's width.
     """
     effects = list(model.effects)
     coordinates, lo, hi = [], [], []
@@ -87,8 +87,7 @@ def _fit_slots(model, indices, evaluation, starts=(), widths=None, rounds=7):
         return float(np.sum(np.sqrt(1.0 + z) - 1.0))
 
     def point(overrides):
-        values = [overrides.get(name, effects[index].params[name]) if len(indices) == 1 else effects[index].params[name]
-                  for index, name in coordinates]
+        values = [overrides.get(name, effects[index].params[name]) for index, name in coordinates]
         theta = np.array([(l + h) / 2 if v is None else v for v, l, h in zip(values, lo, hi)], dtype=float)
         return _inside(theta, lo, hi)
 
@@ -96,7 +95,8 @@ def _fit_slots(model, indices, evaluation, starts=(), widths=None, rounds=7):
     theta = min(points, key=cost)
     if all(effects[i].smooth for i in indices):
         span = np.where(np.isfinite(hi - lo), hi - lo, np.maximum(np.abs(theta), 1.0))
-        theta = least_squares(residual, theta, bounds=(lo, hi), loss="soft_l1", x_scale=span / 10, diff_step=1e-5).x
+        theta = least_squares(residual, theta, bounds=(lo, hi), loss="soft_l1", x_scale=span / 10, diff_step=1e-5,
+                              ftol=1e-6, xtol=1e-6).x
     else:
         widths = widths or {}
         first = np.array([widths.get(c, h - l) for c, l, h in zip(coordinates, lo, hi)])
@@ -105,8 +105,9 @@ def _fit_slots(model, indices, evaluation, starts=(), widths=None, rounds=7):
 
 
 def _inside(theta, lo, hi):
-    """Strictly inside finite bounds, so a least-squares start is feasible."""
-    margin = np.where(np.isfinite(hi - lo), 1e-9 * (hi - lo), 0.0)
+    """Strictly inside finite bounds, so that a least-squares start is feasible; the margin keeps
+    a start from hugging a bound, where the first trust region would be vanishingly small."""
+    margin = np.where(np.isfinite(hi - lo), 1e-3 * (hi - lo), 0.0)
     return np.clip(theta, lo + margin, hi - margin)
 
 
@@ -128,13 +129,16 @@ def _grid_refine(cost, theta, lo, hi, widths, rounds, points=11):
     return theta
 
 
-def fit_effect(model, effect: Effect, evaluation) -> Effect:
-    """``effect`` with its parameters fitted to ``evaluation``, on top of ``model``'s effects."""
+def fit_effect(model, effect: Effect, evaluation, warm=None) -> Effect:
+    """``effect`` with its parameters fitted to ``evaluation``, on top of ``model``'s effects.
+
+    ``warm`` (parameters, e.g. a fit on more data) is one more starting point.
+    """
     if effect.stochastic:
         return effect.fit_stochastic(model, evaluation, model.predict_inputs(evaluation.inputs))
     trial = model.with_effect(effect)
     index = model.insertion_index(effect)
-    starts = effect.starts(trial, evaluation, model.predict_inputs(evaluation.inputs))
+    starts = effect.starts(trial, evaluation, model.predict_inputs(evaluation.inputs)) + ([warm] if warm else [])
     widths = {(index, name): w for name, w in effect.search_width(trial, evaluation).items()}
     return _fit_slots(trial, [index], evaluation, starts, widths).effects[index]
 
@@ -185,9 +189,9 @@ class Candidate:
     """A fitted candidate effect and how much held-out error it removes.
 
     ``gain`` is the removed share of the model's held-out squared error, with a bootstrap
-    interval ``ci``; ``claimed`` when the lower
-    end of that interval clears the ranking's ``min_gain`` and, for a random effect, its
-    events are not crowded into one region (then something there causes them).
+    interval ``ci``; ``claimed`` when the lower end of that interval clears the ranking's
+    ``min_gain`` and, for a random effect, its events are not crowded into one region
+    (then something there causes them).
     """
 
     name: str
@@ -207,7 +211,7 @@ class Candidate:
     def to_dict(self) -> dict:
         return {
             "effect": self.name,
-            "params": _plain(self.params),
+            "params": plain(self.params),
             "gain": self.gain,
             "ci": list(self.ci),
             "error_before": self.error_before,
@@ -218,7 +222,8 @@ class Candidate:
         }
 
 
-def _plain(params: dict) -> dict:
+def plain(params: dict) -> dict:
+    """Parameters as JSON-ready Python values."""
     return {k: (float(v) if isinstance(v, (float, np.floating)) else v) for k, v in params.items()}
 
 
@@ -251,29 +256,17 @@ def _format(value):
     return f"{value:.4g}" if isinstance(value, (float, np.floating)) else str(value)
 
 
-@dataclass
-class _Folds:
-    train: list = field(default_factory=list)
-    test: list = field(default_factory=list)
-    units: np.ndarray | None = None
-
-
-def _folds(evaluation, count, rng) -> _Folds:
-    """Held-out folds: whole trajectories when there are any (neighbouring rows are not independent)."""
+def _folds(evaluation, count, rng):
+    """Resampling units (whole trajectories when there are any: neighbouring rows are not
+    independent) and the (train rows, test rows) of each fold."""
     if evaluation.groups is not None:
-        ids = np.unique(evaluation.groups)
-        units = np.searchsorted(ids, evaluation.groups)
+        units = np.unique(evaluation.groups, return_inverse=True)[1].ravel()
     else:
         units = np.arange(len(evaluation))
     n_units = units.max() + 1
     count = max(2, min(count, n_units))
-    fold_of_unit = rng.permutation(n_units) % count
-    fold = fold_of_unit[units]
-    out = _Folds(units=units)
-    for k in range(count):
-        out.test.append(np.flatnonzero(fold == k))
-        out.train.append(np.flatnonzero(fold != k))
-    return out
+    fold = (rng.permutation(n_units) % count)[units]
+    return units, [(np.flatnonzero(fold != k), np.flatnonzero(fold == k)) for k in range(count)]
 
 
 def rank(
@@ -296,22 +289,24 @@ def rank(
     pool = candidates(model, evaluation, effects)
     before = model_errors(model, evaluation)
     total = float(np.sum(before)) or 1.0
-    split = _folds(evaluation, folds, rng)
-    parts = [(evaluation.subset(tr), evaluation.subset(te), te) for tr, te in zip(split.train, split.test)]
-    n_units = split.units.max() + 1
+    units, split = _folds(evaluation, folds, rng)
+    parts = [(evaluation.subset(train), evaluation.subset(test), test) for train, test in split]
+    n_units = units.max() + 1
     draws = rng.integers(0, n_units, size=(bootstrap, n_units))
     items = []
     for effect in pool:
+        fitted = fit_effect(model, effect, evaluation)
+        # Smooth fits on each training fold start from the fit on all data: the same optimum
+        # for the training loss is reached in a few steps. Grid searches start afresh.
+        warm = fitted.params if effect.smooth and not effect.stochastic else None
         after = before.copy()
         for train, test, rows in parts:
-            fitted = fit_effect(model, effect, train)
-            after[rows] = model_errors(model.with_effect(fitted), test)
-        removed = np.bincount(split.units, weights=before - after, minlength=n_units)
-        weight = np.bincount(split.units, weights=before, minlength=n_units)
+            after[rows] = model_errors(model.with_effect(fit_effect(model, effect, train, warm)), test)
+        removed = np.bincount(units, weights=before - after, minlength=n_units)
+        weight = np.bincount(units, weights=before, minlength=n_units)
         gain = float(removed.sum() / total)
         boot = removed[draws].sum(axis=1) / np.maximum(weight[draws].sum(axis=1), 1e-300)
         ci = (float(np.percentile(boot, 2.5)), float(np.percentile(boot, 97.5)))
-        fitted = fit_effect(model, effect, evaluation)
         claimed = ci[0] > min_gain
         if claimed and effect.stochastic:
             claimed = not _crowded(model.with_effect(fitted), evaluation)

@@ -24,9 +24,9 @@ def _save(figure, path):
     return figure
 
 
-def residual_map(report, path=None):
+def residual_map(report, path=None, where=None):
     """Error over the region variables (mean per bin), with the significant regions outlined."""
-    where = report.where()
+    where = where or report.where()
     features = report.features()
     figure = _figure()
     axes = figure.add_subplot()

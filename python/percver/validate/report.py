@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import json
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -21,7 +21,6 @@ METRICS = ("rmse", "mae", "max")
 SIGNIFICANCE = 4.0
 LIFT = 1.5
 EXCESS = 3.0
-
 
 
 @dataclass
@@ -42,13 +41,6 @@ class Region:
     def describe(self) -> str:
         return ", ".join(f"{name} in [{lo:.3g}, {hi:.3g}]" for name, (lo, hi) in self.bounds.items())
 
-    def contains(self, features: dict) -> np.ndarray:
-        inside = None
-        for name, (lo, hi) in self.bounds.items():
-            here = (features[name] >= lo) & (features[name] <= hi)
-            inside = here if inside is None else inside & here
-        return inside
-
 
 @dataclass
 class Dimension:
@@ -68,6 +60,14 @@ class Where:
     regions: list
     dimensions: list
     outside: int = 0
+    report: object = field(default=None, repr=False, compare=False)
+
+    def plot(self, path=None):
+        """Heat map of the error over the first two variables, significant regions outlined
+        (a matplotlib figure; saved as PNG when ``path`` is given)."""
+        from percver.validate import html
+
+        return html.residual_map(self.report, path, self)
 
     @property
     def significant_regions(self) -> list:
@@ -179,7 +179,7 @@ class Report:
                 )
             )
         regions.sort(key=lambda r: -r.share)
-        result = Where(by, regions, self._dimensions(), outside=int((~known).sum()))
+        result = Where(by, regions, self._dimensions(), outside=int((~known).sum()), report=self)
         self._where[key] = result
         return result
 
@@ -236,7 +236,7 @@ class Report:
         }
 
     def to_json(self, path=None) -> str:
-        text = json.dumps(self.to_dict(), indent=2, default=_json_default)
+        text = json.dumps(self.to_dict(), indent=2, default=json_default)
         if path is not None:
             Path(path).write_text(text)
         return text
@@ -250,7 +250,8 @@ class Report:
         return html.write_report(self, directory)
 
 
-def _json_default(value):
+def json_default(value):
+    """JSON for numpy scalars and arrays; anything else by its text."""
     if isinstance(value, (np.floating, np.integer)):
         return value.item()
     if isinstance(value, np.ndarray):

@@ -3,8 +3,6 @@
 from __future__ import annotations
 
 import numpy as np
-from scipy import ndimage
-
 from percver.validate.effects.base import Effect
 
 
@@ -89,7 +87,24 @@ class Shift(ImageEffect):
     units = {"rows": "px", "cols": "px"}
 
     def apply(self, images, states, model, before):
-        return ndimage.shift(images, (0.0, self.params["rows"], self.params["cols"]), order=1, mode="nearest")
+        return _shift(_shift(images, self.params["rows"], 1), self.params["cols"], 2)
+
+
+def _shift(images, amount, axis):
+    """Move content by ``amount`` pixels along ``axis``: linear interpolation, edge pixels repeated."""
+    whole = int(np.floor(amount))
+    fraction = amount - whole
+    size = images.shape[axis]
+    source = np.arange(size) - whole
+    near = np.take(images, np.clip(source, 0, size - 1), axis=axis)
+    if fraction == 0:
+        return near
+    far = np.take(images, np.clip(source - 1, 0, size - 1), axis=axis)
+    return (1 - fraction) * near + fraction * far
+
+
+def _washed_out(predicted, measured):
+    return (measured >= 0.95) & (predicted < 0.75)
 
 
 class Glare(ImageEffect):
@@ -110,11 +125,14 @@ class Glare(ImageEffect):
     def search_width(self, model, evaluation):
         return {"row": 4.0, "col": 4.0, "radius": 4.0}
 
+    def applicable(self, model, evaluation):
+        """Only pixels that read saturated where the model sees them darker can be glare."""
+        predicted = model.predict_inputs(evaluation.inputs)
+        return bool(np.any(_washed_out(predicted, evaluation.measured)))
+
     def starts(self, model, evaluation, predicted):
-        """Centre the disc on the pixels that read brighter than predicted most often."""
-        brighter = ((evaluation.measured - predicted) > 0.25).mean(axis=0).reshape(model.shape)
-        if brighter.max() <= 0:
-            return [{}]
+        """Centre the disc on the pixels that read saturated most often where darker was predicted."""
+        brighter = _washed_out(predicted, evaluation.measured).mean(axis=0).reshape(model.shape)
         bright = brighter >= 0.5 * brighter.max()
         rows, cols = np.nonzero(bright)
         return [{"row": float(rows.mean()), "col": float(cols.mean()), "radius": float(np.sqrt(bright.sum() / np.pi))}]

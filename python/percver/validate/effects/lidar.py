@@ -142,7 +142,9 @@ class SpecularReflection(LidarEffect):
         return {"start": 4.0, "end": 4.0, "threshold_deg": 30.0}
 
     def applicable(self, model, evaluation):
-        return hasattr(model, "track")
+        """Only rays that should echo but read the limit can be explained by a mirror."""
+        predicted = model.predict_inputs(evaluation.inputs)
+        return hasattr(model, "track") and _no_echo(predicted, evaluation.measured, model.range_limit()).sum() >= 3
 
     def starts(self, model, evaluation, predicted):
         """Put the panel where rays that should echo read the limit most densely."""
@@ -150,8 +152,6 @@ class SpecularReflection(LidarEffect):
         hits = model.hits(evaluation.inputs["states"])
         where = hits.wall_coordinate(model.track)
         lost &= np.isfinite(where)
-        if lost.sum() < 3:
-            return [{}]
         bin_width = 0.25
         edges = np.arange(0.0, model.track.wall_length + bin_width, bin_width)
         lost_count = np.histogram(where[lost], edges)[0]
