@@ -532,6 +532,22 @@ mod tests {
     }
 
     #[test]
+    fn underflowing_products_stay_enclosed() {
+        // 1e-200 * 1e-200 = 1e-400 underflows to 0.0 but is positive: the upper end must be > 0.
+        let p = iv(1e-200, 1e-200) * iv(1e-200, 1e-200);
+        assert!(p.lo() <= 0.0 && p.hi() > 0.0);
+        let n = iv(-1e-200, -1e-200) * iv(1e-200, 1e-200);
+        assert!(n.lo() < 0.0 && n.hi() >= 0.0);
+        assert!(iv(1e-100, 1e-100).powi(5).unwrap().hi() > 0.0);
+        // Negative powers of tiny numbers are huge, not a division by zero.
+        assert_eq!(iv(1e-300, 1e-300).powi(-2).unwrap().hi(), f64::INFINITY);
+        // Real powers of subnormals: sqrt(1e-310) = 1e-155.
+        let r = iv(1e-310, 1.0).powf(0.5).unwrap();
+        assert!(r.lo() <= 1e-155 && r.hi() >= 1.0);
+        assert_eq!(iv(0.0, 0.0).powf(0.5).unwrap().hi(), 0.0);
+    }
+
+    #[test]
     fn division_by_zero_crossing() {
         assert!(iv(-1.0, 1.0).recip().is_err());
         assert_eq!(iv(1.0, 2.0).div_extended(&iv(-1.0, 1.0)), Interval::ENTIRE);
