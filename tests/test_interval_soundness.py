@@ -6,20 +6,20 @@ range, so underflow and overflow of binary64 do not affect the reference) lies i
 result. Domain violations must raise ``percver.DomainError``; malformed input must raise
 ``percver.InputError``. Point intervals of normal numbers must give results a few ulps wide.
 
-Known bugs found by these tests are listed under "KNOWN BUGS" below. Each has a strict-xfail
-reproduction, and the property tests let through only that bug's exact signature (nothing
-else). When a bug is fixed, its reproduction XPASSes, which fails the suite: then set its
-flag to False, which also makes the property tests strict again.
+Bugs found by these tests are listed under "KNOWN BUGS" below with a flag each. While a flag
+is True its reproduction is a strict xfail and the property tests let through only that bug's
+exact signature (nothing else); once the bug is fixed the reproduction XPASSes, which fails
+the suite, and the flag is set to False: the reproduction becomes a regression test and the
+property tests are strict again. All three bugs below are fixed (flags False).
 """
 
 from __future__ import annotations
 
 import math
-import struct
 
 import mpmath
 import pytest
-from hypothesis import HealthCheck, assume, example, given, note, settings
+from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 from mpmath import mp, mpf
 
@@ -45,20 +45,21 @@ SETTINGS = dict(deadline=None, suppress_health_check=[HealthCheck.too_slow, Heal
 # product that is 0.0 without widening ("exact zero products need no widening"), but a product
 # of two non-zero numbers that underflows to 0 is not exact. Interval(1e-200) * Interval(1e-200)
 # returns [0, 0], which does not contain 1e-400. The same bug reaches `/` (1e-300 / 1e300),
-# `powi` (Interval(1e-200).powi(3) == [0, 0]) and div_extended.
-UNDERFLOW_PRODUCT_BUG = True
+# `powi` (Interval(1e-200).powi(3) == [0, 0]) and div_extended.  FIXED in b16fe0f.
+UNDERFLOW_PRODUCT_BUG = False
 
 # Interval.powf(r) for non-integer r > 0 clamps the lower end to f64::MIN_POSITIVE before the
 # logarithm (`positive = [max(lo, MIN_POSITIVE), hi]`). For a subnormal lower end the result's
 # lower bound is too high (Interval(1e-310, 1).powf(0.5).lo == 1.49e-154 > sqrt(1e-310) = 1e-155),
 # and for hi < MIN_POSITIVE the clamped interval is empty: Interval(1e-310).powf(0.5) and
 # Interval(0).powf(0.5) return empty / malformed intervals ((inf, -inf), (0, -inf)).
-POWF_SUBNORMAL_BUG = True
+# FIXED in b16fe0f.
+POWF_SUBNORMAL_BUG = False
 
 # Not unsound but wrong: Interval(1e-300).powi(-2) raises DomainError ("divisor's range contains
 # zero") because x^2 underflows and its enclosure [0, 5e-324] contains zero; the exact value
-# 1e600 is finite (the answer is [MAX, inf]).
-POWI_NEGATIVE_UNDERFLOW_BUG = True
+# 1e600 is finite (the answer is [MAX, inf]).  FIXED in b16fe0f.
+POWI_NEGATIVE_UNDERFLOW_BUG = False
 
 _TWO_M1070 = mpf(2) ** -1070
 
@@ -703,7 +704,7 @@ def test_zero_crossing_intervals():
 
 
 # --------------------------------------------------------------------------------------------
-# KNOWN BUG reproductions (strict xfail: these XPASS, i.e. fail the suite, once fixed)
+# Reproductions of the KNOWN BUGS (strict xfail while a flag is True; regression tests now)
 # --------------------------------------------------------------------------------------------
 
 
@@ -713,7 +714,7 @@ def test_zero_crossing_intervals():
     "'exact zero products need no widening'). Same for (-1e-200)*(1e-200), 1e-300/1e300, "
     "Interval(1e-200).powi(3), Interval(1e-100).powi(5)."))
 @pytest.mark.parametrize("case", ["mul", "mul_neg", "div", "powi3", "powi5", "div_extended"])
-def test_known_bug_underflowed_product(case):
+def test_regression_underflowed_product(case):
     with mp.workprec(PREC):
         x, exact = {
             "mul": (lambda: Interval(1e-200) * Interval(1e-200), M(1e-200) * M(1e-200)),
@@ -734,7 +735,7 @@ def test_known_bug_underflowed_product(case):
     "Interval(0.0).powf(0.5) returns (0, -inf)."))
 @pytest.mark.parametrize("p,r", [((1e-310, 1.0), 0.5), ((1e-310, 1e-310), 0.5), ((0.0, 1e-310), 0.5),
                                  ((0.0, 0.0), 0.5), ((MIN_SUB, 2.0), 0.9)])
-def test_known_bug_powf_subnormal(p, r):
+def test_regression_powf_subnormal(p, r):
     res = Interval(*p).powf(r)
     with mp.workprec(PREC):
         L, H = exact_powf(*p, r)
@@ -745,6 +746,6 @@ def test_known_bug_powf_subnormal(p, r):
     "Spurious DomainError: Interval(1e-300).powi(-2) raises 'division is undefined' because "
     "x^2 underflows to an enclosure containing 0; the exact value 1e600 is finite (expected "
     "[MAX, inf]). Not unsound, but wrong."))
-def test_known_bug_powi_negative_underflow():
+def test_regression_powi_negative_underflow():
     r = Interval(1e-300).powi(-2)
     assert r.hi == INF and r.lo <= MAX

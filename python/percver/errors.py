@@ -36,3 +36,7 @@ class MeasurementError(InputError):
 
 class MissingFileError(InputError, FileNotFoundError):
     """A file named by the user does not exist (also a ``FileNotFoundError``)."""
+
+
+class MissingDependencyError(PercverError, ImportError):
+    """An optional dependency (torch, gymnasium, pillow, matplotlib) is not installed; the message names the extra."""

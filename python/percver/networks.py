@@ -4,6 +4,12 @@ A :class:`Network` is a sequence of dense layers ``h <- act(W h + b)`` followed 
 elementwise output map ``y <- scale * h + offset``. Every reader (ONNX, Verisig ``.yml``) folds its
 file into this form, so float evaluation here and set evaluation in ``percver._core`` see exactly the
 same weights. Arrays are float64, C-contiguous and read-only: a network is a value, safe to share.
+
+An activation is one name for the whole layer or one name per neuron. Per-neuron activations exist
+for :meth:`Network.passthrough`: a stage of a perception chain that must carry inputs of later
+stages (a noise parameter, the velocity) past itself gets identity neurons for them, so that
+:func:`chain` can still compose everything into one network and :meth:`Network.bounds` propagates
+Taylor models through the whole chain without boxing in between.
 """
 
 from __future__ import annotations
@@ -13,6 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
+from percver import _core
 from percver.errors import InputError, MissingFileError, NetworkFormatError
 
 ACTIVATIONS = ("sigmoid", "tanh", "relu", "identity")
@@ -34,11 +41,14 @@ ACTIVATION_FUNCTIONS = {
 
 @dataclass(frozen=True, eq=False)
 class Layer:
-    """One dense layer ``activation(weight @ h + bias)``; ``weight`` has shape (n_out, n_in)."""
+    """One dense layer ``activation(weight @ h + bias)``; ``weight`` has shape (n_out, n_in).
+
+    ``activation`` is one name for every neuron, or a tuple with one name per neuron.
+    """
 
     weight: np.ndarray
     bias: np.ndarray
-    activation: str = "identity"
+    activation: str | tuple[str, ...] = "identity"
 
     @property
     def n_in(self) -> int:
@@ -47,6 +57,32 @@ class Layer:
     @property
     def n_out(self) -> int:
         return self.weight.shape[0]
+
+    @property
+    def activations(self) -> tuple[str, ...]:
+        """The activation of every neuron."""
+        if isinstance(self.activation, str):
+            return (self.activation,) * self.n_out
+        return self.activation
+
+    def uniform_activation(self, purpose: str) -> str:
+        """The layer's single activation; a per-neuron mix cannot be written in ``purpose``."""
+        if isinstance(self.activation, str):
+            return self.activation
+        raise NetworkFormatError(
+            f"{purpose} has one activation per layer, but this layer mixes {sorted(set(self.activation))} "
+            "per neuron (a passthrough); write the networks of the chain separately"
+        )
+
+    def _apply(self, z: np.ndarray) -> np.ndarray:
+        if isinstance(self.activation, str):
+            return ACTIVATION_FUNCTIONS[self.activation](z)
+        out = np.empty_like(z)
+        names = np.array(self.activation)
+        for name in set(self.activation):
+            columns = names == name
+            out[..., columns] = ACTIVATION_FUNCTIONS[name](z[..., columns])
+        return out
 
 
 def _finite_array(value, ndim: int, label: str) -> np.ndarray:
@@ -73,20 +109,33 @@ def _checked_layer(layer, index: int, where: str, n_prev: int | None) -> Layer:
             layer = Layer(*layer)
         except TypeError:
             raise NetworkFormatError(f"{label} must be a Layer or a (weight, bias, activation) tuple") from None
-    activation = layer.activation.lower() if isinstance(layer.activation, str) else layer.activation
-    if activation not in ACTIVATIONS:
-        raise NetworkFormatError(f"{label}: unknown activation {layer.activation!r}; expected one of {ACTIVATIONS}")
     weight = _finite_array(layer.weight, 2, f"{label} weight")
     bias = _finite_array(layer.bias, 1, f"{label} bias")
     if bias.shape[0] != weight.shape[0]:
         raise NetworkFormatError(
             f"{label}: bias has {bias.shape[0]} entries but weight has {weight.shape[0]} rows (weight is n_out x n_in)"
         )
+    activation = _checked_activation(layer.activation, label, weight.shape[0])
     if n_prev is not None and weight.shape[1] != n_prev:
         raise NetworkFormatError(
             f"{label}: weight has {weight.shape[1]} columns but layer {index - 1} has {n_prev} outputs"
         )
     return Layer(weight, bias, activation)
+
+
+def _checked_activation(value, label: str, n_out: int) -> str | tuple[str, ...]:
+    names = [value] if isinstance(value, str) else list(value) if isinstance(value, (list, tuple)) else [value]
+    lowered = [name.lower() if isinstance(name, str) else name for name in names]
+    for name in lowered:
+        if name not in ACTIVATIONS:
+            raise NetworkFormatError(f"{label}: unknown activation {name!r}; expected one of {ACTIVATIONS}")
+    if isinstance(value, str):
+        return lowered[0]
+    if len(lowered) != n_out:
+        raise NetworkFormatError(
+            f"{label}: {len(lowered)} activations for {n_out} neurons; give one name, or one per neuron"
+        )
+    return lowered[0] if len(set(lowered)) == 1 else tuple(lowered)
 
 
 def _checked_output_map(value, field: str, n_out: int, where: str) -> np.ndarray | None:
@@ -104,12 +153,13 @@ class Network:
     """A feed-forward network of dense layers with an optional output map ``scale * h + offset``.
 
     ``layers`` holds :class:`Layer` objects or ``(weight, bias, activation)`` tuples; activations are
-    ``"sigmoid"``, ``"tanh"``, ``"relu"`` or ``"identity"``. ``scale`` and ``offset`` are numbers or
-    one value per output (``None``: not applied). Layers are numbered from 1 in error messages, as in
-    Verisig files.
+    ``"sigmoid"``, ``"tanh"``, ``"relu"`` or ``"identity"`` (one per layer, or a tuple with one per
+    neuron). ``scale`` and ``offset`` are numbers or one value per output (``None``: not applied).
+    ``input_names`` name the inputs for :meth:`bounds` (default ``in0``, ``in1``, ...). Layers are
+    numbered from 1 in error messages, as in Verisig files.
     """
 
-    def __init__(self, layers, *, scale=None, offset=None, name: str | None = None, source=None):
+    def __init__(self, layers, *, scale=None, offset=None, name: str | None = None, source=None, input_names=None):
         self._source = Path(source) if source is not None else None
         where = f"{self._source}: " if self._source is not None else ""
         checked: list[Layer] = []
@@ -121,6 +171,8 @@ class Network:
         self._scale = _checked_output_map(scale, "scale", checked[-1].n_out, where)
         self._offset = _checked_output_map(offset, "offset", checked[-1].n_out, where)
         self._name = name if name is not None else (self._source.stem if self._source is not None else "network")
+        self._input_names = None if input_names is None else _checked_names(input_names, checked[0].n_in, self._name)
+        self._rust = None
 
     @property
     def layers(self) -> tuple[Layer, ...]:
@@ -133,6 +185,11 @@ class Network:
     @property
     def n_out(self) -> int:
         return self._layers[-1].n_out
+
+    @property
+    def input_names(self) -> tuple[str, ...]:
+        """Names of the inputs, as :meth:`bounds` accepts them in a box dict."""
+        return self._input_names or tuple(f"in{i}" for i in range(self.n_in))
 
     @property
     def scale(self) -> np.ndarray | None:
@@ -166,12 +223,124 @@ class Network:
             )
         h = x
         for layer in self._layers:
-            h = ACTIVATION_FUNCTIONS[layer.activation](h @ layer.weight.T + layer.bias)
+            h = layer._apply(h @ layer.weight.T + layer.bias)
         if self._scale is not None:
             h = h * self._scale
         if self._offset is not None:
             h = h + self._offset
         return h
+
+    def passthrough(self, extra) -> Network:
+        """This network with ``extra`` more inputs carried unchanged to ``extra`` more outputs.
+
+        ``extra`` is a count or a list of names for the new inputs. The new inputs come after the
+        network's own and reach the end of the outputs through identity neurons in every layer, so
+        a stage of a chain can hand a later stage what it does not use itself::
+
+            pv.chain(generator.passthrough(["delta", "v"]),     # (p, delta, v) -> (image, delta, v)
+                     contraster.passthrough(["v"]),             # (image, delta, v) -> (noisy, v)
+                     estimator.passthrough(["v"]),              # (noisy, v) -> (p_hat, v)
+                     controller)                                # (p_hat, v) -> u
+
+        Bounds stay exact for the carried values (identity rows add no approximation error).
+        """
+        if isinstance(extra, int) and not isinstance(extra, bool):
+            count, names = extra, [f"in{self.n_in + i}" for i in range(extra)]
+        else:
+            names = [str(n) for n in extra]
+            count = len(names)
+        if count < 1:
+            raise InputError(f"passthrough needs at least one extra input, got {extra!r}")
+        layers = []
+        for layer in self._layers:
+            weight = np.zeros((layer.n_out + count, layer.n_in + count))
+            weight[: layer.n_out, : layer.n_in] = layer.weight
+            weight[layer.n_out :, layer.n_in :] = np.eye(count)
+            bias = np.concatenate([layer.bias, np.zeros(count)])
+            layers.append(Layer(weight, bias, layer.activations + ("identity",) * count))
+        scale = None if self._scale is None else np.concatenate([self._scale, np.ones(count)])
+        offset = None if self._offset is None else np.concatenate([self._offset, np.zeros(count)])
+        return Network(
+            layers, scale=scale, offset=offset, name=f"{self._name}+passthrough", input_names=[*self.input_names, *names]
+        )
+
+    def with_input_names(self, names) -> Network:
+        """The same network with its inputs named ``names`` (for box dicts in :meth:`bounds`)."""
+        return Network(self._layers, scale=self._scale, offset=self._offset, name=self._name, source=self._source, input_names=names)
+
+    def _core(self):
+        if self._rust is None:
+            self._rust = _core.Network(
+                [(layer.weight, layer.bias, list(layer.activations)) for layer in self._layers],
+                None if self._scale is None else self._scale.tolist(),
+                None if self._offset is None else self._offset.tolist(),
+            )
+        return self._rust
+
+    def _box(self, box) -> list[tuple[float, float]]:
+        names = self.input_names
+        if isinstance(box, dict):
+            unknown = [k for k in box if k not in names]
+            missing = [n for n in names if n not in box]
+            if unknown or missing:
+                shown = ", ".join(names) if len(names) <= 8 else f"{names[0]} ... {names[-1]}"
+                raise InputError(
+                    f"network {self._name!r}: box names {unknown or 'no unknown inputs'} not among its inputs "
+                    f"({shown}); missing: {missing[:8] or 'none'}{' ...' if len(missing) > 8 else ''}"
+                )
+            box = [box[n] for n in names]
+        try:
+            pairs = [(float(lo), float(hi)) for lo, hi in box]
+        except (TypeError, ValueError):
+            raise InputError(f"network {self._name!r}: a box is a dict or list of (lo, hi) pairs") from None
+        if len(pairs) != self.n_in:
+            raise InputError(f"network {self._name!r} takes {self.n_in} inputs, the box has {len(pairs)} intervals")
+        return pairs
+
+    def _settings(self, order, symbolic, max_vars, pieces) -> dict:
+        splits = []
+        for name, count in (pieces or {}).items():
+            if name not in self.input_names:
+                raise InputError(f"network {self._name!r}: cannot split {name!r}, not an input ({', '.join(self.input_names[:8])})")
+            splits.append((self.input_names.index(name), int(count)))
+        return dict(order=order, symbolic=symbolic, max_vars=max_vars, splits=splits)
+
+    def bounds(self, box, method: str = "taylor", order: int = 5, *, pieces=None, symbolic: bool = True, max_vars: int = 4):
+        """Sound bounds of every output over an input box: a list of ``(lo, hi)``.
+
+        ``box`` is a dict ``{name: (lo, hi)}`` over :attr:`input_names`, a list of ``(lo, hi)`` in
+        input order, or the result of :meth:`taylor_models` of a preceding network (no boxing in
+        between). ``method``: ``"taylor"`` (direct Taylor-model propagation), ``"verisig"`` (each
+        sigmoid/tanh neuron integrated as Verisig's ODE; slower, a cross-check) or ``"interval"``
+        (naive interval arithmetic, the baseline). ``order`` is the Taylor-model order;
+        ``pieces={name: k}`` splits an input into k equal pieces (the layers before the first
+        nonlinear neuron that depends on it are computed once) and returns the hull. The
+        ``max_vars`` widest inputs are polynomial variables, the others enter linearly as error
+        symbols; ``symbolic=False`` boxes activation errors into remainders instead of keeping them.
+        """
+        settings = self._settings(order, symbolic, max_vars, pieces)
+        if isinstance(box, _core.NetworkModels):
+            if len(box) != self.n_in:
+                raise InputError(f"network {self._name!r} takes {self.n_in} inputs, the models have {len(box)} outputs")
+            if pieces:
+                raise InputError("pieces= splits a box; Taylor-model inputs cannot be split")
+            return self._core().bounds(box, method, **settings)
+        return self._core().bounds(self._box(box), method, **settings)
+
+    def taylor_models(self, box, method: str = "taylor", order: int = 5, *, symbolic: bool = True, max_vars: int = 4):
+        """The outputs as Taylor models over the box's variables (``percver._core.NetworkModels``).
+
+        Pass them as the box of the next network's :meth:`bounds` or :meth:`taylor_models` to
+        propagate through several networks without boxing; ``.bounds()`` gives their ranges,
+        ``.variables`` the map from inputs to polynomial variables.
+        """
+        settings = self._settings(order, symbolic, max_vars, None)
+        del settings["splits"]
+        if isinstance(box, _core.NetworkModels):
+            if len(box) != self.n_in:
+                raise InputError(f"network {self._name!r} takes {self.n_in} inputs, the models have {len(box)} outputs")
+            return self._core().models(box, method, **settings)
+        return self._core().models(self._box(box), method, **settings)
 
     def to_onnx(self, path) -> None:
         """Write a float64 ONNX graph (one Gemm per layer) that onnxruntime and :func:`load_network` read."""
@@ -186,10 +355,22 @@ class Network:
         write_verisig_yaml(self, path)
 
     def __repr__(self) -> str:
-        parts = [str(self.n_in)] + [f"{layer.n_out} {layer.activation}" for layer in self._layers]
+        def describe(layer: Layer) -> str:
+            if isinstance(layer.activation, str):
+                return f"{layer.n_out} {layer.activation}"
+            return f"{layer.n_out} " + "+".join(f"{layer.activations.count(a)} {a}" for a in dict.fromkeys(layer.activation))
+
+        parts = [str(self.n_in)] + [describe(layer) for layer in self._layers]
         if self._scale is not None or self._offset is not None:
             parts.append("scale/offset")
         return f"Network({self._name!r}: {' -> '.join(parts)})"
+
+
+def _checked_names(names, n_in: int, network: str) -> tuple[str, ...]:
+    names = tuple(str(n) for n in names)
+    if len(names) != n_in or len(set(names)) != n_in:
+        raise InputError(f"network {network!r} has {n_in} inputs: give as many distinct names, got {list(names)[:8]}")
+    return names
 
 
 def load_network(path) -> Network:
@@ -235,4 +416,10 @@ def chain(*networks: Network) -> Network:
             weight = weight * previous.scale
         layers += [Layer(weight, bias, first.activation), *rest]
     last = networks[-1]
-    return Network(layers, scale=last.scale, offset=last.offset, name=" -> ".join(n.name for n in networks))
+    return Network(
+        layers,
+        scale=last.scale,
+        offset=last.offset,
+        name=" -> ".join(n.name for n in networks),
+        input_names=networks[0]._input_names,
+    )

@@ -15,8 +15,54 @@
 //! |coefficients|, and the tail is bounded by Cauchy's estimate on a disc inside the strip where
 //! phi is analytic: |phi^(n)(x)| / n! <= M / rho^n for every real x. Pieces and K are chosen to
 //! make that tail negligible at the least cost, so narrow ranges need one piece.
+//!
+//! The rigorous arithmetic is midpoint-radius ("ball") arithmetic on floats: radii are summed
+//! and multiplied with upward rounding and absorb u |midpoint| per operation. It is several
+//! times cheaper than endpoint intervals, and this bound runs once per neuron.
 use std::sync::OnceLock;
+use taylor::interval::{add_up, mul_up};
+use taylor::tm::{gamma, U};
 use taylor::Interval;
+
+/// Smallest subnormal: the absolute error a product may lose to underflow.
+const ETA: f64 = 4.9406564584124654e-324;
+
+/// [m - r, m + r] with r an upper bound (rounded up) of the distance to the true value.
+#[derive(Clone, Copy, Debug)]
+struct Ball {
+    m: f64,
+    r: f64,
+}
+
+impl Ball {
+    const ZERO: Ball = Ball { m: 0.0, r: 0.0 };
+    fn point(m: f64) -> Ball {
+        Ball { m, r: 0.0 }
+    }
+    fn from_interval(x: Interval) -> Ball {
+        Ball { m: x.mid(), r: x.radius() }
+    }
+    fn mag(self) -> f64 {
+        add_up(self.m.abs(), self.r)
+    }
+    fn add(self, o: Ball) -> Ball {
+        let m = self.m + o.m;
+        Ball { m, r: add_up(add_up(self.r, o.r), mul_up(U, m.abs())) }
+    }
+    fn sub(self, o: Ball) -> Ball {
+        self.add(Ball { m: -o.m, r: o.r })
+    }
+    fn mul(self, o: Ball) -> Ball {
+        let m = self.m * o.m;
+        let spread = add_up(add_up(mul_up(self.m.abs(), o.r), mul_up(self.r, o.m.abs())), mul_up(self.r, o.r));
+        Ball { m, r: add_up(spread, add_up(mul_up(U, m.abs()), ETA)) }
+    }
+    /// self / k for an exact positive float k.
+    fn div(self, k: f64) -> Ball {
+        let m = self.m / k;
+        Ball { m, r: add_up((self.r / k).next_up(), add_up(mul_up(U, m.abs()), ETA)) }
+    }
+}
 
 /// The smooth activations (those that need a polynomial enclosure).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -37,10 +83,12 @@ pub struct PolyEnclosure {
 
 /// Highest expansion order of a piece (sizes the Chebyshev conversion table).
 const K_MAX: usize = 40;
-/// Most pieces per neuron; a range that would need more gets the constant enclosure.
-const MAX_PIECES: usize = 64;
-/// Target size of the truncated Taylor tail on each piece (absolute; phi is bounded by 1).
-const TAIL: f64 = 1e-11;
+/// The truncated Taylor tail of a piece is made this much smaller than the estimated fit error
+/// (so that the bound is within a few per cent of the truth), but need not go below TAIL_MIN.
+const TAIL_FRACTION: f64 = 0.1;
+const TAIL_MIN: f64 = 1e-15;
+/// Piece counts tried (more pieces, lower expansion order).
+const PIECES: [usize; 12] = [1, 2, 3, 4, 6, 8, 12, 16, 24, 32, 48, 64];
 
 impl Smooth {
     pub fn image(&self, x: Interval) -> Interval {
@@ -69,46 +117,34 @@ impl Smooth {
         }
     }
 
-    /// An upper bound of sup_x |phi^(n)(x)| / n! * h^n (n >= 1), rounded up.
-    fn tail(&self, n: usize, h: f64) -> f64 {
-        self.discs()
-            .iter()
-            .map(|&(rho, m)| ((Interval::point(h) * Interval::point(rho).recip().expect("rho > 0")).powi(n as i32).expect("n >= 0") * Interval::point(m)).hi())
-            .fold(f64::INFINITY, f64::min)
-    }
-
-    /// Cheap float estimate of the order needed for the tail on half-width h to reach TAIL.
-    fn order_for(&self, h: f64) -> Option<usize> {
-        self.discs()
-            .iter()
-            .filter(|&&(rho, _)| h < rho)
-            .map(|&(rho, m)| ((TAIL / m).ln() / (h / rho).ln()).ceil().max(1.0) as usize)
-            .min()
-            .map(|n| n.saturating_sub(1))
-            .filter(|&k| k <= K_MAX)
+    /// An upper bound of sup_x |phi^(n)(x)| / n! * h^n (n >= 1) from the disc `disc`.
+    fn tail(&self, disc: usize, n: usize, h: f64) -> f64 {
+        let (rho, m) = self.discs()[disc];
+        let ratio = (h / rho).next_up();
+        (0..n).fold(m, |acc, _| mul_up(acc, ratio))
     }
 
     /// Enclosures of phi^(j)(c) / j! for j = 0..=k, from the ODE phi' = phi - phi^2 (sigmoid)
     /// or phi' = 1 - phi^2 (tanh): (n + 1) y_{n+1} = [sigmoid] y_n or [tanh] [n = 0], minus the
     /// Cauchy product sum_i y_i y_{n-i}.
-    fn taylor(&self, c: f64, k: usize) -> Vec<Interval> {
+    fn taylor(&self, c: f64, k: usize) -> Vec<Ball> {
         let mut y = Vec::with_capacity(k + 1);
-        y.push(self.image(Interval::point(c)));
+        y.push(Ball::from_interval(self.image(Interval::point(c))));
         for n in 0..k {
-            let mut conv = Interval::ZERO;
+            let mut conv = Ball::ZERO;
             for i in 0..(n + 1) / 2 {
-                conv = conv + y[i] * y[n - i];
+                conv = conv.add(y[i].mul(y[n - i]));
             }
-            conv = conv * Interval::point(2.0);
+            conv = conv.add(conv);
             if n % 2 == 0 {
-                conv = conv + y[n / 2].sqr();
+                conv = conv.add(y[n / 2].mul(y[n / 2]));
             }
             let linear = match self {
                 Smooth::Sigmoid => y[n],
-                Smooth::Tanh if n == 0 => Interval::ONE,
-                Smooth::Tanh => Interval::ZERO,
+                Smooth::Tanh if n == 0 => Ball::point(1.0),
+                Smooth::Tanh => Ball::ZERO,
             };
-            y.push((linear - conv) * Interval::point((n + 1) as f64).recip().expect("n + 1 > 0"));
+            y.push(linear.sub(conv).div((n + 1) as f64));
         }
         y
     }
@@ -136,77 +172,134 @@ fn power_to_chebyshev() -> &'static Vec<Vec<f64>> {
 
 /// sum |Chebyshev coefficients| of the polynomial with power coefficients `p` on [-1, 1]: a
 /// bound of its magnitude there (|T_m| <= 1), far tighter than sum |p_j| for oscillating p.
-fn chebyshev_norm(p: &[Interval]) -> f64 {
+/// The conversion runs on the midpoints in floats; each x^n has non-negative Chebyshev
+/// coefficients summing to 1, so the radii add up to sum r_n, and the float error of all
+/// conversion sums together is at most gamma_(K+1) sum |m_n|.
+fn chebyshev_norm(p: &[Ball]) -> f64 {
     let table = power_to_chebyshev();
-    let mut cheb = vec![Interval::ZERO; p.len()];
-    for (n, &a) in p.iter().enumerate() {
+    let mut cheb = vec![0.0; p.len()];
+    let (mut radii, mut mags) = (0.0, 0.0);
+    for (n, b) in p.iter().enumerate() {
         for (m, &t) in table[n].iter().enumerate() {
-            if t != 0.0 {
-                cheb[m] = cheb[m] + a * Interval::point(t);
-            }
+            cheb[m] += t * b.m;
         }
+        radii = add_up(radii, b.r);
+        mags = add_up(mags, b.m.abs());
     }
-    cheb.iter().fold(0.0, |acc, c| taylor::interval::add_up(acc, c.mag()))
+    let sum = taylor::tm::abs_sum(&cheb);
+    let products = (p.len() * p.len()) as f64;
+    add_up(add_up(sum, radii), add_up(mul_up(gamma(p.len() + 1), mags), ETA * products))
 }
 
-/// Float Chebyshev interpolant of phi(c + tau / s) at d + 1 nodes, in the power basis of tau.
-fn interpolate(f: Smooth, c: f64, s: f64, d: usize) -> Vec<f64> {
-    let n = d + 1;
-    let angles: Vec<f64> = (0..n).map(|i| std::f64::consts::PI * (i as f64 + 0.5) / n as f64).collect();
-    let values: Vec<f64> = angles.iter().map(|a| f.eval(c + a.cos() / s)).collect();
-    let mut power = vec![0.0; n];
-    // T_m in the power basis, by T_1 = x T_0 and T_(m+1) = 2x T_m - T_(m-1).
-    let (mut t_prev, mut t_cur) = (vec![0.0; n], vec![0.0; n]);
-    t_cur[0] = 1.0;
+/// C2P[m] = power-basis coefficients of T_m (integers, exact in f64 for m <= K_MAX).
+fn chebyshev_to_power() -> &'static Vec<Vec<f64>> {
+    static TABLE: OnceLock<Vec<Vec<f64>>> = OnceLock::new();
+    TABLE.get_or_init(|| {
+        let mut rows: Vec<Vec<f64>> = vec![vec![1.0], vec![0.0, 1.0]];
+        for m in 2..=K_MAX {
+            let mut next = vec![0.0; m + 1];
+            for (j, &c) in rows[m - 1].iter().enumerate() {
+                next[j + 1] += 2.0 * c;
+            }
+            for (j, &c) in rows[m - 2].iter().enumerate() {
+                next[j] -= c;
+            }
+            rows.push(next);
+        }
+        rows
+    })
+}
+
+/// Float Chebyshev approximation of phi(c + tau / s) of degree d, in the power basis of tau:
+/// the interpolant at d + 3 nodes truncated to degree d, and the two dropped coefficients'
+/// magnitudes, an estimate of the fit error.
+fn interpolate(f: Smooth, c: f64, s: f64, d: usize) -> (Vec<f64>, f64) {
+    let n = d + 3;
+    let nodes: Vec<f64> = (0..n).map(|i| (std::f64::consts::PI * (i as f64 + 0.5) / n as f64).cos()).collect();
+    let values: Vec<f64> = nodes.iter().map(|&x| f.eval(c + x / s)).collect();
+    let table = chebyshev_to_power();
+    let mut power = vec![0.0; d + 1];
+    let mut estimate = 0.0;
+    // T_m at the nodes by T_(m+1) = 2x T_m - T_(m-1), in place.
+    let (mut t_prev, mut t_cur) = (vec![0.0; n], vec![1.0; n]);
     for m in 0..n {
         // Chebyshev coefficient by discrete orthogonality at the nodes.
-        let sum: f64 = angles.iter().zip(&values).map(|(a, v)| v * (m as f64 * a).cos()).sum();
+        let sum: f64 = t_cur.iter().zip(&values).map(|(t, v)| t * v).sum();
         let cm = sum * if m == 0 { 1.0 } else { 2.0 } / n as f64;
-        for j in 0..n {
-            power[j] += cm * t_cur[j];
+        if m > d {
+            estimate += cm.abs();
+        } else {
+            for (p, t) in power.iter_mut().zip(&table[m]) {
+                *p += cm * t;
+            }
         }
         let factor = if m == 0 { 1.0 } else { 2.0 };
-        let mut t_next = vec![0.0; n];
-        for j in 0..n {
-            if j + 1 < n {
-                t_next[j + 1] += factor * t_cur[j];
-            }
-            t_next[j] -= t_prev[j];
+        for i in 0..n {
+            let next = factor * nodes[i] * t_cur[i] - t_prev[i];
+            t_prev[i] = t_cur[i];
+            t_cur[i] = next;
         }
-        t_prev = std::mem::replace(&mut t_cur, t_next);
     }
-    power
+    (power, estimate)
 }
 
-/// Coefficients of q(tau_p + w) in w, for interval tau_p (repeated synthetic division).
-fn shift(q: &[f64], tau_p: Interval) -> Vec<Interval> {
-    let mut b: Vec<Interval> = q.iter().map(|&c| Interval::point(c)).collect();
+/// Coefficients of q(tau_p + w) in w (repeated synthetic division).
+fn shift(q: &[f64], tau_p: Ball) -> Vec<Ball> {
+    let mut b: Vec<Ball> = q.iter().map(|&c| Ball::point(c)).collect();
     let d = b.len();
     for i in 0..d {
         for j in (i..d.saturating_sub(1)).rev() {
-            b[j] = b[j] + tau_p * b[j + 1];
+            b[j] = b[j].add(tau_p.mul(b[j + 1]));
         }
     }
     b
 }
 
 /// max |phi(y) - q(s (y - c))| over y in [c_p - h_p, c_p + h_p], rounded up.
-fn piece_bound(f: Smooth, q: &[f64], c: f64, s: f64, c_p: f64, h_p: f64, k: usize) -> f64 {
+#[allow(clippy::too_many_arguments)]
+fn piece_bound(f: Smooth, q: &[f64], c: f64, s: f64, c_p: f64, h_p: f64, k: usize, disc: usize) -> f64 {
     let t = f.taylor(c_p, k);
-    let si = Interval::point(s);
-    let tau_p = si * (Interval::point(c_p) - Interval::point(c));
+    let si = Ball::point(s);
+    let tau_p = si.mul(Ball::point(c_p).sub(Ball::point(c)));
     let b = shift(q, tau_p);
-    let hp = Interval::point(h_p);
-    let shp = si * hp;
-    let (mut h_pow, mut sh_pow) = (Interval::ONE, Interval::ONE);
+    let hp = Ball::point(h_p);
+    let shp = si.mul(hp);
+    let (mut h_pow, mut sh_pow) = (Ball::point(1.0), Ball::point(1.0));
     let mut diff = Vec::with_capacity(k + 1);
     for (j, tj) in t.iter().enumerate() {
-        let bj = b.get(j).copied().unwrap_or(Interval::ZERO);
-        diff.push(*tj * h_pow - bj * sh_pow);
-        h_pow = h_pow * hp;
-        sh_pow = sh_pow * shp;
+        let bj = b.get(j).copied().unwrap_or(Ball::ZERO);
+        diff.push(tj.mul(h_pow).sub(bj.mul(sh_pow)));
+        h_pow = h_pow.mul(hp);
+        sh_pow = sh_pow.mul(shp);
     }
-    taylor::interval::add_up(chebyshev_norm(&diff), f.tail(k + 1, h_p))
+    add_up(chebyshev_norm(&diff), f.tail(disc, k + 1, h_p))
+}
+
+/// The (pieces, order, disc) of least cost N (K + 1)^2 whose Cauchy tail on pieces of half-width
+/// h / N is below `tail`: M (h / (N rho))^(K + 1) <= tail. A float estimate: the bound itself
+/// is computed rigorously afterwards.
+fn plan(f: Smooth, h: f64, tail: f64, degree: usize) -> Option<(usize, usize, usize)> {
+    let (ln_h, ln_tail) = (h.ln(), tail.ln());
+    let discs = f.discs();
+    let mut best: Option<(usize, usize, usize)> = None;
+    let cost = |n: usize, k: usize| n * (k + 1) * (k + 1);
+    for n in PIECES {
+        if best.is_some_and(|(bn, bk, _)| cost(n, degree) >= cost(bn, bk)) {
+            break;
+        }
+        let ln_hp = ln_h - (n as f64).ln();
+        for (d, &(rho, m)) in discs.iter().enumerate() {
+            let ln_ratio = ln_hp - rho.ln();
+            if ln_ratio >= 0.0 {
+                continue;
+            }
+            let k = (((ln_tail - m.ln()) / ln_ratio).ceil().max(1.0) as usize - 1).max(degree);
+            if k <= K_MAX && best.map_or(true, |(bn, bk, _)| cost(n, k) < cost(bn, bk)) {
+                best = Some((n, k, d));
+            }
+        }
+    }
+    best
 }
 
 /// The enclosure of phi on `range` by a polynomial of degree `degree` (bounded, non-empty range).
@@ -220,12 +313,9 @@ pub fn enclose(f: Smooth, range: Interval, degree: usize) -> PolyEnclosure {
     }
     // s <= 1 / h, so that |s (y - c)| <= 1 on the range.
     let s = Interval::point(h).recip().expect("h > 0").lo();
-    // Pieces and order of least cost N (K + 1)^2 whose Cauchy tail is negligible.
-    let best = (1..=MAX_PIECES)
-        .filter_map(|n| f.order_for(h / n as f64).map(|k| (n, k.max(degree))))
-        .min_by_key(|&(n, k)| n * (k + 1) * (k + 1));
-    let Some((pieces, k)) = best else { return constant() };
-    let q = interpolate(f, c, s, degree);
+    let (q, estimate) = interpolate(f, c, s, degree);
+    let tail = (estimate * TAIL_FRACTION).max(TAIL_MIN);
+    let Some((pieces, k, disc)) = plan(f, h, tail, degree) else { return constant() };
     let (lo, hi) = (range.lo(), range.hi());
     let mut err = 0.0f64;
     for i in 0..pieces {
@@ -233,7 +323,7 @@ pub fn enclose(f: Smooth, range: Interval, degree: usize) -> PolyEnclosure {
         let b = if i + 1 == pieces { hi } else { lo + (hi - lo) * ((i + 1) as f64 / pieces as f64) };
         let c_p = 0.5 * a + 0.5 * b;
         let h_p = (b - c_p).max(c_p - a).next_up();
-        err = err.max(piece_bound(f, &q, c, s, c_p, h_p, k));
+        err = err.max(piece_bound(f, &q, c, s, c_p, h_p, k, disc));
     }
     if !(err < image.radius()) {
         return constant();
@@ -308,10 +398,11 @@ mod tests {
     #[test]
     fn taylor_recurrence_matches_derivatives() {
         // sigmoid'(0) = 1/4, sigmoid'''(0)/6 = -1/48; tanh'(0) = 1, tanh'''(0)/6 = -1/3.
+        let contains = |b: Ball, x: f64| (b.m - x).abs() <= b.r;
         let s = Smooth::Sigmoid.taylor(0.0, 3);
-        assert!(s[1].contains(0.25) && s[2].contains(0.0) && s[3].contains(-1.0 / 48.0));
+        assert!(contains(s[1], 0.25) && contains(s[2], 0.0) && contains(s[3], -1.0 / 48.0));
         let t = Smooth::Tanh.taylor(0.0, 3);
-        assert!(t[1].contains(1.0) && t[3].contains(-1.0 / 3.0));
+        assert!(contains(t[1], 1.0) && contains(t[3], -1.0 / 3.0));
     }
 
     #[test]

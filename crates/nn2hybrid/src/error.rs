@@ -15,7 +15,7 @@ pub enum NetworkError {
     #[error("{0}")]
     Input(String),
     /// The Verisig translation could not integrate a neuron's ODE over t in [0, 1].
-    #[error("Verisig translation, layer {layer} neuron {neuron}: {reason}; try a lower order or split the input box")]
+    #[error("Verisig translation, layer {layer} neuron {neuron}: {reason}; split the input box (pieces=) or use the direct method")]
     Integration { layer: usize, neuron: usize, reason: String },
     #[error(transparent)]
     Taylor(#[from] TaylorError),

@@ -5,8 +5,11 @@
 //! [`activation`]); [`verisig`] does the same through the Verisig translation (each sigmoid or
 //! tanh neuron an ODE over fictitious time) and serves as a cross-check.
 pub mod activation;
+pub mod closed_loop;
 pub mod error;
 pub mod network;
+pub mod propagate;
+pub mod verisig;
 
 pub use error::{NetworkError, Result};
 pub use network::{Activation, Layer, LayerArrays, Network};

@@ -37,3 +37,22 @@ impl<T> IntoPy<T> for Result<T, TaylorError> {
         self.map_err(to_py)
     }
 }
+
+/// Network errors: shapes and values of the arrays are format errors, bad boxes or settings
+/// input errors, a Verisig neuron that cannot be integrated a blow-up.
+pub fn network_to_py(error: nn2hybrid::NetworkError) -> PyErr {
+    use nn2hybrid::NetworkError;
+    let class = match &error {
+        NetworkError::Taylor(e) => return to_py(e.clone()),
+        NetworkError::Shape { .. } | NetworkError::NonFinite { .. } => "NetworkFormatError",
+        NetworkError::Input(_) => "InputError",
+        NetworkError::Integration { .. } => "BlowUpError",
+    };
+    Python::with_gil(|py| percver_error(py, class, error.to_string()))
+}
+
+impl<T> IntoPy<T> for Result<T, nn2hybrid::NetworkError> {
+    fn py_err(self) -> PyResult<T> {
+        self.map_err(network_to_py)
+    }
+}

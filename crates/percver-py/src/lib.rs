@@ -6,6 +6,8 @@ mod error;
 mod expr;
 mod flowpipe;
 mod interval;
+mod network;
+mod verify;
 
 #[pymodule]
 fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
@@ -20,5 +22,9 @@ fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(expr::taylor_models, m)?)?;
     m.add_function(wrap_pyfunction!(expr::parse_condition, m)?)?;
     m.add_function(wrap_pyfunction!(flowpipe::flowpipe, m)?)?;
+    m.add_class::<network::PyNetwork>()?;
+    m.add_class::<network::PyNetworkModels>()?;
+    m.add_class::<verify::PyClosedLoop>()?;
+    m.add_function(wrap_pyfunction!(verify::verify_cells, m)?)?;
     Ok(())
 }

@@ -44,7 +44,9 @@ fn lower(p: &TaylorModel, space: &Space) -> f64 {
         let mut nonlinear = q.clone();
         let linear: Vec<f64> = (0..space.nvars).map(|v| q.linear_coefficient(&sym, v)).collect();
         for v in 0..space.nvars {
-            nonlinear.coef[sym.var_index(v)] = 0.0;
+            if let Some(c) = nonlinear.coef.get_mut(sym.var_index(v)) {
+                *c = 0.0;
+            }
         }
         let nb = nonlinear.bound(&sym);
         let w = (nb.hi() - nb.lo()).next_up();
@@ -80,6 +82,18 @@ fn lower(p: &TaylorModel, space: &Space) -> f64 {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn short_coefficient_vectors_do_not_panic() {
+        // x0 * x1 re-expanded on a degenerate box can lose every term past x0.
+        let space = Space::get(3, 3, 0).unwrap();
+        let ctx = Ctx::new(space.clone(), 3, 0.0);
+        let p = TaylorModel::var(&ctx, 0).mul(&TaylorModel::var(&ctx, 1), &ctx).scale(1e-300);
+        let r = range(&p, &space);
+        assert!(r.contains(0.0));
+        let short = TaylorModel { coef: vec![1.0, 0.5, 0.0, 0.0, 1e-3], rem: Interval::ZERO };
+        assert!(range(&short, &space).contains(1.5));
+    }
 
     #[test]
     fn tighter_than_naive_and_sound() {

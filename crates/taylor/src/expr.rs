@@ -260,6 +260,18 @@ impl Program {
 
     /// Runs the program on one algebra; returns one value per output.
     pub fn eval<A: Algebra>(&self, alg: &A, inputs: &[A::Value]) -> Result<Vec<A::Value>> {
+        let values = self.eval_all(alg, inputs)?;
+        Ok(self.outputs_of(&values))
+    }
+
+    /// The outputs among the values of every slot.
+    pub fn outputs_of<T: Clone>(&self, values: &[T]) -> Vec<T> {
+        self.outputs.iter().map(|&s| values[s].clone()).collect()
+    }
+
+    /// The value of every slot (for callers that inspect intermediate results, such as the
+    /// conditions of `where`).
+    pub fn eval_all<A: Algebra>(&self, alg: &A, inputs: &[A::Value]) -> Result<Vec<A::Value>> {
         if inputs.len() != self.inputs.len() {
             return Err(TaylorError::input(format!(
                 "expected {} inputs ({}), got {}",
@@ -285,7 +297,7 @@ impl Program {
             };
             v.push(value);
         }
-        Ok(self.outputs.iter().map(|&s| v[s].clone()).collect())
+        Ok(v)
     }
 }
 

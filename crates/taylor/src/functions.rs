@@ -8,8 +8,8 @@
 //!
 //! sigmoid, tanh and tan solve y' = Q(y) for a polynomial Q, so their n-th derivative is a
 //! polynomial P_n(y) with P_{n+1} = P_n' Q; that gives both the coefficients and the
-//! remainder. If the remainder alone comes out wider than the interval image of the argument's
-//! range (very wide arguments), the interval image is returned as a constant model.
+//! remainder. If the model is useless against the interval image of the argument's range (very
+//! wide arguments), the interval image is returned as a constant model.
 use crate::error::Result;
 use crate::interval::Interval;
 use crate::tm::{Ctx, TaylorModel};
@@ -126,10 +126,7 @@ impl Func {
             acc = acc.mul(&d, ctx).add(&TaylorModel::from_interval(coefficients[j]));
         }
         acc.rem = acc.rem + lagrange;
-        if !acc.rem.is_bounded() || acc.rem.width() > image.width() {
-            return Ok(TaylorModel::from_interval(image));
-        }
-        Ok(acc)
+        Ok(prefer_image(acc, image, space))
     }
 
     /// Enclosures of phi^(j)(c) / j! for j = 0..=k at the point interval c.
@@ -220,12 +217,13 @@ impl Func {
             // log^(n)(x) / n! = (-1)^(n+1) / (n x^n)
             Func::Log => {
                 let s = if n % 2 == 1 { 1.0 } else { -1.0 };
-                Interval::point(s) * (Interval::point(n as f64) * x.powi(n as i32)?).recip()?
+                // (1/x)^n rather than 1/x^n: x^n may underflow to an enclosure of 0.
+                Interval::point(s) * x.recip()?.powi(n as i32)? * Interval::point(n as f64).recip()?
             }
             // (1/x)^(n) / n! = (-1)^n / x^(n+1)
             Func::Recip => {
                 let s = if n % 2 == 0 { 1.0 } else { -1.0 };
-                Interval::point(s) * x.powi(n as i32 + 1)?.recip()?
+                Interval::point(s) * x.recip()?.powi(n as i32 + 1)?
             }
             Func::Sqrt => power_coefficient(0.5, n)? * x.powf(0.5 - n as f64)?,
             Func::Sin | Func::Cos => {
@@ -316,10 +314,18 @@ pub fn powf_tm(x: &TaylorModel, r: f64, ctx: &Ctx) -> Result<TaylorModel> {
         acc = acc.mul(&d, ctx).add(&TaylorModel::from_interval(a[j]));
     }
     acc.rem = acc.rem + lagrange;
-    if !acc.rem.is_bounded() || acc.rem.width() > image.width() {
-        return Ok(TaylorModel::from_interval(image));
+    Ok(prefer_image(acc, image, space))
+}
+
+/// The Taylor model, unless it is useless against the plain interval image of the argument's
+/// range: its remainder alone wider than the image, or its whole range more than twice as wide
+/// (wide arguments, where a Taylor expansion at one point cannot follow the function).
+fn prefer_image(model: TaylorModel, image: Interval, space: &crate::space::Space) -> TaylorModel {
+    if !model.rem.is_bounded() || model.rem.width() > image.width() || model.bound(space).width() > 2.0 * image.width() {
+        TaylorModel::from_interval(image)
+    } else {
+        model
     }
-    Ok(acc)
 }
 
 /// a / b as a * (1 / b).

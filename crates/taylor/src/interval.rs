@@ -471,9 +471,14 @@ impl Mul for Interval {
         // that underflowed to 0.0 must still be widened to the neighbouring subnormals.
         let p = |a: f64, b: f64| -> (f64, f64) {
             if a == 0.0 || b == 0.0 {
-                (0.0, 0.0)
+                return (0.0, 0.0);
+            }
+            let x = a * b;
+            // An exact product (the fused a*b - x is 0 and x is far from underflow) needs no
+            // widening; this keeps products of small integers and dyadic numbers tight.
+            if x.is_finite() && x.abs() > 1e-290 && a.mul_add(b, -x) == 0.0 {
+                (x, x)
             } else {
-                let x = a * b;
                 (down(x), up(x))
             }
         };
@@ -524,7 +529,8 @@ mod tests {
 
     #[test]
     fn product_signs_and_zero_anchoring() {
-        assert_eq!((iv(-2.0, 3.0) * iv(-1.0, 4.0)).lo(), down(-8.0));
+        assert_eq!((iv(-2.0, 3.0) * iv(-1.0, 4.0)).lo(), -8.0); // exact products stay exact
+        assert!((iv(0.1, 0.1) * iv(0.3, 0.3)).width() > 0.0); // inexact ones are widened
         let z = iv(0.0, 2.0) * iv(0.0, 3.0);
         assert_eq!(z.lo(), 0.0);
         let e = Interval::EMPTY * iv(1.0, 2.0);

@@ -426,8 +426,9 @@ def write_onnx(network: Network, path) -> None:
     for i, layer in enumerate(network.layers, start=1):
         weight, bias = constant(f"layer{i}.weight", layer.weight), constant(f"layer{i}.bias", layer.bias)
         emit("Gemm", [weight, bias], f"layer{i}.gemm", transB=1)
-        if layer.activation != "identity":
-            emit(_ACTIVATION_OP_NAMES[layer.activation], [], f"layer{i}.{layer.activation}")
+        activation = layer.uniform_activation("the ONNX writer")
+        if activation != "identity":
+            emit(_ACTIVATION_OP_NAMES[activation], [], f"layer{i}.{activation}")
     if network.scale is not None:
         emit("Mul", [constant("output.scale", network.scale)], "output.mul")
     if network.offset is not None:

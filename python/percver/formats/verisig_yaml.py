@@ -134,7 +134,9 @@ def write_verisig_yaml(network: Network, path) -> None:
         offset = network.offset if network.offset is not None else np.zeros(n)
         layers.append(Layer(np.diag(scale), offset, "identity"))
     document = {
-        "activations": {i: _TO_VERISIG[layer.activation] for i, layer in enumerate(layers, start=1)},
+        "activations": {
+            i: _TO_VERISIG[layer.uniform_activation("the Verisig format")] for i, layer in enumerate(layers, start=1)
+        },
         "offsets": {i: layer.bias.tolist() for i, layer in enumerate(layers, start=1)},
         "weights": {i: layer.weight.tolist() for i, layer in enumerate(layers, start=1)},
     }

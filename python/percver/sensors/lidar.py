@@ -128,6 +128,27 @@ class Track:
         return out
 
 
+# Floor on the approach speed of a ray toward a wall's line in ``Lidar.exprs``: keeps every
+# division finite on sets; exact on floats farther than max_range * _GRAZING from the line.
+_GRAZING = 1e-12
+
+
+def _affine(constant: float, *terms):
+    """``constant + sum(coefficient * expression)`` as an expression, leaving out zero terms
+    (axis-aligned walls have zero components) so that the DAG stays small."""
+    from percver import expr as px
+
+    total = None
+    for coefficient, value in terms:
+        if coefficient == 0.0:
+            continue
+        term = value if coefficient == 1.0 else -value if coefficient == -1.0 else coefficient * value
+        total = term if total is None else total + term
+    if total is None:
+        return px.as_expr(constant)
+    return total + constant if constant != 0.0 else total
+
+
 def _wrap(angle):
     return (np.asarray(angle) + np.pi) % (2 * np.pi) - np.pi
 
@@ -244,10 +265,80 @@ class Lidar:
             out.cos_incidence[rows] = np.where(hit, cos, np.nan)
         return out
 
+    def ranges(self, track: Track, x, y, theta) -> np.ndarray:
+        """``cast(...).range`` (N x R, inf where nothing is hit) computing only what the range
+        needs, for hot loops such as particle filters: the same t and the same tests as ``cast``
+        (``u`` in [0, 1] checked as ``u * det**2`` against ``det**2``, without dividing)."""
+        x, y, theta = (np.atleast_1d(np.asarray(v, dtype=float)) for v in (x, y, theta))
+        n, n_rays = len(x), len(self.angles)
+        p0 = track.segments[:, 0]
+        ex, ey = (track.segments[:, 1] - p0).T
+        out = np.empty((n, n_rays))
+        block = max(1, _BLOCK // (n_rays * len(p0)))
+        for lo in range(0, n, block):
+            rows = slice(lo, min(n, lo + block))
+            angle = theta[rows, None] + self.angles[None, :]
+            dx, dy = np.cos(angle)[..., None], np.sin(angle)[..., None]
+            wx = (p0[:, 0] - x[rows, None])[:, None, :]
+            wy = (p0[:, 1] - y[rows, None])[:, None, :]
+            det = dx * ey - dy * ex
+            numerator = wx * ey - wy * ex
+            with np.errstate(divide="ignore", invalid="ignore"):
+                t = numerator / det
+            u_scaled = (wx * dy - wy * dx) * det
+            valid = (np.abs(det) > 1e-12) & (t > 0) & (u_scaled >= 0) & (u_scaled <= det * det)
+            out[rows] = np.where(valid, t, np.inf).min(axis=-1)
+        return out
+
     def scan(self, track: Track, states) -> np.ndarray:
         """Canonical ranges (N x R), clipped at ``max_range``."""
         states = np.atleast_2d(np.asarray(states, dtype=float))
         return np.minimum(self.cast(track, states[:, 0], states[:, 1], states[:, 2]).range, self.max_range)
+
+    def exprs(self, track: Track, x, y, theta) -> list:
+        """The canonical ranges as expressions of the pose, one per ray, for verification.
+
+        ``x``, ``y``, ``theta`` are expressions (``pv.variables``) or variable names; any
+        expressions of other variables work too, e.g. hallway-local coordinates. The form is the
+        hybrid model of the paper's Appendix B.2 written with ``pv.where``: for every wall, the
+        distance along the ray to the wall's line counts only where the hit lies on the wall
+        (which wall a ray hits depends on the pose), and the ray reads the nearest such hit,
+        clipped at ``max_range``. On floats it equals ``scan`` (up to rounding) except within
+        ``max_range * _GRAZING`` metres of a wall's line, where ``scan`` is ill-conditioned too.
+
+        No branch divides by a quantity that can vanish (a ray parallel to a wall reads
+        ``max_range`` through a floor on the denominator), so interval and Taylor-model
+        evaluation stay finite whichever way a condition is decided.
+        """
+        from percver import expr as px
+
+        x, y, theta = (px.Expr.var(v) if isinstance(v, str) else px.as_expr(v) for v in (x, y, theta))
+        limit = self.max_range
+        walls = []
+        for (x0, y0), (x1, y1) in track.segments:
+            length = float(np.hypot(x1 - x0, y1 - y0))
+            ex, ey = (x1 - x0) / length, (y1 - y0) / length
+            nx, ny = -ey, ex
+            # Signed distance from the pose to the wall's line along its left normal, and the
+            # pose's position along the wall.
+            gap = _affine(nx * x0 + ny * y0, (-nx, x), (-ny, y))
+            along = _affine(-(ex * x0 + ey * y0), (ex, x), (ey, y))
+            walls.append((gap, px.abs_(gap), along, (nx, ny), (ex, ey), length))
+        out = []
+        for alpha in self.angles:
+            heading = theta + float(alpha)
+            c, s = px.cos(heading), px.sin(heading)
+            nearest = None
+            for gap, distance, along, (nx, ny), (ex, ey), length in walls:
+                toward = _affine(0.0, (nx, c), (ny, s))  # speed at which the ray approaches the line
+                toward = px.where(gap >= 0, toward, -toward)
+                # t <= limit by construction: a ray that cannot reach the line within range reads the limit.
+                t = distance / px.maximum(px.maximum(toward, distance / limit), _GRAZING)
+                hit_at = along + t * _affine(0.0, (ex, c), (ey, s))
+                reading = px.where(hit_at >= 0.0, px.where(hit_at <= length, t, limit), limit)
+                nearest = reading if nearest is None else px.minimum(nearest, reading)
+            out.append(nearest)
+        return out
 
 
 class LidarModel(SensorModel):

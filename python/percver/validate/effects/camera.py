@@ -21,7 +21,10 @@ class ImageEffect(Effect):
 
 class Contrast(ImageEffect):
     """Lighting contrast: pixel values move away from (``factor`` > 1) or towards (< 1) the image's
-    mean grey, as PIL's ``ImageEnhance.Contrast`` does (0 gives a flat grey image)."""
+    mean grey, as PIL's ``ImageEnhance.Contrast`` does (0 gives a flat grey image).
+
+    Unlike PIL, no 8-bit rounding, so that the factor fits smoothly; the Mountain Car training data
+    (``percver.cases.mountain_car.contrast``) calls PIL itself, as the paper did."""
 
     name = "contrast"
     stage = 1
@@ -71,10 +74,20 @@ class Blur(ImageEffect):
             moved = states.copy()
             moved[:, column] += sign * delta
             shifted.append(model.images(moved, before))
-        overlay = 0.5 * shifted[0] + images + 0.5 * shifted[1]
-        low = overlay.min(axis=(1, 2), keepdims=True)
-        span = overlay.max(axis=(1, 2), keepdims=True) - low
-        return (overlay - low) / np.where(span > 0, span, 1.0)
+        return motion_blur(shifted[0], images, shifted[1])
+
+
+def motion_blur(left, centre, right):
+    """The paper's blur (Appendix A.3) of image stacks (N x H x W): ``0.5 left + centre + 0.5 right``,
+    each image then rescaled to [0, 1] (a flat image stays as it is, shifted to 0).
+
+    ``left`` and ``right`` are the scene rendered at position ``-/+ delta``. The Mountain Car case
+    study builds its training data with this function too, so fitted and generated blur agree.
+    """
+    overlay = 0.5 * np.asarray(left) + np.asarray(centre) + 0.5 * np.asarray(right)
+    low = overlay.min(axis=(-2, -1), keepdims=True)
+    span = overlay.max(axis=(-2, -1), keepdims=True) - low
+    return (overlay - low) / np.where(span > 0, span, 1.0)
 
 
 class Shift(ImageEffect):

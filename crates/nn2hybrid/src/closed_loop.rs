@@ -1,0 +1,373 @@
+//! Closed-loop reachability of discrete-time perception-control loops, cell by cell.
+//!
+//! A loop is: state x (plant states and noise parameters, which have zero dynamics), a chain of
+//! stages (networks or expressions) computing named signals from the state and earlier
+//! signals, and a plant map x+ = f(x, signals). The state of one cell is a vector of Taylor
+//! models over the cell's normalised box, so the dependency between the state and everything
+//! computed from it survives from step to step (no boxing in between); networks are applied
+//! to Taylor models directly ([`crate::propagate`]) or through the Verisig translation
+//! ([`crate::verisig`]). Piecewise plant definitions (`where`, `clip`) take the hull of both
+//! branches when the condition is undecided on the set, which is sound; each such step is
+//! counted as a branch.
+use crate::error::{NetworkError, Result};
+use crate::network::Network;
+use crate::propagate::{self, Models, Settings as NnSettings};
+use crate::verisig;
+use rayon::prelude::*;
+use std::sync::Arc;
+use std::time::Instant;
+use taylor::expr::TaylorModels;
+use taylor::{Cmp, Ctx, Interval, Program, Space, TaylorModel};
+
+#[derive(Clone, Debug)]
+pub enum Component {
+    Network(Arc<Network>),
+    Expr(Arc<Program>),
+}
+
+/// A stage reads signals at `inputs` (indices into the environment: the state first, then
+/// the outputs of earlier stages in order) and appends its outputs to the environment.
+#[derive(Clone, Debug)]
+pub struct Stage {
+    pub component: Component,
+    pub inputs: Vec<usize>,
+}
+
+impl Stage {
+    fn n_out(&self) -> usize {
+        match &self.component {
+            Component::Network(n) => n.n_out(),
+            Component::Expr(p) => p.outputs.len(),
+        }
+    }
+}
+
+/// `margin cmp 0` must hold; `margin` is a program over the state.
+#[derive(Clone, Debug)]
+pub struct Condition {
+    pub margin: Arc<Program>,
+    pub cmp: Cmp,
+    pub label: String,
+}
+
+#[derive(Clone, Debug)]
+pub struct ClosedLoop {
+    pub state_names: Vec<String>,
+    pub stages: Vec<Stage>,
+    /// Inputs: the whole environment; outputs: the next state, in state order.
+    pub plant: Arc<Program>,
+    /// Must hold at step 0 and after every step.
+    pub safe: Vec<Condition>,
+    /// Must hold after the last step, or at some step if `goal_within`.
+    pub goal: Option<Condition>,
+    pub goal_within: bool,
+    pub steps: usize,
+}
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Method {
+    Taylor,
+    Verisig,
+}
+
+#[derive(Clone, Debug)]
+pub struct CellSettings {
+    pub order: usize,
+    pub cutoff: f64,
+    pub method: Method,
+    pub nn: NnSettings,
+    pub timeout: Option<f64>,
+    /// Widths beyond which a state enclosure counts as blown up.
+    pub blow_up_width: f64,
+}
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Verdict {
+    /// Every state of the cell satisfies the property.
+    Verified,
+    /// The engine could not decide; `reason` says where.
+    Unknown,
+    /// Every state of the cell violates the property at some step (certain, set-level).
+    Violated,
+}
+
+#[derive(Clone, Debug)]
+pub struct CellOutcome {
+    pub verdict: Verdict,
+    pub reason: Option<String>,
+    /// Steps completed (the reach boxes cover steps 0..=steps_done).
+    pub steps_done: usize,
+    /// State box per step, step 0 first.
+    pub boxes: Vec<Vec<Interval>>,
+    pub seconds: f64,
+    pub nn_seconds: f64,
+    pub branches: usize,
+}
+
+impl ClosedLoop {
+    /// Checks indices and widths once, before any work.
+    pub fn validate(&self) -> Result<()> {
+        let n = self.state_names.len();
+        if n == 0 {
+            return Err(NetworkError::input("the closed loop has no state variables"));
+        }
+        let mut env = n;
+        for (k, stage) in self.stages.iter().enumerate() {
+            if let Some(&bad) = stage.inputs.iter().find(|&&i| i >= env) {
+                return Err(NetworkError::input(format!("stage {}: input index {bad} is not computed before it", k + 1)));
+            }
+            let want = match &stage.component {
+                Component::Network(net) => net.n_in(),
+                Component::Expr(p) => p.inputs.len(),
+            };
+            if want != stage.inputs.len() {
+                return Err(NetworkError::input(format!(
+                    "stage {}: the component takes {want} inputs but {} are wired to it",
+                    k + 1,
+                    stage.inputs.len()
+                )));
+            }
+            env += stage.n_out();
+        }
+        if self.plant.inputs.len() != env || self.plant.outputs.len() != n {
+            return Err(NetworkError::input(format!(
+                "the plant must read the {env} signals of the loop and define all {n} states, got {} inputs and {} outputs",
+                self.plant.inputs.len(),
+                self.plant.outputs.len()
+            )));
+        }
+        for c in self.safe.iter().chain(self.goal.iter()) {
+            if c.margin.inputs.len() != n || c.margin.outputs.len() != 1 {
+                return Err(NetworkError::input(format!("property '{}' must be one expression over the state", c.label)));
+            }
+        }
+        Ok(())
+    }
+}
+
+fn decide(c: &Condition, state: &[TaylorModel], ctx: &Ctx) -> Result<Option<bool>> {
+    let m = c.margin.eval(&TaylorModels { ctx }, state)?;
+    let range = taylor::bound::range(&m[0], &ctx.space);
+    Ok(c.cmp.decide(range))
+}
+
+/// Output Taylor models of a network in `ctx`; the Verisig route adds a time variable, which
+/// is evaluated at t = 1 and dropped again.
+fn apply_network(net: &Network, inputs: &[TaylorModel], ctx: &Ctx, settings: &CellSettings) -> Result<Vec<TaylorModel>> {
+    let models = Models::from_taylor_models(inputs, ctx)?;
+    let out = match settings.method {
+        Method::Taylor => propagate::propagate(net, &models, &settings.nn)?,
+        Method::Verisig => verisig::propagate(net, &models, &settings.nn)?,
+    };
+    let space = out.space().clone();
+    if space.nvars == ctx.space.nvars {
+        return Ok(out.to_taylor_models());
+    }
+    let t = out.time_var().ok_or_else(|| NetworkError::input("Verisig output has an unexpected variable layout"))?;
+    let big = Ctx::new(space.clone(), ctx.order, ctx.cutoff);
+    let index: std::collections::HashMap<&[u8], usize> =
+        (0..ctx.space.len_upto(ctx.order)).map(|k| (ctx.space.exponents(k), k)).collect();
+    Ok(out
+        .to_taylor_models()
+        .iter()
+        .map(|m| {
+            let at_end = m.substitute(t, Interval::ONE, &big);
+            let mut coef = vec![0.0; ctx.space.len_upto(ctx.order)];
+            for (k, &c) in at_end.coef.iter().enumerate() {
+                if c != 0.0 {
+                    let e = space.exponents(k);
+                    let mut key = e.to_vec();
+                    key.remove(t);
+                    coef[index[&key[..]]] += c;
+                }
+            }
+            TaylorModel { coef, rem: at_end.rem }
+        })
+        .collect())
+}
+
+/// Runs one cell: the initial box `cell` (one interval per state variable).
+pub fn verify_cell(lp: &ClosedLoop, cell: &[Interval], settings: &CellSettings) -> CellOutcome {
+    let started = Instant::now();
+    let mut out = CellOutcome {
+        verdict: Verdict::Unknown,
+        reason: None,
+        steps_done: 0,
+        boxes: Vec::new(),
+        seconds: 0.0,
+        nn_seconds: 0.0,
+        branches: 0,
+    };
+    let result = run(lp, cell, settings, &mut out, started);
+    if let Err(e) = result {
+        out.verdict = Verdict::Unknown;
+        out.reason = Some(format!("step {}: {e}", out.steps_done + 1));
+    }
+    out.seconds = started.elapsed().as_secs_f64();
+    out
+}
+
+fn run(lp: &ClosedLoop, cell: &[Interval], settings: &CellSettings, out: &mut CellOutcome, started: Instant) -> Result<()> {
+    let n = lp.state_names.len();
+    if cell.len() != n {
+        return Err(NetworkError::input(format!("cell has {} intervals for {n} state variables", cell.len())));
+    }
+    let space = Space::get(n, settings.order, 0)?;
+    let ctx = Ctx::new(space.clone(), settings.order, settings.cutoff);
+    let mut state: Vec<TaylorModel> = cell
+        .iter()
+        .enumerate()
+        .map(|(v, iv)| {
+            let m = iv.mid();
+            let r = (iv.hi() - m).max(m - iv.lo()).next_up();
+            if r == 0.0 {
+                TaylorModel::constant(m)
+            } else {
+                TaylorModel::affine(&ctx, m, v, r)
+            }
+        })
+        .collect();
+    out.boxes.push(cell.to_vec());
+    let mut goal_met = false;
+    for step in 0..=lp.steps {
+        // Properties on the current state (step 0 is the initial set).
+        for c in &lp.safe {
+            match decide(c, &state, &ctx)? {
+                Some(true) => {}
+                Some(false) => {
+                    out.verdict = Verdict::Violated;
+                    out.reason = Some(format!("step {step}: '{}' is violated by the whole set", c.label));
+                    return Ok(());
+                }
+                None => {
+                    out.reason = Some(format!("step {step}: '{}' could not be decided (reach box {})", c.label, describe(&lp.state_names, out.boxes.last().unwrap())));
+                    return Ok(());
+                }
+            }
+        }
+        if let Some(g) = &lp.goal {
+            if lp.goal_within || step == lp.steps {
+                match decide(g, &state, &ctx)? {
+                    Some(true) => {
+                        goal_met = true;
+                        if lp.goal_within {
+                            break;
+                        }
+                    }
+                    Some(false) if step == lp.steps => {
+                        out.verdict = Verdict::Violated;
+                        out.reason = Some(format!("step {step}: goal '{}' fails on the whole set", g.label));
+                        return Ok(());
+                    }
+                    _ if step == lp.steps => {
+                        out.reason = Some(format!("step {step}: goal '{}' could not be decided (reach box {})", g.label, describe(&lp.state_names, out.boxes.last().unwrap())));
+                        return Ok(());
+                    }
+                    _ => {}
+                }
+            }
+        }
+        if step == lp.steps {
+            break;
+        }
+        if let Some(limit) = settings.timeout {
+            if started.elapsed().as_secs_f64() > limit {
+                out.reason = Some(format!("timeout after {limit} s at step {step}"));
+                return Ok(());
+            }
+        }
+        // One step: stages, then the plant.
+        let mut env = state.clone();
+        for stage in &lp.stages {
+            let inputs: Vec<TaylorModel> = stage.inputs.iter().map(|&i| env[i].clone()).collect();
+            let outputs = match &stage.component {
+                Component::Network(net) => {
+                    let t = Instant::now();
+                    let o = apply_network(net, &inputs, &ctx, settings)?;
+                    out.nn_seconds += t.elapsed().as_secs_f64();
+                    o
+                }
+                Component::Expr(p) => p.eval(&TaylorModels { ctx: &ctx }, &inputs)?,
+            };
+            env.extend(outputs);
+        }
+        let values = lp.plant.eval_all(&TaylorModels { ctx: &ctx }, &env)?;
+        out.branches += count_undecided(&lp.plant, &values, &ctx);
+        state = lp.plant.outputs_of(&values);
+        for m in state.iter_mut() {
+            m.sweep(&ctx);
+        }
+        let b: Vec<Interval> = state.iter().map(|m| m.bound(&space)).collect();
+        out.steps_done = step + 1;
+        if let Some((i, w)) = b.iter().enumerate().find(|(_, w)| !w.is_bounded() || w.width() > settings.blow_up_width) {
+            out.boxes.push(b.clone());
+            out.reason = Some(format!("step {}: the enclosure of '{}' blew up ({w}); split the cell or raise the order", step + 1, lp.state_names[i]));
+            return Ok(());
+        }
+        out.boxes.push(b);
+    }
+    // Every safety check above held (else we returned); the goal decides the rest.
+    if lp.goal.is_none() || goal_met {
+        out.verdict = Verdict::Verified;
+        out.reason = None;
+    }
+    Ok(())
+}
+
+/// Number of `where` conditions and min/max choices (clip) of the plant that are undecided on
+/// the set this step: each is a place where Verisig would branch and we take the hull.
+fn count_undecided(plant: &Program, values: &[TaylorModel], ctx: &Ctx) -> usize {
+    use taylor::expr::Op;
+    let undecided = |a: usize, b: usize| values[a].sub(&values[b]).bound(&ctx.space);
+    plant
+        .ops
+        .iter()
+        .filter(|op| match op {
+            Op::Where { lhs, cmp, rhs, .. } => cmp.decide(undecided(*lhs, *rhs)).is_none(),
+            Op::Binary(taylor::BinOp::Min | taylor::BinOp::Max, a, b) => {
+                let d = undecided(*a, *b);
+                d.lo() < 0.0 && d.hi() > 0.0
+            }
+            _ => false,
+        })
+        .count()
+}
+
+fn describe(names: &[String], b: &[Interval]) -> String {
+    names.iter().zip(b).map(|(n, i)| format!("{n} in [{:.6}, {:.6}]", i.lo(), i.hi())).collect::<Vec<_>>().join(", ")
+}
+
+/// Verifies cells in parallel on `workers` threads (all cores when None), calling `done(i, &outcome)`
+/// as each cell finishes (from a worker thread), so results can be journaled as they arrive.
+/// When `done` returns false no further cell is started; cells not run are None.
+pub fn verify_cells(
+    lp: &ClosedLoop,
+    cells: &[Vec<Interval>],
+    settings: &CellSettings,
+    workers: Option<usize>,
+    done: &(dyn Fn(usize, &CellOutcome) -> bool + Sync),
+) -> Result<Vec<Option<CellOutcome>>> {
+    use std::sync::atomic::{AtomicBool, Ordering};
+    lp.validate()?;
+    let pool = rayon::ThreadPoolBuilder::new()
+        .num_threads(workers.unwrap_or(0))
+        .build()
+        .map_err(|e| NetworkError::input(format!("could not start worker threads: {e}")))?;
+    let stop = AtomicBool::new(false);
+    Ok(pool.install(|| {
+        cells
+            .par_iter()
+            .enumerate()
+            .map(|(i, c)| {
+                if stop.load(Ordering::Relaxed) {
+                    return None;
+                }
+                let o = verify_cell(lp, c, settings);
+                if !done(i, &o) {
+                    stop.store(true, Ordering::Relaxed);
+                }
+                Some(o)
+            })
+            .collect()
+    }))
+}

@@ -1,0 +1,5 @@
+"""Case studies of the paper: each one a package with its data, models, evaluation and (later) verification."""
+
+from percver.cases import mountain_car
+
+__all__ = ["mountain_car"]

@@ -1,0 +1,36 @@
+"""Image-based Mountain Car under benign noise (paper, section 5.1 and Appendix A).
+
+- :mod:`~percver.cases.mountain_car.dynamics`: plant, reward, property and the rows of Table 1;
+- :mod:`~percver.cases.mountain_car.data`: gymnasium images, the paper's contrast and blur, data set D;
+- :mod:`~percver.cases.mountain_car.training`: the torch models, exported to ONNX (needs torch;
+  imported on first use of ``train``);
+- :mod:`~percver.cases.mountain_car.networks`: the chain of networks, the authors' or ours;
+- :mod:`~percver.cases.mountain_car.evaluation`: the paper's state-estimation metric, plots, summary.
+
+::
+
+    from percver.cases import mountain_car as mc
+    data = mc.generate(2000, 20)                     # the paper's D (about a minute)
+    mc.train(data, "mc-networks")                    # g_c, g_ct, g_b, h_e and a controller, as ONNX
+    result = mc.evaluate("mc-networks", trajectories=1000)
+    print(result.table())
+"""
+
+from percver.cases.mountain_car.data import SHAPE, Camera, Dataset, blur, camera, contrast, generate, observe, render
+from percver.cases.mountain_car.dynamics import NOISES, ROWS, Trajectories, equations, noise_row, simulate, step
+from percver.cases.mountain_car.networks import Networks, load, paper_dir
+
+
+def train(dataset, out, **options):
+    """Train the models and write them as ONNX; see :func:`percver.cases.mountain_car.training.train`."""
+    from percver.cases.mountain_car.training import train as run
+
+    return run(dataset, out, **options)
+
+
+def canonical_camera():
+    """The canonical camera as a validation model (``percver validate --model mc-camera``)."""
+    from percver.validate import ImageModel
+
+    cam = camera()
+    return ImageModel(lambda states: cam.render(states[:, 0]), ["p"], SHAPE)

@@ -1,0 +1,344 @@
+"""Mountain Car camera images and the paper's training set D (Appendix A.3).
+
+Images are 20 x 30 (row-major when flattened to the 600 inputs of the networks), values in [0, 1],
+the car bright on a dark background as in the authors' networks.
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from percver.cases.mountain_car.dynamics import BLUR_RANGE, CONTRAST_RANGE, P_MAX, P_MIN
+from percver.errors import InputError, MissingDependencyError, MissingFileError, ParseError
+from percver.validate.effects.camera import motion_blur
+
+HEIGHT, WIDTH = 20, 30
+SHAPE = (HEIGHT, WIDTH)
+PIXELS = HEIGHT * WIDTH
+
+# gymnasium's screen, and the quarter-size screen on which its fixed-size car (40 x 20 px, wheels of
+# radius 8) is 4x as large relative to the world; MARGIN extra rows keep the top of a car near the
+# goal that the clearance shift (below) moves back into the frame.
+FULL = (400, 600)
+ENLARGE = 4
+MARGIN = 8
+# gymnasium lifts the car 10 px above the track; on the quarter screen that is 40 full-size px.
+CLEARANCE = 10
+LUMA = np.array([0.299, 0.587, 0.114])  # ITU-R 601, as PIL's convert("L")
+OFF_SCREEN = 10.0  # a position whose car is drawn right of the screen: the scene without the car
+
+
+def _gymnasium():
+    os.environ.setdefault("SDL_VIDEODRIVER", "dummy")  # pygame without a display
+    os.environ.setdefault("PYGAME_HIDE_SUPPORT_PROMPT", "1")
+    try:
+        import gymnasium
+    except ImportError:
+        raise MissingDependencyError(
+            "rendering Mountain Car images needs gymnasium and pygame: pip install 'percver[cases]'"
+        ) from None
+    return gymnasium
+
+
+def _area_weights(n_out: int, out_size: float, n_in: int, in_size: float, offset: float) -> np.ndarray:
+    """(n_out, n_in) weights of area averaging: input cell i spans [i, i + 1) * in_size + offset and
+    output cell o spans [o, o + 1) * out_size, in the same (full-resolution pixel) units."""
+    lo_in = np.arange(n_in) * in_size + offset
+    lo_out = np.arange(n_out) * out_size
+    overlap = np.minimum(lo_out[:, None] + out_size, lo_in[None, :] + in_size) - np.maximum(lo_out[:, None], lo_in[None, :])
+    return np.clip(overlap, 0.0, None) / out_size
+
+
+class Camera:
+    """Canonical images of gymnasium's ``MountainCarContinuous-v0`` with the paper's enlarged car.
+
+    The paper renders the 400 x 600 scene with a car about 4x larger than gymnasium's and
+    downsamples it to 20 x 30. gymnasium draws the car in fixed pixel sizes, so on a 100 x 150
+    screen it is 4x larger relative to the world; the track and the goal flag there would be 4x
+    thicker too. Each image therefore combines two headless gymnasium renders (``render_mode=
+    "rgb_array"``): the scene without the car at 400 x 600 (drawn once), and the car alone (a
+    quarter-size render minus the same render without the car) scaled 4x and moved 30 px down, so
+    that the car keeps gymnasium's 10 px clearance above the track instead of 40. Then grey
+    (ITU-R 601 luma), inverted (car bright, as the authors' networks have it) and area-averaged to
+    20 x 30. Against the authors' generator this gives a mean absolute pixel difference of 0.012,
+    and the authors' estimator reads these images with a mean error of 0.019 (0.013 on its own
+    generator's images): their networks can be evaluated on our images.
+    """
+
+    def __init__(self):
+        gym = _gymnasium()
+        quarter = (FULL[0] // ENLARGE + MARGIN, FULL[1] // ENLARGE)
+        self._full = self._env(gym, FULL)
+        self._quarter = self._env(gym, quarter)
+        rows = _area_weights(HEIGHT, FULL[0] / HEIGHT, FULL[0], 1.0, 0.0)
+        cols = _area_weights(WIDTH, FULL[1] / WIDTH, FULL[1], 1.0, 0.0)
+        self._background = rows @ self._render(self._full, OFF_SCREEN) @ cols.T
+        # quarter row q covers full rows [4q, 4q + 4) of the taller frame; after the shift down and the
+        # crop of the margin it starts at 4q + shift - 4 * MARGIN.
+        shift = ENLARGE * CLEARANCE - CLEARANCE
+        self._rows = _area_weights(HEIGHT, FULL[0] / HEIGHT, quarter[0], ENLARGE, shift - ENLARGE * MARGIN)
+        self._cols = _area_weights(WIDTH, FULL[1] / WIDTH, quarter[1], ENLARGE, 0.0)
+        self._empty = self._render(self._quarter, OFF_SCREEN)
+
+    @staticmethod
+    def _env(gym, size):
+        env = gym.make("MountainCarContinuous-v0", render_mode="rgb_array").unwrapped
+        env.screen_height, env.screen_width = size
+        return env
+
+    @staticmethod
+    def _render(env, position: float) -> np.ndarray:
+        """Inverted grey image in [0, 1] of the car at ``position`` (velocity does not show)."""
+        env.state = np.array([position, 0.0])
+        return 1.0 - (env.render() @ LUMA) / 255.0
+
+    def render(self, positions, *, progress: bool = False) -> np.ndarray:
+        """Canonical images (n, 20, 30) of the car at ``positions`` (any position; the car may leave the frame)."""
+        positions = _positions(positions)
+        out = np.empty((len(positions),) + SHAPE)
+        iterator = positions
+        if progress:
+            from tqdm import tqdm
+
+            iterator = tqdm(positions, desc="render", unit="img")
+        for i, p in enumerate(iterator):
+            car = self._render(self._quarter, float(p)) - self._empty
+            out[i] = self._background + self._rows @ car @ self._cols.T
+        return np.clip(out, 0.0, 1.0)
+
+    def observe(self, positions, delta_c=None, delta_b=None) -> np.ndarray:
+        """The true images (n, 20, 30) of the paper's noise: canonical, contrast ``delta_c``, blur ``delta_b``,
+        or both (composite: the blur of the contrasted scene, i.e. contrast applied to each of the three
+        renders, as lighting acts before motion blur). Noise parameters are numbers or one per position."""
+        positions = _positions(positions)
+
+        def scene(at):
+            images = self.render(at)
+            return images if delta_c is None else contrast(images, delta_c)
+
+        if delta_b is None:
+            return scene(positions)
+        delta_b = _per_image(delta_b, len(positions), "delta_b")
+        return motion_blur(scene(positions - delta_b), scene(positions), scene(positions + delta_b))
+
+
+_CAMERA: Camera | None = None
+
+
+def camera() -> Camera:
+    """The shared :class:`Camera` (gymnasium environments are made once per process)."""
+    global _CAMERA
+    if _CAMERA is None:
+        _CAMERA = Camera()
+    return _CAMERA
+
+
+def render(positions, *, progress: bool = False) -> np.ndarray:
+    """Canonical images (n, 20, 30) at ``positions``; see :class:`Camera`."""
+    return camera().render(positions, progress=progress)
+
+
+def observe(positions, delta_c=None, delta_b=None) -> np.ndarray:
+    """True images under contrast and/or blur; see :meth:`Camera.observe`."""
+    return camera().observe(positions, delta_c, delta_b)
+
+
+def _positions(positions) -> np.ndarray:
+    positions = np.atleast_1d(np.asarray(positions, dtype=float))
+    if positions.ndim != 1 or not np.all(np.isfinite(positions)):
+        raise InputError(f"positions must be a finite number or 1-D array, got shape {positions.shape}")
+    return positions
+
+
+def _per_image(value, n: int, name: str) -> np.ndarray:
+    value = np.asarray(value, dtype=float)
+    if value.ndim == 0:
+        value = np.full(n, float(value))
+    if value.shape != (n,) or not np.all(np.isfinite(value)):
+        raise InputError(f"{name} must be a finite number or one value per image ({n}), got shape {value.shape}")
+    return value
+
+
+def contrast(images, factor) -> np.ndarray:
+    """PIL's ``ImageEnhance.Contrast(image).enhance(factor)`` on each image (N x H x W in [0, 1]).
+
+    PIL works on 8-bit grey: pixels are rounded to 1/255, moved ``factor`` times away from the
+    image's mean grey (rounded to an integer level), clipped and truncated to 8 bits; 0 gives a flat
+    grey image, 1 the image. ``factor`` is a number or one per image.
+    """
+    try:
+        from PIL import Image, ImageEnhance
+    except ImportError:
+        raise MissingDependencyError("contrast needs pillow: pip install 'percver[cases]'") from None
+    images = np.asarray(images, dtype=float)
+    if images.ndim != 3:
+        raise InputError(f"contrast() takes a stack of images (N x H x W), got shape {images.shape}")
+    factors = _per_image(factor, len(images), "the contrast factor")
+    levels = np.round(np.clip(images, 0.0, 1.0) * 255.0).astype(np.uint8)
+    out = np.empty(images.shape)
+    for i, (image, f) in enumerate(zip(levels, factors)):
+        out[i] = np.asarray(ImageEnhance.Contrast(Image.fromarray(image, mode="L")).enhance(float(f)), dtype=float)
+    return out / 255.0
+
+
+def blur(positions, delta_b) -> np.ndarray:
+    """The paper's blur of the canonical scene: ``0.5 g(p - d) + g(p) + 0.5 g(p + d)`` rescaled to [0, 1]."""
+    return observe(positions, delta_b=delta_b)
+
+
+@dataclass
+class Dataset:
+    """The paper's training set D: per position, its canonical image and ``k`` contrasted and ``k`` blurred images.
+
+    Arrays: ``positions`` (n,), ``canonical`` (n, 20, 30), ``delta_c`` and ``delta_b`` (n, k),
+    ``contrast`` and ``blur`` (n, k, 20, 30); images float32 in [0, 1].
+    """
+
+    positions: np.ndarray
+    canonical: np.ndarray
+    delta_c: np.ndarray
+    contrast: np.ndarray
+    delta_b: np.ndarray
+    blur: np.ndarray
+    meta: dict = field(default_factory=dict)
+
+    FIELDS = ("positions", "canonical", "delta_c", "contrast", "delta_b", "blur")
+
+    def __post_init__(self):
+        n = len(self.positions)
+        k = self.delta_c.shape[1] if self.delta_c.ndim == 2 else -1
+        expected = {
+            "positions": (n,), "canonical": (n, *SHAPE), "delta_c": (n, k), "contrast": (n, k, *SHAPE),
+            "delta_b": (n, k), "blur": (n, k, *SHAPE),
+        }  # fmt: skip
+        where = self.meta.get("path", "dataset")
+        for name, shape in expected.items():
+            value = getattr(self, name)
+            if value.shape != shape:
+                raise ParseError(
+                    f"{where}: field '{name}' has shape {value.shape}, expected {shape} "
+                    "(n positions, k noise levels, 20 x 30 images); regenerate it with `percver cases mountain-car data`"
+                )
+            if not np.all(np.isfinite(value)):
+                raise ParseError(f"{where}: field '{name}' holds NaN or inf; regenerate the data set")
+
+    @property
+    def n_positions(self) -> int:
+        return len(self.positions)
+
+    @property
+    def per_position(self) -> int:
+        return self.delta_c.shape[1]
+
+    def __len__(self) -> int:
+        """Number of examples (canonical, contrasted and blurred images): 82,000 for the paper's D."""
+        return self.n_positions * (1 + 2 * self.per_position)
+
+    def noise_pairs(self, kind: str, index=None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(canonical images (m, 600), noise parameters (m,), noised images (m, 600)) of ``kind``
+        ("contrast" or "blur"), over the positions ``index`` (all by default)."""
+        if kind not in ("contrast", "blur"):
+            raise InputError(f"noise kind must be 'contrast' or 'blur', got '{kind}'")
+        index = np.arange(self.n_positions) if index is None else np.asarray(index)
+        deltas = (self.delta_c if kind == "contrast" else self.delta_b)[index]
+        noised = getattr(self, kind)[index]
+        k = deltas.shape[1]
+        clean = np.repeat(self.canonical[index].reshape(len(index), PIXELS), k, axis=0)
+        return clean, deltas.reshape(-1), noised.reshape(-1, PIXELS)
+
+    def images(self, index=None) -> tuple[np.ndarray, np.ndarray]:
+        """All images of the positions ``index`` (m, 600) with their positions (m,): the estimator's data."""
+        index = np.arange(self.n_positions) if index is None else np.asarray(index)
+        k = self.per_position
+        images = np.concatenate(
+            [self.canonical[index].reshape(-1, PIXELS), self.contrast[index].reshape(-1, PIXELS),
+             self.blur[index].reshape(-1, PIXELS)]
+        )  # fmt: skip
+        p = self.positions[index]
+        return images, np.concatenate([p, np.repeat(p, k), np.repeat(p, k)])
+
+    def save(self, path) -> Path:
+        """Write a compressed ``.npz`` (``meta`` as a JSON string)."""
+        import json
+
+        path = Path(path)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        meta = {key: value for key, value in self.meta.items() if key != "path"}
+        np.savez_compressed(path, **{name: getattr(self, name) for name in self.FIELDS}, meta=json.dumps(meta))
+        return path
+
+    @classmethod
+    def load(cls, path) -> "Dataset":
+        import json
+
+        path = Path(path)
+        if not path.is_file():
+            raise MissingFileError(f"data set not found: {path}; make it with `percver cases mountain-car data --out {path}`")
+        try:
+            with np.load(path, allow_pickle=False) as npz:
+                missing = [name for name in cls.FIELDS if name not in npz.files]
+                if missing:
+                    raise ParseError(
+                        f"{path}: missing field(s) {missing}; a Mountain Car data set has {list(cls.FIELDS)} "
+                        "(make one with `percver cases mountain-car data`)"
+                    )
+                arrays = {name: np.asarray(npz[name]) for name in cls.FIELDS}
+                meta = json.loads(str(npz["meta"])) if "meta" in npz.files else {}
+        except (OSError, ValueError) as error:
+            raise ParseError(f"{path}: not a readable .npz data set ({error})") from None
+        return cls(**arrays, meta={**meta, "path": str(path)})
+
+
+def _levels(rng, n: int, k: int, bounds, stratified: bool) -> np.ndarray:
+    """(n, k) noise levels over ``bounds``: one uniform draw per k-th of the range (stratified), or the
+    k evenly spaced levels for every position."""
+    lo, hi = bounds
+    if not stratified:
+        return np.tile(np.linspace(lo, hi, k), (n, 1))
+    return lo + (np.arange(k)[None, :] + rng.random((n, k))) * (hi - lo) / k
+
+
+def generate(
+    n_positions: int = 2000,
+    per_position: int = 20,
+    *,
+    seed: int = 0,
+    stratified: bool = True,
+    progress: bool = True,
+) -> Dataset:
+    """The paper's training set D: ``n_positions`` evenly spaced positions over [-1.2, 0.6], each with its
+    canonical image, ``per_position`` contrasted (delta_c in [0.3, 2]) and as many blurred (delta_b in
+    [0, 0.3]) images; 2000 x (1 + 20 + 20) = 82,000 examples by default.
+
+    The paper samples the noise levels "evenly"; by default each position gets one level from each
+    of ``per_position`` equal slices of the range (drawn from ``seed``), so that the noise models see
+    the whole continuum, not 20 repeated values. ``stratified=False`` uses the same 20 evenly spaced
+    levels everywhere.
+    """
+    if n_positions < 2 or per_position < 1:
+        raise InputError(f"need at least 2 positions and 1 noise level per position, got {n_positions} and {per_position}")
+    rng = np.random.default_rng(seed)
+    positions = np.linspace(P_MIN, P_MAX, n_positions)
+    delta_c = _levels(rng, n_positions, per_position, CONTRAST_RANGE, stratified)
+    delta_b = _levels(rng, n_positions, per_position, BLUR_RANGE, stratified)
+    cam = camera()
+    canonical = np.empty((n_positions, *SHAPE), dtype=np.float32)
+    contrasted = np.empty((n_positions, per_position, *SHAPE), dtype=np.float32)
+    blurred = np.empty((n_positions, per_position, *SHAPE), dtype=np.float32)
+    iterator = range(n_positions)
+    if progress:
+        from tqdm import tqdm
+
+        iterator = tqdm(iterator, desc="Mountain Car data set", unit="position")
+    for i in iterator:
+        p = np.full(per_position, positions[i])
+        image = cam.render(positions[i:i + 1])
+        canonical[i] = image[0]
+        contrasted[i] = contrast(np.repeat(image, per_position, axis=0), delta_c[i])
+        blurred[i] = motion_blur(cam.render(p - delta_b[i]), image, cam.render(p + delta_b[i]))
+    meta = {"seed": seed, "n_positions": n_positions, "per_position": per_position, "stratified": stratified}
+    return Dataset(positions, canonical, delta_c, contrasted, delta_b, blurred, meta=meta)

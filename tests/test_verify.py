@@ -1,0 +1,148 @@
+"""Closed-loop verification: sampling oracle, falsification, journal resume, bad input."""
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import textwrap
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import percver as pv
+
+DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
+CONTROLLER = DATA / "mountain_car" / "networks" / "ControllerSigmoid16x16.yml"
+
+
+def mountain_car():
+    """The state-based Mountain Car loop of REFERENCE.md with the authors' sig16x16 controller."""
+    assert CONTROLLER.exists(), f"{CONTROLLER} missing: CI has ../shared beside the repo"
+    p, v = pv.variables("p v")
+    u = pv.variables("u")
+    v_next = pv.clip(v + 0.0015 * u - 0.0025 * pv.cos(3 * p), -0.07, 0.07)
+    p_next = p + v_next
+    plant = pv.Discrete({p: pv.where(p_next <= -1.2, -1.2, p_next), v: pv.where(p_next <= -1.2, 0.0, v_next)}, inputs=[u])
+    loop = pv.ClosedLoop(plant, stages=[pv.Stage(pv.load_network(str(CONTROLLER)), inputs=[p, v], output="u")])
+    return loop, p, v
+
+
+def assert_contains_simulations(loop, result, n=1000, seed=1):
+    for cell in result.cells:
+        if not cell.boxes:
+            continue
+        boxes = np.asarray(cell.boxes)
+        x0 = pv.Box.coerce(cell.box, loop.states).sample(n, seed=seed)
+        traj = loop.simulate(x0, len(boxes) - 1)
+        inside = (traj >= boxes[None, :, :, 0]) & (traj <= boxes[None, :, :, 1])
+        assert inside.all(), f"cell {cell.box}: {np.count_nonzero(~inside)} simulated states outside the reach boxes"
+
+
+def test_mountain_car_verified_and_reach_boxes_contain_simulations():
+    loop, p, v = mountain_car()
+    res = pv.verify(loop, init={"p": (-0.53, -0.50), "v": (0, 0)}, steps=150, goal=p >= 0.45, within=True,
+                    split={"p": 3}, progress=False)
+    assert res.verdict == "verified", [c.reason for c in res.cells]
+    assert res.coverage == pytest.approx(1.0)
+    assert_contains_simulations(loop, res)
+    assert "intervals" in res.summary()
+    back = pv.Result.from_json(res.to_json())
+    assert back.verdict == "verified" and len(back.cells) == 3
+
+
+def test_safety_property_and_unsafe_set():
+    loop, p, v = mountain_car()
+    res = pv.verify(loop, init={"p": (-0.5, -0.49), "v": (0, 0)}, steps=40, safe=[v >= -0.07, v <= 0.07], unsafe=p <= -1.3,
+                    progress=False)
+    assert res.verdict == "verified"
+    assert_contains_simulations(loop, res, n=300)
+
+
+def test_known_unsafe_start_is_falsified_with_a_replaying_counterexample():
+    loop, p, v = mountain_car()
+    res = pv.verify(loop, init={"p": (-0.6, -0.6), "v": (0, 0)}, steps=150, goal=p >= 0.45, within=True, progress=False)
+    assert res.verdict == "falsified"
+    cex = res.counterexample
+    replay = loop.simulate(np.array([[cex.initial["p"], cex.initial["v"]]]), 150)[0]
+    assert replay[:, 0].max() < 0.45
+    np.testing.assert_allclose(np.asarray(cex.trajectory), replay[: cex.step + 1])
+
+
+def test_unknown_cells_are_refined():
+    loop, p, v = mountain_car()
+    # Order 1 loses precision on the wide cell; refinement splits until cells verify.
+    res = pv.verify(loop, init={"p": (-0.53, -0.45), "v": (0, 0)}, steps=150, goal=p >= 0.45, within=True, order=2,
+                    refine=True, min_width={"p": 0.005}, progress=False)
+    assert len(res.cells) > 1
+    assert all(c.verdict in ("verified", "unknown") for c in res.cells)
+    widths = [c.box["p"][1] - c.box["p"][0] for c in res.cells]
+    assert sum(widths) == pytest.approx(0.08)
+    assert_contains_simulations(loop, res, n=200)
+
+
+def test_verisig_method_agrees_on_a_short_horizon():
+    loop, p, v = mountain_car()
+    a = pv.verify(loop, init={"p": (-0.52, -0.51), "v": (0, 0)}, steps=5, safe=p >= -1.2, progress=False, method="taylor")
+    b = pv.verify(loop, init={"p": (-0.52, -0.51), "v": (0, 0)}, steps=5, safe=p >= -1.2, progress=False, method="verisig")
+    assert a.verdict == b.verdict == "verified"
+    assert_contains_simulations(loop, b, n=300)
+
+
+def test_journal_resume_after_sigkill(tmp_path):
+    journal = tmp_path / "run.jsonl"
+    script = tmp_path / "campaign.py"
+    script.write_text(textwrap.dedent(f"""
+        import sys
+        sys.path.insert(0, {str(Path(__file__).parent)!r})
+        from test_verify import mountain_car
+        import percver as pv
+        loop, p, v = mountain_car()
+        pv.verify(loop, init={{"p": (-0.55, -0.45), "v": (0, 0)}}, steps=150, goal=p >= 0.45, within=True,
+                  split={{"p": 60}}, journal={str(journal)!r}, progress=False, workers=1)
+    """))
+    proc = subprocess.Popen([sys.executable, str(script)])
+    deadline = time.time() + 120
+    while time.time() < deadline:
+        if journal.exists() and len(journal.read_text().splitlines()) >= 6:
+            break
+        time.sleep(0.02)
+    proc.send_signal(signal.SIGKILL)
+    proc.wait()
+    lines_before = len(journal.read_text().splitlines()) - 1
+    assert 5 <= lines_before < 60, "the campaign must be killed mid-way"
+    loop, p, v = mountain_car()
+    kwargs = dict(init={"p": (-0.55, -0.45), "v": (0, 0)}, steps=150, goal=p >= 0.45, within=True, split={"p": 60}, progress=False)
+    resumed = pv.verify(loop, journal=str(journal), **kwargs)
+    clean = pv.verify(loop, **kwargs)
+    key = lambda c: c.box["p"]  # noqa: E731
+    assert [c.verdict for c in sorted(resumed.cells, key=key)] == [c.verdict for c in sorted(clean.cells, key=key)]
+    records = [json.loads(line) for line in journal.read_text().splitlines()[1:] if line.strip()]
+    boxes = [tuple(r["box"]["p"]) for r in records]
+    assert len(boxes) == len(set(boxes)) == 60, "every cell journaled exactly once"
+    # A journal of another problem is refused.
+    with pytest.raises(pv.PercverError, match="different problem"):
+        pv.verify(loop, journal=str(journal), **{**kwargs, "steps": 149})
+
+
+class TestBadInput:
+    def test_wiring_and_names(self):
+        loop, p, v = mountain_car()
+        ctrl = pv.load_network(str(CONTROLLER))
+        x = pv.variables("x")
+        with pytest.raises(pv.InputError, match="takes 2 inputs"):
+            pv.ClosedLoop(pv.Discrete({p: p}, inputs=[]), stages=[pv.Stage(ctrl, inputs=[p], output="u")])
+        with pytest.raises(pv.InputError, match="'w'"):
+            pv.ClosedLoop(pv.Discrete({p: p}), stages=[pv.Stage(ctrl, inputs=[p, "w"], output="u")])
+        with pytest.raises(pv.InputError, match="not produced"):
+            pv.ClosedLoop(pv.Discrete({p: p + x}, inputs=[x]))
+        with pytest.raises(pv.InputError, match="not states"):
+            pv.verify(loop, init={"p": (0, 0.1), "v": (0, 0)}, steps=3, goal=x >= 1, progress=False)
+        with pytest.raises(pv.InputError, match="missing"):
+            pv.verify(loop, init={"p": (0, 0.1)}, steps=3, goal=p >= 1, progress=False)
+        with pytest.raises(pv.InputError, match="lower bound"):
+            pv.verify(loop, init={"p": (0.1, 0), "v": (0, 0)}, steps=3, goal=p >= 1, progress=False)
+        with pytest.raises(pv.InputError, match="nothing to verify"):
+            pv.verify(loop, init={"p": (0, 0.1), "v": (0, 0)}, steps=3, progress=False)
