@@ -36,13 +36,34 @@ class Discrete:
 class Continuous:
     """A continuous-time plant ``x' = f(x, u)`` with the inputs held over each control period."""
 
-    def __init__(self, rhs: Mapping[Union[Expr, str], ExprLike], inputs: Sequence[Union[Expr, str]] = (), *, period: float):
+    def __init__(self, rhs: Mapping[Union[Expr, str], ExprLike], inputs: Sequence[Union[Expr, str]] = (), *, period: float,
+                 step: Optional[float] = None, remainder: float = 1e-4):
         if not period > 0:
             raise InputError(f"the control period must be positive, got {period}")
         self.states = [name_of(k) for k in rhs]
         self.rhs = [as_expr(v) for v in rhs.values()]
         self.inputs = [name_of(i) for i in inputs]
         self.period = float(period)
+        self.step = float(step) if step is not None else self.period / 10
+        if not 0 < self.step <= self.period:
+            raise InputError(f"the integration step must be in (0, period], got {step}")
+        self.remainder = float(remainder)
+
+    def advance(self, x: np.ndarray, u: np.ndarray) -> np.ndarray:
+        """States after one period from the rows of x with the inputs u held (scipy, tight tolerances)."""
+        from scipy.integrate import solve_ivp
+
+        n, count = len(self.states), len(x)
+        names = self.states + self.inputs
+
+        def f(_t, flat):
+            s = flat.reshape(n, count).T
+            return _core.eval_float(self.rhs, names, np.ascontiguousarray(np.hstack([s, u]))).T.reshape(-1)
+
+        sol = solve_ivp(f, (0.0, self.period), x.T.reshape(-1), method="DOP853", rtol=1e-11, atol=1e-12)
+        if not sol.success:
+            raise InputError(f"float simulation of the plant failed: {sol.message}")
+        return sol.y[:, -1].reshape(n, count).T
 
 
 @dataclass
@@ -145,11 +166,16 @@ class ClosedLoop:
         missing = [u for u in plant.inputs if u not in self.signals]
         if missing:
             raise InputError(f"the plant's inputs {missing} are not produced by any stage (outputs: {[s.output for s in self.stages]})")
-        if isinstance(plant, Discrete):
-            for e in plant.update:
-                unknown = set(e.variables()) - set(self.env_names)
-                if unknown:
-                    raise InputError(f"the plant uses {sorted(unknown)}, which are neither states nor stage outputs")
+        used = plant.update if isinstance(plant, Discrete) else plant.rhs
+        allowed = set(self.env_names) if isinstance(plant, Discrete) else set(plant.states) | set(plant.inputs)
+        for e in used:
+            unknown = set(e.variables()) - allowed
+            if unknown:
+                raise InputError(f"the plant uses {sorted(unknown)}, which are neither states nor its declared inputs")
+        if isinstance(plant, Continuous):
+            wide = [u for u in plant.inputs if len(self.signals[u]) != 1]
+            if wide:
+                raise InputError(f"continuous plant inputs must be scalar signals; {wide} are vectors")
 
     def _stage_float(self, k: int, env: np.ndarray) -> np.ndarray:
         stage = self.stages[k]
@@ -161,11 +187,12 @@ class ClosedLoop:
 
     def step_float(self, x: np.ndarray) -> np.ndarray:
         """One step of the loop for a batch of states (N x n)."""
-        if not isinstance(self.plant, Discrete):
-            raise InputError("float simulation of continuous plants is not available yet; use pv.Discrete")
         env = np.asarray(x, dtype=float)
         for k in range(len(self.stages)):
             env = np.concatenate([env, self._stage_float(k, env)], axis=1)
+        if isinstance(self.plant, Continuous):
+            u = env[:, [self.signals[i][0] for i in self.plant.inputs]]
+            return self.plant.advance(env[:, : len(self.states)], u)
         return _core.eval_float(self.plant.update, self.env_names, np.ascontiguousarray(env))
 
     def simulate(self, x0: np.ndarray, steps: int) -> np.ndarray:
@@ -180,15 +207,17 @@ class ClosedLoop:
 
     def compile(self, *, safe, goal, within: bool, steps: int):
         """The Rust form of the loop with its property."""
-        if not isinstance(self.plant, Discrete):
-            raise InputError(
-                "verification of continuous plants (pv.Continuous) is not implemented yet; "
-                "discretise the plant with pv.Discrete for now"
-            )
         stages = []
         for k, stage in enumerate(self.stages):
             if stage.is_network:
                 stages.append((stage.component._core(), self.stage_inputs[k]))
             else:
                 stages.append(((stage.component, [self.env_names[i] for i in self.stage_inputs[k]]), self.stage_inputs[k]))
-        return _core.ClosedLoop(self.states, stages, self.env_names, self.plant.update, safe, goal, within, steps)
+        if isinstance(self.plant, Continuous):
+            pl = self.plant
+            zero = as_expr(0.0)
+            plant = (pl.rhs + [zero] * len(pl.inputs), pl.states + pl.inputs, [self.signals[u][0] for u in pl.inputs],
+                     pl.period, pl.step, pl.remainder)
+        else:
+            plant = self.plant.update
+        return _core.ClosedLoop(self.states, stages, self.env_names, plant, safe, goal, within, steps)

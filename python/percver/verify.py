@@ -215,7 +215,9 @@ class _Property:
 
 def _fingerprint(loop: ClosedLoop, prop: _Property, settings: dict) -> str:
     h = hashlib.sha256()
-    h.update(repr((loop.states, loop.env_names, [str(e) for e in loop.plant.update])).encode())
+    plant = loop.plant
+    equations = plant.update if hasattr(plant, "update") else plant.rhs + [plant.period, plant.step, plant.remainder]
+    h.update(repr((loop.states, loop.env_names, [str(e) for e in equations])).encode())
     for stage in loop.stages:
         if stage.is_network:
             for layer in stage.component.layers:

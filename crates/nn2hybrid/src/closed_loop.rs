@@ -16,7 +16,8 @@ use crate::verisig;
 use rayon::prelude::*;
 use std::sync::Arc;
 use std::time::Instant;
-use taylor::expr::TaylorModels;
+use taylor::expr::{Intervals, TaylorModels};
+use taylor::flowpipe::{reach_from, Ode, Settings as FlowSettings};
 use taylor::{Cmp, Ctx, Interval, Program, Space, TaylorModel};
 
 #[derive(Clone, Debug)]
@@ -50,12 +51,22 @@ pub struct Condition {
     pub label: String,
 }
 
+/// How the state moves from one control step to the next.
+#[derive(Clone, Debug)]
+pub enum Plant {
+    /// Inputs: the whole environment; outputs: the next state, in state order.
+    Discrete(Arc<Program>),
+    /// x' = f(x, u) over one control period with u held: the ODE's variables are the states
+    /// followed by the inputs (whose right-hand sides are 0); `inputs` are their environment
+    /// indices. Safety is checked on every flowpipe segment of the period.
+    Continuous { ode: Arc<Ode>, inputs: Vec<usize>, period: f64, flow: FlowSettings },
+}
+
 #[derive(Clone, Debug)]
 pub struct ClosedLoop {
     pub state_names: Vec<String>,
     pub stages: Vec<Stage>,
-    /// Inputs: the whole environment; outputs: the next state, in state order.
-    pub plant: Arc<Program>,
+    pub plant: Plant,
     /// Must hold at step 0 and after every step.
     pub safe: Vec<Condition>,
     /// Must hold after the last step, or at some step if `goal_within`.
@@ -129,12 +140,26 @@ impl ClosedLoop {
             }
             env += stage.n_out();
         }
-        if self.plant.inputs.len() != env || self.plant.outputs.len() != n {
-            return Err(NetworkError::input(format!(
-                "the plant must read the {env} signals of the loop and define all {n} states, got {} inputs and {} outputs",
-                self.plant.inputs.len(),
-                self.plant.outputs.len()
-            )));
+        match &self.plant {
+            Plant::Discrete(p) if p.inputs.len() != env || p.outputs.len() != n => {
+                return Err(NetworkError::input(format!(
+                    "the plant must read the {env} signals of the loop and define all {n} states, got {} inputs and {} outputs",
+                    p.inputs.len(),
+                    p.outputs.len()
+                )));
+            }
+            Plant::Continuous { ode, inputs, period, .. } => {
+                if ode.dim() != n + inputs.len() || inputs.iter().any(|&i| i >= env) {
+                    return Err(NetworkError::input(format!(
+                        "the continuous plant's ODE must have the {n} states then the {} inputs as variables",
+                        inputs.len()
+                    )));
+                }
+                if !(*period > 0.0) {
+                    return Err(NetworkError::input(format!("the control period must be positive, got {period}")));
+                }
+            }
+            _ => {}
         }
         for c in self.safe.iter().chain(self.goal.iter()) {
             if c.margin.inputs.len() != n || c.margin.outputs.len() != 1 {
@@ -291,9 +316,23 @@ fn run(lp: &ClosedLoop, cell: &[Interval], settings: &CellSettings, out: &mut Ce
             };
             env.extend(outputs);
         }
-        let values = lp.plant.eval_all(&TaylorModels { ctx: &ctx }, &env)?;
-        out.branches += count_undecided(&lp.plant, &values, &ctx);
-        state = lp.plant.outputs_of(&values);
+        match &lp.plant {
+            Plant::Discrete(plant) => {
+                let values = plant.eval_all(&TaylorModels { ctx: &ctx }, &env)?;
+                out.branches += count_undecided(plant, &values, &ctx);
+                state = plant.outputs_of(&values);
+            }
+            Plant::Continuous { ode, inputs, period, flow } => {
+                let held: Vec<TaylorModel> = inputs.iter().map(|&i| env[i].clone()).collect();
+                match integrate_period(lp, ode, &state, &held, *period, flow, &ctx)? {
+                    Ok(next) => state = next,
+                    Err(reason) => {
+                        out.reason = Some(format!("step {}: {reason}", step + 1));
+                        return Ok(());
+                    }
+                }
+            }
+        }
         for m in state.iter_mut() {
             m.sweep(&ctx);
         }
@@ -312,6 +351,72 @@ fn run(lp: &ClosedLoop, cell: &[Interval], settings: &CellSettings, out: &mut Ce
         out.reason = None;
     }
     Ok(())
+}
+
+/// `model` with each variable v of `from` renamed to v + shift in `to` (same order).
+fn shift_vars(model: &TaylorModel, from: &Space, to: &Space, shift: isize) -> Result<TaylorModel> {
+    let index: std::collections::HashMap<Vec<u8>, usize> = (0..to.len()).map(|k| (to.exponents(k).to_vec(), k)).collect();
+    let mut coef = vec![0.0; to.len()];
+    for (k, &c) in model.coef.iter().enumerate() {
+        if c == 0.0 {
+            continue;
+        }
+        let mut e = vec![0u8; to.nvars];
+        for (v, &x) in from.exponents(k).iter().enumerate() {
+            if x > 0 {
+                let w = v as isize + shift;
+                if w < 0 || w as usize >= to.nvars {
+                    return Err(NetworkError::input("a model uses a variable the target space lacks"));
+                }
+                e[w as usize] = x;
+            }
+        }
+        let target = index.get(&e).ok_or_else(|| NetworkError::input("a model's degree exceeds the target order"))?;
+        coef[*target] += c;
+    }
+    let mut t = TaylorModel { coef, rem: model.rem };
+    while t.coef.len() > 1 && t.coef.last() == Some(&0.0) {
+        t.coef.pop();
+    }
+    Ok(t)
+}
+
+/// One control period of a continuous plant from the state's Taylor models; Ok(Err(reason))
+/// when the flowpipe or a safety check along it fails.
+fn integrate_period(
+    lp: &ClosedLoop,
+    ode: &Ode,
+    state: &[TaylorModel],
+    held: &[TaylorModel],
+    period: f64,
+    flow: &FlowSettings,
+    ctx: &Ctx,
+) -> Result<std::result::Result<Vec<TaylorModel>, String>> {
+    let n = state.len();
+    let m = ode.dim();
+    // The flowpipe works at the cell's order, so its end state maps back into the cell's space.
+    let order = ctx.order;
+    let flow_space = Space::get(1 + m.max(ctx.space.nvars), order, 1)?;
+    let init: Vec<TaylorModel> = state.iter().chain(held).map(|t| shift_vars(t, &ctx.space, &flow_space, 1)).collect::<Result<_>>()?;
+    let settings = FlowSettings { t_end: period, order: taylor::OrderPolicy::Fixed(order), ..flow.clone() };
+    let fp = reach_from(ode, init, &flow_space, &settings, &mut |_| true)?;
+    if let Some(f) = &fp.failure {
+        return Ok(Err(f.to_string()));
+    }
+    for seg in &fp.segments {
+        for c in &lp.safe {
+            let margin = c.margin.eval(&Intervals, &seg.bounds[..n])?;
+            if c.cmp.decide(margin[0]) != Some(true) {
+                return Ok(Err(format!("'{}' could not be proved over t in [{:.4}, {:.4}] of the period", c.label, seg.t0, seg.t1)));
+            }
+        }
+    }
+    let next = fp.final_state[..n].iter().map(|t| {
+        let mut t = shift_vars(t, &flow_space, &ctx.space, -1)?;
+        t.sweep(ctx);
+        Ok(t)
+    });
+    Ok(Ok(next.collect::<Result<_>>()?))
 }
 
 /// Number of `where` conditions and min/max choices (clip) of the plant that are undecided on

@@ -3,7 +3,7 @@
 use crate::error::{network_to_py, IntoPy};
 use crate::expr::{compile, PyExpr};
 use crate::network::PyNetwork;
-use nn2hybrid::closed_loop::{self, CellOutcome, CellSettings, ClosedLoop, Component, Condition, Method, Stage, Verdict};
+use nn2hybrid::closed_loop::{self, CellOutcome, CellSettings, ClosedLoop, Component, Condition, Method, Plant, Stage, Verdict};
 use nn2hybrid::propagate::Settings as NnSettings;
 use nn2hybrid::NetworkError;
 use pyo3::prelude::*;
@@ -13,6 +13,15 @@ use taylor::{Cmp, Interval};
 
 #[pyclass(name = "ClosedLoop", module = "percver._core", frozen)]
 pub struct PyClosedLoop(pub ClosedLoop);
+
+/// A discrete plant: next-state expressions over the environment's names. A continuous plant:
+/// (right-hand sides, ODE variable names = states then inputs, input indices in the
+/// environment, control period, integration step, remainder estimate).
+#[derive(FromPyObject)]
+pub enum PlantArg {
+    Discrete(Vec<PyExpr>),
+    Continuous((Vec<PyExpr>, Vec<String>, Vec<usize>, f64, f64, f64)),
+}
 
 /// A stage's component: a network, or expressions over named inputs.
 #[derive(FromPyObject)]
@@ -51,7 +60,7 @@ impl PyClosedLoop {
         state_names: Vec<String>,
         stages: Vec<(ComponentArg<'_>, Vec<usize>)>,
         env_names: Vec<String>,
-        plant: Vec<PyExpr>,
+        plant: PlantArg,
         safe: Vec<(PyExpr, String, String)>,
         goal: Option<(PyExpr, String, String)>,
         goal_within: bool,
@@ -65,8 +74,25 @@ impl PyClosedLoop {
             };
             built.push(Stage { component, inputs });
         }
+        let plant = match plant {
+            PlantArg::Discrete(update) => Plant::Discrete(Arc::new(compile(&update, &env_names)?)),
+            PlantArg::Continuous((rhs, names, inputs, period, step, remainder)) => {
+                let ode = taylor::Ode::new(names.clone(), rhs.into_iter().map(|e| e.0).collect()).py_err()?;
+                let flow = taylor::Settings {
+                    step: taylor::StepSize::Fixed(step),
+                    order: taylor::OrderPolicy::Fixed(1),
+                    t_end: period,
+                    cutoff: 1e-12,
+                    remainder_estimate: vec![remainder; names.len()],
+                    precondition: taylor::Precondition::Identity,
+                    refinements: 30,
+                    symbolic_queue: 100,
+                };
+                Plant::Continuous { ode: Arc::new(ode), inputs, period, flow }
+            }
+        };
         let lp = ClosedLoop {
-            plant: Arc::new(compile(&plant, &env_names)?),
+            plant,
             safe: safe.into_iter().map(|c| condition(&state_names, c)).collect::<PyResult<_>>()?,
             goal: goal.map(|c| condition(&state_names, c)).transpose()?,
             state_names,

@@ -20,6 +20,7 @@ use crate::precondition::{precondition, Precondition};
 use crate::space::Space;
 use crate::symbolic::{mat_mul, mat_vec, SymbolicRemainder};
 use crate::tm::{Ctx, TaylorModel};
+use std::sync::Arc;
 use std::time::Instant;
 
 /// A system x' = f(x) with named state variables.
@@ -166,10 +167,8 @@ pub fn reach(ode: &Ode, init: &[Interval], settings: &Settings, observer: &mut d
     settings.validate(n)?;
     let space = Space::get(n + 1, settings.max_order(), 1)?;
     let full = Ctx::new(space.clone(), settings.max_order(), settings.cutoff);
-    let started = Instant::now();
-    let mut stats = Stats::default();
     // The initial box as models over z in [-1, 1]^n.
-    let mut state: Vec<TaylorModel> = init
+    let state: Vec<TaylorModel> = init
         .iter()
         .enumerate()
         .map(|(i, iv)| {
@@ -182,6 +181,26 @@ pub fn reach(ode: &Ode, init: &[Interval], settings: &Settings, observer: &mut d
             }
         })
         .collect();
+    reach_from(ode, state, &space, settings, observer)
+}
+
+/// Computes the flowpipe from a set given as Taylor models over variables 1..=m of `space`
+/// (variable 0 must be a unit variable, free for time; `space.nvars` must exceed both m and
+/// the ODE's dimension). This is how a closed loop integrates its plant from a state that
+/// depends on the cell's variables.
+pub fn reach_from(ode: &Ode, mut state: Vec<TaylorModel>, space: &Arc<Space>, settings: &Settings, observer: &mut dyn FnMut(f64) -> bool) -> Result<Flowpipe> {
+    let n = ode.dim();
+    settings.validate(n)?;
+    if state.len() != n || !space.is_unit(0) || space.nvars <= n || space.order < settings.max_order() {
+        return Err(TaylorError::input(format!(
+            "reach_from needs {n} models in a space with a unit variable 0, more than {n} variables and order >= {}",
+            settings.max_order()
+        )));
+    }
+    let space = space.clone();
+    let full = Ctx::new(space.clone(), settings.max_order(), settings.cutoff);
+    let started = Instant::now();
+    let mut stats = Stats::default();
     let (mut h, h_min) = match settings.step {
         StepSize::Fixed(h) => (h, h),
         StepSize::Adaptive { min, max } => (max, min),
@@ -242,6 +261,7 @@ pub fn reach(ode: &Ode, init: &[Interval], settings: &Settings, observer: &mut d
         });
         let mut args = vec![TaylorModel::zero()];
         args.extend(pre.right.iter().cloned());
+        args.resize(space.nvars, TaylorModel::zero());
         let ends: Vec<TaylorModel> = left.iter().map(|m| m.substitute(0, Interval::ONE, &ctx)).collect();
         // Step map on the symbolic part: its linear part A T exactly, the rest bounded.
         let a: Vec<Interval> = (0..n * n).map(|ij| Interval::point(ends[ij / n].linear_coefficient(&space, ij % n + 1))).collect();

@@ -40,15 +40,16 @@ pub fn precondition(x: &[TaylorModel], extra: &[f64], kind: Precondition, ctx: &
     let y: Vec<TaylorModel> = x.iter().zip(&centre).map(|(t, &c)| t.add_constant(-c)).collect();
     let q = match kind {
         Precondition::Identity => DMatrix::<f64>::identity(n, n),
-        Precondition::Qr => {
+        // The linear part in the set's variables is square only when they match the state.
+        Precondition::Qr if space.nvars == n + 1 => {
             let a = DMatrix::from_fn(n, n, |i, j| y[i].linear_coefficient(space, j + 1));
             orthogonal_factor(a)
         }
+        Precondition::Qr => DMatrix::<f64>::identity(n, n),
     };
     // y' = Q^T y, then scale each row into [-1, 1].
     let rotated: Vec<TaylorModel> = match kind {
-        Precondition::Identity => y,
-        Precondition::Qr => (0..n)
+        Precondition::Qr if space.nvars == n + 1 => (0..n)
             .map(|i| {
                 (0..n).fold(TaylorModel::zero(), |acc, j| {
                     if q[(j, i)] == 0.0 {
@@ -59,6 +60,7 @@ pub fn precondition(x: &[TaylorModel], extra: &[f64], kind: Precondition, ctx: &
                 })
             })
             .collect(),
+        _ => y,
     };
     let mut inv_d = Vec::with_capacity(n);
     let mut right = Vec::with_capacity(n);
@@ -80,10 +82,7 @@ pub fn precondition(x: &[TaylorModel], extra: &[f64], kind: Precondition, ctx: &
         }
     }
     // Enclose M = Q^{-T} D^{-1} = Q (I - F)^{-1} D^{-1} with F = I - Q^T Q.
-    let delta = match kind {
-        Precondition::Identity => 0.0,
-        Precondition::Qr => inverse_defect(&q),
-    };
+    let delta = if q.is_identity(0.0) { 0.0 } else { inverse_defect(&q) };
     let row_abs: Vec<f64> = (0..n).map(|i| (0..n).fold(0.0, |s, l| add_up(s, q[(i, l)].abs()))).collect();
     let mut x0 = Vec::with_capacity(n);
     for i in 0..n {
