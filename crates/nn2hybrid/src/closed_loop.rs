@@ -476,3 +476,49 @@ pub fn verify_cells(
             .collect()
     }))
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::network::{Activation, LayerArrays};
+    use taylor::parser::parse_expr;
+
+    /// x+ = x + 0.1 v, v+ = v + 0.1 u, u = tanh(-x - v): boxes contain simulated states.
+    #[test]
+    fn discrete_loop_encloses_simulations() {
+        let net = Network::new(
+            vec![LayerArrays { n_out: 1, n_in: 2, weight: vec![-1.0, -1.0], bias: vec![0.0], activations: vec![Activation::Tanh] }],
+            None,
+            None,
+        )
+        .unwrap();
+        let names: Vec<String> = ["x", "v", "u"].iter().map(|s| s.to_string()).collect();
+        let plant = Program::compile(&[parse_expr("x + 0.1*v").unwrap(), parse_expr("v + 0.1*u").unwrap()], &names).unwrap();
+        let safe = Program::compile(&[parse_expr("x - 2").unwrap()], &names[..2]).unwrap();
+        let lp = ClosedLoop {
+            state_names: names[..2].to_vec(),
+            stages: vec![Stage { component: Component::Network(Arc::new(net.clone())), inputs: vec![0, 1] }],
+            plant: Plant::Discrete(Arc::new(plant)),
+            safe: vec![Condition { margin: Arc::new(safe), cmp: Cmp::Le, label: "x <= 2".into() }],
+            goal: None,
+            goal_within: false,
+            steps: 40,
+        };
+        lp.validate().unwrap();
+        let settings = CellSettings { order: 4, cutoff: 1e-12, method: Method::Taylor, nn: NnSettings { order: 4, ..NnSettings::default() }, timeout: None, blow_up_width: 1e6 };
+        let cell = [Interval::new(0.5, 0.7).unwrap(), Interval::new(-0.1, 0.1).unwrap()];
+        let out = verify_cell(&lp, &cell, &settings);
+        assert_eq!(out.verdict, Verdict::Verified, "{:?}", out.reason);
+        for a in 0..=10 {
+            for b in 0..=10 {
+                let (mut x, mut v) = (0.5 + 0.02 * a as f64, -0.1 + 0.02 * b as f64);
+                for step in 0..=40 {
+                    let bx = &out.boxes[step];
+                    assert!(bx[0].contains(x) && bx[1].contains(v), "step {step}: ({x}, {v}) outside {bx:?}");
+                    let u = net.eval(&[x, v]).unwrap()[0];
+                    (x, v) = (x + 0.1 * v, v + 0.1 * u);
+                }
+            }
+        }
+    }
+}
