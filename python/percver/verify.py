@@ -366,13 +366,15 @@ def verify(
             bar = tqdm(total=len(pending), unit="cell", desc="verify")
         while pending:
             todo = []
+            fresh = []
             for cell in pending:
                 known = journal_.done.get(_key(cell.to_dict()))
                 if known is not None:
                     cells_out.append(known)
                     _tick(bar, cells_out)
-                    continue
-                cex = _falsify(loop, prop, cell, steps, falsify, rng)
+                else:
+                    fresh.append(cell)
+            for cell, cex in zip(fresh, _falsify(loop, prop, fresh, steps, falsify, rng)):
                 if cex is not None:
                     c = Cell(cell.to_dict(), "falsified", counterexample=cex, reason=f"simulation violates {cex.violated} at step {cex.step}")
                     journal_.write(c)
@@ -433,24 +435,39 @@ def _tick(bar, cells):
     bar.update(1)
 
 
-def _falsify(loop: ClosedLoop, prop: _Property, cell: Box, steps: int, samples: int, rng) -> Optional[Counterexample]:
-    """Simulates the cell's centre, corners (up to 2^8) and random points; the first violating
-    trajectory is the counterexample."""
-    lo, hi = cell.lo, cell.hi
-    pts = [0.5 * (lo + hi)]
-    free = [j for j in range(len(lo)) if hi[j] > lo[j]]
-    if len(free) <= 8:
-        for mask in range(2 ** len(free)):
-            p = lo.copy()
-            for b, j in enumerate(free):
-                if mask >> b & 1:
-                    p[j] = hi[j]
-            pts.append(p)
-    pts += list(lo + (hi - lo) * rng.random((samples, len(lo))))
-    x0 = np.array(pts)
+def _falsify(loop: ClosedLoop, prop: _Property, cells: list, steps: int, samples: int, rng) -> list:
+    """Simulates each cell's centre, corners (up to 2^8) and random points, all cells in one
+    batch; per cell, the first violating trajectory is its counterexample (else None)."""
+    if not cells:
+        return []
+    points, owner = [], []
+    for k, cell in enumerate(cells):
+        lo, hi = cell.lo, cell.hi
+        pts = [0.5 * (lo + hi)]
+        free = [j for j in range(len(lo)) if hi[j] > lo[j]]
+        if len(free) <= 8:
+            for mask in range(2 ** len(free)):
+                p = lo.copy()
+                for b, j in enumerate(free):
+                    if mask >> b & 1:
+                        p[j] = hi[j]
+                pts.append(p)
+        pts += list(lo + (hi - lo) * rng.random((samples, len(lo))))
+        points += pts
+        owner += [k] * len(pts)
+    x0 = np.array(points)
+    owner = np.array(owner)
     traj = loop.simulate(x0, steps)
-    hit = prop.violation(traj)
-    if hit is None:
-        return None
-    row, step, label = hit
-    return Counterexample(dict(zip(loop.states, map(float, x0[row]))), traj[row, : step + 1].tolist(), step, label)
+    out = [None] * len(cells)
+    remaining = np.ones(len(x0), dtype=bool)
+    while remaining.any():
+        rows = np.nonzero(remaining)[0]
+        hit = prop.violation(traj[rows])
+        if hit is None:
+            break
+        row, step, label = hit
+        r = rows[row]
+        k = owner[r]
+        out[k] = Counterexample(dict(zip(loop.states, map(float, x0[r]))), traj[r, : step + 1].tolist(), step, label)
+        remaining &= owner != k
+    return out
