@@ -100,20 +100,7 @@ impl TaylorModel {
         let Some(&c0) = self.coef.first() else { return Interval::ZERO };
         let (mut lo, mut hi) = (c0, c0);
         for (i, &c) in self.coef.iter().enumerate().skip(1) {
-            if c == 0.0 {
-                continue;
-            }
-            if space.nonneg[i] {
-                if c < 0.0 {
-                    lo = (lo + c).next_down();
-                } else {
-                    hi = (hi + c).next_up();
-                }
-            } else {
-                let a = c.abs();
-                lo = (lo - a).next_down();
-                hi = (hi + a).next_up();
-            }
+            add_term_range(&mut lo, &mut hi, c, space.nonneg[i]);
         }
         Interval::raw(lo, hi)
     }
@@ -138,16 +125,7 @@ impl TaylorModel {
         for i in 1..self.coef.len() {
             let c = self.coef[i];
             if c != 0.0 && (i >= keep || c.abs() < ctx.cutoff) {
-                if space.nonneg[i] {
-                    if c < 0.0 {
-                        lo = (lo + c).next_down();
-                    } else {
-                        hi = (hi + c).next_up();
-                    }
-                } else {
-                    lo = (lo - c.abs()).next_down();
-                    hi = (hi + c.abs()).next_up();
-                }
+                add_term_range(&mut lo, &mut hi, c, space.nonneg[i]);
                 self.coef[i] = 0.0;
             }
         }
@@ -418,6 +396,20 @@ impl TaylorModel {
     /// Coefficient of x_v (the linear part).
     pub fn linear_coefficient(&self, space: &Space, v: usize) -> f64 {
         self.coef.get(space.var_index(v)).copied().unwrap_or(0.0)
+    }
+}
+
+/// Adds the range of c * (a monomial with range [0, 1] if `nonneg`, else [-1, 1]) to [lo, hi],
+/// rounding outward.
+fn add_term_range(lo: &mut f64, hi: &mut f64, c: f64, nonneg: bool) {
+    if c == 0.0 {
+        return;
+    }
+    if !nonneg || c < 0.0 {
+        *lo = (*lo - c.abs()).next_down();
+    }
+    if !nonneg || c > 0.0 {
+        *hi = (*hi + c.abs()).next_up();
     }
 }
 
