@@ -25,7 +25,7 @@ use taylor::tm::{gamma, U};
 use taylor::Interval;
 
 /// Smallest subnormal: the absolute error a product may lose to underflow.
-const ETA: f64 = 4.9406564584124654e-324;
+const ETA: f64 = f64::from_bits(1);
 
 /// [m - r, m + r] with r an upper bound (rounded up) of the distance to the true value.
 #[derive(Clone, Copy, Debug)]
@@ -41,9 +41,6 @@ impl Ball {
     }
     fn from_interval(x: Interval) -> Ball {
         Ball { m: x.mid(), r: x.radius() }
-    }
-    fn mag(self) -> f64 {
-        add_up(self.m.abs(), self.r)
     }
     fn add(self, o: Ball) -> Ball {
         let m = self.m + o.m;
@@ -85,7 +82,7 @@ pub struct PolyEnclosure {
 const K_MAX: usize = 40;
 /// The truncated Taylor tail of a piece is made this much smaller than the estimated fit error
 /// (so that the bound is within a few per cent of the truth), but need not go below TAIL_MIN.
-const TAIL_FRACTION: f64 = 0.1;
+const TAIL_FRACTION: f64 = 0.5;
 const TAIL_MIN: f64 = 1e-15;
 /// Piece counts tried (more pieces, lower expansion order).
 const PIECES: [usize; 12] = [1, 2, 3, 4, 6, 8, 12, 16, 24, 32, 48, 64];
@@ -109,6 +106,7 @@ impl Smooth {
     /// Sigmoid: on |Im z| <= r < pi, |1 + e^-z| >= 1 if r <= pi/2, else >= sin r, so M = 1, 2, 4
     /// for r = pi/2, 5pi/6, pi - asin(1/4) (radii rounded down). Tanh: tanh^(n)(x) =
     /// 2^(n+1) sigmoid^(n)(2x), so the radii halve and M doubles.
+    #[allow(clippy::approx_constant)] // radii rounded down on purpose: M holds on smaller discs
     fn discs(&self) -> [(f64, f64); 3] {
         const SIG: [(f64, f64); 3] = [(1.5707, 1.0), (2.6179, 2.0), (2.8888, 4.0)];
         match self {
@@ -132,7 +130,7 @@ impl Smooth {
         y.push(Ball::from_interval(self.image(Interval::point(c))));
         for n in 0..k {
             let mut conv = Ball::ZERO;
-            for i in 0..(n + 1) / 2 {
+            for i in 0..n.div_ceil(2) {
                 conv = conv.add(y[i].mul(y[n - i]));
             }
             conv = conv.add(conv);
@@ -226,12 +224,9 @@ fn interpolate(f: Smooth, c: f64, s: f64, d: usize) -> (Vec<f64>, f64) {
         // Chebyshev coefficient by discrete orthogonality at the nodes.
         let sum: f64 = t_cur.iter().zip(&values).map(|(t, v)| t * v).sum();
         let cm = sum * if m == 0 { 1.0 } else { 2.0 } / n as f64;
-        if m > d {
-            estimate += cm.abs();
-        } else {
-            for (p, t) in power.iter_mut().zip(&table[m]) {
-                *p += cm * t;
-            }
+        match table.get(m).filter(|_| m <= d) {
+            Some(row) => power.iter_mut().zip(row).for_each(|(p, t)| *p += cm * t),
+            None => estimate += cm.abs(),
         }
         let factor = if m == 0 { 1.0 } else { 2.0 };
         for i in 0..n {
@@ -294,7 +289,7 @@ fn plan(f: Smooth, h: f64, tail: f64, degree: usize) -> Option<(usize, usize, us
                 continue;
             }
             let k = (((ln_tail - m.ln()) / ln_ratio).ceil().max(1.0) as usize - 1).max(degree);
-            if k <= K_MAX && best.map_or(true, |(bn, bk, _)| cost(n, k) < cost(bn, bk)) {
+            if k <= K_MAX && best.is_none_or(|(bn, bk, _)| cost(n, k) < cost(bn, bk)) {
                 best = Some((n, k, d));
             }
         }
@@ -308,7 +303,7 @@ pub fn enclose(f: Smooth, range: Interval, degree: usize) -> PolyEnclosure {
     let constant = || PolyEnclosure { centre: range.mid(), scale: 0.0, coef: vec![image.mid()], err: image.radius() };
     let c = range.mid();
     let h = (range.hi() - c).max(c - range.lo()).next_up();
-    if !(h > 0.0) || !h.is_finite() {
+    if h.is_nan() || h <= 0.0 || !h.is_finite() {
         return constant();
     }
     // s <= 1 / h, so that |s (y - c)| <= 1 on the range.
@@ -325,7 +320,7 @@ pub fn enclose(f: Smooth, range: Interval, degree: usize) -> PolyEnclosure {
         let h_p = (b - c_p).max(c_p - a).next_up();
         err = err.max(piece_bound(f, &q, c, s, c_p, h_p, k, disc));
     }
-    if !(err < image.radius()) {
+    if err.is_nan() || err >= image.radius() {
         return constant();
     }
     PolyEnclosure { centre: c, scale: s, coef: q, err }

@@ -27,6 +27,7 @@
 //!   relu(y) in lambda y + [0, mu] with lambda = u / (u - l), mu = -lambda l on [l, u] (exact
 //!   for the symbols, which are scaled by lambda);
 //! - identity: nothing.
+//!
 //! All of a neuron's new error becomes one new symbol (or its remainder if symbols are off).
 //!
 //! Domain splitting: a variable can be split into pieces, lazily: the layers before the first
@@ -43,7 +44,7 @@ use taylor::tm::{gamma, U};
 use taylor::{Ctx, Interval, Space, TaylorModel};
 
 /// Smallest subnormal: the absolute error a product may lose to underflow.
-const ETA: f64 = 4.9406564584124654e-324;
+const ETA: f64 = f64::from_bits(1);
 /// A smooth neuron's model is replaced by the interval image when it is this much wider.
 const WIDER_THAN_IMAGE: f64 = 2.0;
 /// Errors below this are rounding noise: they stay in remainders, never become symbols.
@@ -80,7 +81,8 @@ impl Settings {
         if self.order == 0 || self.order > taylor::space::MAX_ORDER {
             return Err(NetworkError::input(format!("Taylor-model order must be between 1 and {}, got {}", taylor::space::MAX_ORDER, self.order)));
         }
-        if !(self.cutoff >= 0.0 && self.cutoff < 1.0) || !(self.symbol_min >= 0.0) {
+        let valid = |x: f64, hi: f64| (0.0..hi).contains(&x);
+        if !valid(self.cutoff, 1.0) || !valid(self.symbol_min, f64::INFINITY) {
             return Err(NetworkError::input(format!("cutoff must be in [0, 1) and symbol_min >= 0, got {} and {}", self.cutoff, self.symbol_min)));
         }
         if self.max_vars == 0 || self.max_vars > taylor::space::MAX_VARS - 1 {
@@ -104,6 +106,9 @@ pub struct Models {
     pub(crate) rem: Vec<Interval>,
     /// For models built from a box: input i = centre + radius x_v for (i, v, centre, radius).
     pub variables: Vec<(usize, usize, f64, f64)>,
+    /// The variable over [0, 1] that the Verisig ODEs integrate over, once added. Kept apart from
+    /// the space's other unit variables (a closed loop's own time), which it must not reuse.
+    time_var: Option<usize>,
 }
 
 fn iv(lo: f64, hi: f64) -> Interval {
@@ -173,7 +178,7 @@ impl Models {
                 rem[i] = Interval::symmetric(r);
             }
         }
-        Ok(Models { ctx, m, coef, rem, variables })
+        Ok(Models { ctx, m, coef, rem, variables, time_var: time_var.then_some(nv) })
     }
 
     /// Models of given Taylor models (all in `ctx`), e.g. a closed loop's state.
@@ -193,12 +198,12 @@ impl Models {
             coef.view_mut((0, i), (t.coef.len(), 1)).copy_from_slice(&t.coef);
             rem.push(t.rem);
         }
-        Ok(Models { ctx: ctx.clone(), m, coef, rem, variables: vec![] })
+        Ok(Models { ctx: ctx.clone(), m, coef, rem, variables: vec![], time_var: None })
     }
 
-    /// The variable over [0, 1] that the Verisig ODEs integrate over, if the space has one.
+    /// The variable over [0, 1] that the Verisig ODEs integrate over, if one was added.
     pub fn time_var(&self) -> Option<usize> {
-        (0..self.ctx.space.nvars).find(|&v| self.ctx.space.is_unit(v))
+        self.time_var
     }
 
     /// The same models in a space with one more variable, over [0, 1], for the Verisig ODEs.
@@ -208,7 +213,7 @@ impl Models {
         }
         let old = &self.ctx.space;
         let nv = old.nvars;
-        let space = Space::get(nv + 1, 2 * self.ctx.order, 1 << nv)?;
+        let space = Space::get(nv + 1, 2 * self.ctx.order, old.unit_mask | 1 << nv)?;
         let m = space.len_upto(self.ctx.order);
         let index: std::collections::HashMap<&[u8], usize> = (0..m).filter(|&k| space.exponent(k, nv) == 0).map(|k| (&space.exponents(k)[..nv], k)).collect();
         let s = self.symbols();
@@ -223,7 +228,7 @@ impl Models {
             }
         }
         let ctx = Ctx::new(space, self.ctx.order, self.ctx.cutoff);
-        Ok(Models { ctx, m, coef, rem: self.rem.clone(), variables: self.variables.clone() })
+        Ok(Models { ctx, m, coef, rem: self.rem.clone(), variables: self.variables.clone(), time_var: Some(nv) })
     }
 
     /// Neuron i as a Taylor model: polynomial plus remainder plus the symbols' range.
@@ -292,7 +297,7 @@ impl Models {
                 Interval::symmetric(err)
             })
             .collect();
-        Ok(Models { ctx: self.ctx.clone(), m: self.m, coef: out, rem, variables: self.variables.clone() })
+        Ok(Models { ctx: self.ctx.clone(), m: self.m, coef: out, rem, variables: self.variables.clone(), time_var: self.time_var })
     }
 
     /// The output map y <- scale * h + offset.
@@ -423,7 +428,7 @@ fn assemble(models: &Models, outs: Vec<NeuronOut>, settings: &Settings) -> Model
         }
         rem.push(r);
     }
-    let mut out = Models { ctx: models.ctx.clone(), m, coef, rem, variables: models.variables.clone() };
+    let mut out = Models { ctx: models.ctx.clone(), m, coef, rem, variables: models.variables.clone(), time_var: models.time_var };
     cap_symbols(&mut out, settings.max_symbols);
     out
 }

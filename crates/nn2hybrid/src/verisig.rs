@@ -161,6 +161,9 @@ fn activate(models: &Models, layer: &Layer, index: usize, settings: &Settings) -
 
 fn verisig_settings(settings: &Settings) -> Result<Settings> {
     settings.validate()?;
+    if 2 * settings.order > taylor::space::MAX_ORDER {
+        return Err(NetworkError::input(format!("the Verisig translation integrates at twice the order: use order <= {}", taylor::space::MAX_ORDER / 2)));
+    }
     Ok(Settings { symbolic: false, ..settings.clone() })
 }
 

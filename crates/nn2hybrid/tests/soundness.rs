@@ -197,6 +197,26 @@ fn taylor_model_inputs_compose() {
 }
 
 #[test]
+fn verisig_keeps_a_closed_loops_own_time_variable_apart() {
+    // Variable 0 ranges over [0, 1] (a closed loop's normalised time): the Verisig ODEs must get
+    // a fresh time variable, not integrate over this one.
+    let mut rng = Rng(9);
+    let net = random_network(&mut rng, &[2, 8, 1], &[TANH], false, 1.5);
+    let ctx = Ctx::new(Space::get(2, 4, 0b01).unwrap(), 4, 1e-15);
+    let x = TaylorModel::var(&ctx, 0).scale(0.2).add_constant(0.1);
+    let y = TaylorModel::var(&ctx, 1).scale(0.05);
+    let s = Settings { order: 4, ..Settings::default() };
+    let out = verisig::propagate(&net, &Models::from_taylor_models(&[x, y], &ctx).unwrap(), &s).unwrap();
+    assert_eq!(out.time_var(), Some(2));
+    let bounds = out.bounds();
+    for _ in 0..2000 {
+        let (t, b) = (rng.next(), rng.range(-1.0, 1.0));
+        let truth = net.eval(&[0.1 + 0.2 * t, 0.05 * b]).unwrap()[0];
+        assert!(bounds[0].contains(truth), "{} misses {truth}", bounds[0]);
+    }
+}
+
+#[test]
 fn chained_models_match_the_composed_network() {
     let mut rng = Rng(7);
     let first = random_network(&mut rng, &[2, 12, 3], &[TANH], false, 2.0);
