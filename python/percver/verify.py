@@ -213,11 +213,21 @@ class _Property:
         return None
 
 
+def _expr_hash(e) -> str:
+    return str(e.structural_hash()) if hasattr(e, "structural_hash") else repr(e)
+
+
+def _condition_hash(c) -> str:
+    return f"{c.margin().structural_hash()} {c.op}"
+
+
 def _fingerprint(loop: ClosedLoop, prop: _Property, settings: dict) -> str:
+    """A hash of everything that decides the verdicts; expressions by structure (their text can
+    be exponentially long when subexpressions are shared)."""
     h = hashlib.sha256()
     plant = loop.plant
     equations = plant.update if hasattr(plant, "update") else plant.rhs + [plant.period, plant.step, plant.remainder]
-    h.update(repr((loop.states, loop.env_names, [str(e) for e in equations])).encode())
+    h.update(repr((loop.states, loop.env_names, [_expr_hash(e) for e in equations])).encode())
     for stage in loop.stages:
         if stage.is_network:
             for layer in stage.component.layers:
@@ -226,8 +236,9 @@ def _fingerprint(loop: ClosedLoop, prop: _Property, settings: dict) -> str:
                 h.update(repr(layer.activation).encode())
             h.update(repr((stage.component.scale, stage.component.offset)).encode())
         else:
-            h.update(repr([str(e) for e in stage.component]).encode())
-    h.update(repr(([str(c) for c in prop.safe], str(prop.goal), prop.within, prop.steps)).encode())
+            h.update(repr([_expr_hash(e) for e in stage.component]).encode())
+    goal = _condition_hash(prop.goal) if prop.goal is not None else None
+    h.update(repr(([_condition_hash(c) for c in prop.safe], goal, prop.within, prop.steps)).encode())
     h.update(json.dumps(settings, sort_keys=True).encode())
     return h.hexdigest()[:16]
 
@@ -318,9 +329,9 @@ def _bisect(box: Box, init: Box) -> list:
 
 def verify(
     loop: ClosedLoop,
-    init: BoxLike,
+    init: Optional[BoxLike] = None,
     *,
-    steps: int,
+    steps: Optional[int] = None,
     goal: Optional[Condition] = None,
     safe: Union[Condition, Sequence[Condition], None] = None,
     unsafe: Union[Condition, Sequence[Condition], None] = None,
@@ -340,8 +351,17 @@ def verify(
 ) -> Result:
     """Prove ``loop`` satisfies the property from every state of ``init`` (see module doc)."""
     started = time.time()
+    if not isinstance(loop, ClosedLoop) and isinstance(getattr(loop, "loop", None), ClosedLoop):
+        # A loaded problem (e.g. pv.formats.load_verisig): its file's init, horizon and property fill what is not given.
+        d = loop.defaults
+        init, steps = d["init"] if init is None else init, d["steps"] if steps is None else steps
+        if goal is None and safe is None and unsafe is None:
+            goal, safe, within = d.get("goal"), d.get("safe"), d.get("within", within)
+        loop = loop.loop
     if not isinstance(loop, ClosedLoop):
         raise InputError("verify() needs a pv.ClosedLoop")
+    if init is None:
+        raise InputError("verify() needs init={state: (lo, hi), ...}")
     if not (isinstance(steps, int) and steps >= 0):
         raise InputError(f"steps must be a non-negative integer, got {steps!r}")
     if executor is not None:

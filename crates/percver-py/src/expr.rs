@@ -146,8 +146,12 @@ impl PyExpr {
     fn __hash__(slf: &Bound<'_, Self>) -> isize {
         slf.as_ptr() as isize
     }
+    /// Structural hash (each shared node once): for fingerprints of large expression DAGs.
+    fn structural_hash(&self) -> u64 {
+        self.0.structural_hash()
+    }
     fn __repr__(&self) -> String {
-        self.0.to_string()
+        self.0.describe(2000)
     }
 }
 
@@ -175,7 +179,7 @@ impl PyCondition {
         ))
     }
     fn __repr__(&self) -> String {
-        format!("{} {} {}", self.lhs, self.cmp.symbol(), self.rhs)
+        format!("{} {} {}", self.lhs.describe(1000), self.cmp.symbol(), self.rhs.describe(1000))
     }
 }
 

@@ -161,6 +161,61 @@ impl Expr {
     }
 }
 
+impl Expr {
+    /// The expression as text, cut after about `limit` characters: a DAG with shared
+    /// subexpressions can print exponentially long.
+    pub fn describe(&self, limit: usize) -> String {
+        struct Bounded {
+            text: String,
+            limit: usize,
+        }
+        impl fmt::Write for Bounded {
+            fn write_str(&mut self, s: &str) -> fmt::Result {
+                if self.text.len() + s.len() > self.limit {
+                    return Err(fmt::Error);
+                }
+                self.text.push_str(s);
+                Ok(())
+            }
+        }
+        let mut out = Bounded { text: String::new(), limit };
+        if fmt::write(&mut out, format_args!("{self}")).is_err() {
+            out.text.push_str(" ...");
+        }
+        out.text
+    }
+
+    /// A hash of the expression's structure, linear in the number of distinct nodes (each shared
+    /// node is hashed once), stable across runs: for journals' problem fingerprints.
+    pub fn structural_hash(&self) -> u64 {
+        use std::hash::{Hash, Hasher};
+        fn go(e: &Expr, memo: &mut HashMap<usize, u64>) -> u64 {
+            let key = Arc::as_ptr(&e.0) as usize;
+            if let Some(&h) = memo.get(&key) {
+                return h;
+            }
+            let mut s = std::collections::hash_map::DefaultHasher::new();
+            match &*e.0 {
+                Node::Const(c) => (0u8, c.to_bits()).hash(&mut s),
+                Node::Uncertain(iv) => (1u8, iv.lo().to_bits(), iv.hi().to_bits()).hash(&mut s),
+                Node::Var(n) => (2u8, n).hash(&mut s),
+                Node::Neg(a) => (3u8, go(a, memo)).hash(&mut s),
+                Node::Binary(op, a, b) => (4u8, *op as u8, go(a, memo), go(b, memo)).hash(&mut s),
+                Node::PowI(a, n) => (5u8, go(a, memo), n).hash(&mut s),
+                Node::PowF(a, r) => (6u8, go(a, memo), r.to_bits()).hash(&mut s),
+                Node::Func(f, a) => (7u8, *f as u8, go(a, memo)).hash(&mut s),
+                Node::Where { lhs, cmp, rhs, then, otherwise } => {
+                    (8u8, *cmp as u8, go(lhs, memo), go(rhs, memo), go(then, memo), go(otherwise, memo)).hash(&mut s)
+                }
+            }
+            let h = s.finish();
+            memo.insert(key, h);
+            h
+        }
+        go(self, &mut HashMap::new())
+    }
+}
+
 impl fmt::Display for Expr {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         match &*self.0 {
@@ -280,24 +335,38 @@ impl Program {
                 inputs.len()
             )));
         }
-        let mut v: Vec<A::Value> = Vec::with_capacity(self.ops.len());
+        // A slot may fail (a domain error) without failing the program: only a use of it does.
+        // So a `where` whose condition is decided ignores the other branch even if that one is
+        // undefined on the set (a ray's formula for a wall it does not hit).
+        let mut v: Vec<Result<A::Value>> = Vec::with_capacity(self.ops.len());
+        fn get<T>(v: &[Result<T>], i: usize) -> Result<&T> {
+            v[i].as_ref().map_err(|e| e.clone())
+        }
         for op in &self.ops {
             let value = match op {
-                Op::Const(c) => alg.constant(*c),
-                Op::Uncertain(iv) => alg.uncertain(*iv),
-                Op::Input(i) => inputs[*i].clone(),
-                Op::Neg(a) => alg.neg(&v[*a]),
-                Op::Binary(op, a, b) => alg.binary(*op, &v[*a], &v[*b])?,
-                Op::PowI(a, n) => alg.powi(&v[*a], *n)?,
-                Op::PowF(a, r) => alg.powf(&v[*a], *r)?,
-                Op::Func(f, a) => alg.func(*f, &v[*a])?,
-                Op::Where { lhs, cmp, rhs, then, otherwise } => {
-                    alg.select(&v[*lhs], *cmp, &v[*rhs], &v[*then], &v[*otherwise])?
-                }
+                Op::Const(c) => Ok(alg.constant(*c)),
+                Op::Uncertain(iv) => Ok(alg.uncertain(*iv)),
+                Op::Input(i) => Ok(inputs[*i].clone()),
+                Op::Neg(a) => get(&v, *a).map(|x| alg.neg(x)),
+                Op::Binary(op, a, b) => get(&v, *a).and_then(|x| alg.binary(*op, x, get(&v, *b)?)),
+                Op::PowI(a, n) => get(&v, *a).and_then(|x| alg.powi(x, *n)),
+                Op::PowF(a, r) => get(&v, *a).and_then(|x| alg.powf(x, *r)),
+                Op::Func(f, a) => get(&v, *a).and_then(|x| alg.func(*f, x)),
+                Op::Where { lhs, cmp, rhs, then, otherwise } => (|| {
+                    let (l, r) = (get(&v, *lhs)?, get(&v, *rhs)?);
+                    match alg.decide(l, *cmp, r) {
+                        Some(true) => get(&v, *then).cloned(),
+                        Some(false) => get(&v, *otherwise).cloned(),
+                        None => alg.select(l, *cmp, r, get(&v, *then)?, get(&v, *otherwise)?),
+                    }
+                })(),
             };
             v.push(value);
         }
-        Ok(v)
+        for &o in &self.outputs {
+            v[o].clone()?;
+        }
+        Ok(v.into_iter().map(|x| x.unwrap_or_else(|_| alg.constant(f64::NAN))).collect())
     }
 }
 
@@ -311,6 +380,8 @@ pub trait Algebra {
     fn powi(&self, a: &Self::Value, n: i32) -> Result<Self::Value>;
     fn powf(&self, a: &Self::Value, r: f64) -> Result<Self::Value>;
     fn func(&self, f: Func, a: &Self::Value) -> Result<Self::Value>;
+    /// Whether `lhs cmp rhs` holds everywhere (Some(true)), nowhere (Some(false)), or either.
+    fn decide(&self, lhs: &Self::Value, cmp: Cmp, rhs: &Self::Value) -> Option<bool>;
     /// `then` where `lhs cmp rhs` holds, `otherwise` elsewhere; sets take the hull when the
     /// comparison is undecided (callers that need branching decide the condition first).
     fn select(&self, lhs: &Self::Value, cmp: Cmp, rhs: &Self::Value, then: &Self::Value, otherwise: &Self::Value) -> Result<Self::Value>;
@@ -358,6 +429,10 @@ impl Algebra for FloatBatch {
     fn func(&self, f: Func, a: &Vec<f64>) -> Result<Vec<f64>> {
         Ok(a.iter().map(|&x| f.eval_f64(x)).collect())
     }
+    /// Samples decide one by one, in `select`.
+    fn decide(&self, _l: &Vec<f64>, _cmp: Cmp, _r: &Vec<f64>) -> Option<bool> {
+        None
+    }
     fn select(&self, l: &Vec<f64>, cmp: Cmp, r: &Vec<f64>, t: &Vec<f64>, o: &Vec<f64>) -> Result<Vec<f64>> {
         Ok((0..self.n).map(|i| if cmp.holds(l[i] - r[i]) { t[i] } else { o[i] }).collect())
     }
@@ -395,6 +470,9 @@ impl Algebra for Intervals {
     }
     fn func(&self, f: Func, a: &Interval) -> Result<Interval> {
         f.eval_interval(*a)
+    }
+    fn decide(&self, l: &Interval, cmp: Cmp, r: &Interval) -> Option<bool> {
+        cmp.decide(*l - *r)
     }
     fn select(&self, l: &Interval, cmp: Cmp, r: &Interval, t: &Interval, o: &Interval) -> Result<Interval> {
         Ok(match cmp.decide(*l - *r) {
@@ -462,6 +540,9 @@ impl Algebra for TaylorModels<'_> {
     fn func(&self, f: Func, a: &TaylorModel) -> Result<TaylorModel> {
         f.eval_tm(a, self.ctx)
     }
+    fn decide(&self, l: &TaylorModel, cmp: Cmp, r: &TaylorModel) -> Option<bool> {
+        cmp.decide(l.sub(r).bound(&self.ctx.space))
+    }
     fn select(&self, l: &TaylorModel, cmp: Cmp, r: &TaylorModel, t: &TaylorModel, o: &TaylorModel) -> Result<TaylorModel> {
         Ok(match cmp.decide(l.sub(r).bound(&self.ctx.space)) {
             Some(true) => t.clone(),
@@ -513,6 +594,31 @@ mod tests {
         let e = Expr::binary(BinOp::Mul, &s, &s);
         let p = Program::compile(&[e], &["x".into()]).unwrap();
         assert_eq!(p.ops.len(), 3);
+    }
+
+    #[test]
+    fn decided_where_ignores_an_undefined_branch() {
+        // where(x >= 0, x, log(x)) on x in [1, 2]: log is fine; on [0.5, 1] too; the else
+        // branch log(x - 2) is undefined there but never taken.
+        let x = Expr::var("x");
+        let bad = Expr::func(Func::Log, &Expr::binary(BinOp::Sub, &x, &Expr::constant(2.0)));
+        let e = Expr::select(&x, Cmp::Ge, &Expr::constant(0.0), &x, &bad);
+        let p = Program::compile(&[e], &["x".into()]).unwrap();
+        let out = p.eval(&Intervals, &[Interval::new(0.5, 1.0).unwrap()]).unwrap();
+        assert!(out[0].contains(0.5) && out[0].contains(1.0));
+        // Undecided: both branches are needed and the error surfaces.
+        assert!(p.eval(&Intervals, &[Interval::new(-0.5, 1.0).unwrap()]).is_err());
+    }
+
+    #[test]
+    fn long_shared_expressions_print_bounded_and_hash_fast() {
+        let mut e = Expr::var("x");
+        for _ in 0..200 {
+            e = Expr::binary(BinOp::Add, &e, &e); // 2^200 leaves when printed in full
+        }
+        assert!(e.describe(100).len() < 120);
+        assert_eq!(e.structural_hash(), e.structural_hash());
+        assert_ne!(e.structural_hash(), Expr::var("x").structural_hash());
     }
 
     #[test]

@@ -1,2 +1,3 @@
 """Readers and writers of file formats: networks (ONNX, Verisig .yml), Flow* models, benchmarks."""
 from percver.formats.flowstar import FlowstarModel, load_flowstar
+from percver.formats.verisig import VerisigProblem, load_verisig
