@@ -49,3 +49,5 @@ from percver.networks import Network, chain, load_network
 from percver import sensors, validate
 from percver.measurements import Measurements
 from percver.validate import compare, diagnose
+
+from percver import cases

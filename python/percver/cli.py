@@ -12,6 +12,7 @@ from percver.errors import PercverError
 COMMANDS = [
     ("percver.commands.demo", "register"),
     ("percver.commands.validate", "register"),
+    ("percver.commands.cases", "register"),
 ]
 
 

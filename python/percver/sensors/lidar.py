@@ -326,7 +326,7 @@ class Lidar:
             walls.append((gap, px.abs_(gap), along, (nx, ny), (ex, ey), length))
         out = []
         for alpha in self.angles:
-            heading = theta + float(alpha)
+            heading = theta + float(alpha) if alpha != 0 else theta
             c, s = px.cos(heading), px.sin(heading)
             nearest = None
             for gap, distance, along, (nx, ny), (ex, ey), length in walls:

@@ -1,9 +1,11 @@
 """Pose estimation for runs without ground truth: a particle filter (Thrun et al., ch. 4 and 6).
 
 Motion: the bicycle model (``dynamics``) driven by the logged steering, with process noise.
-Measurement: a beam model on a subset of the raw 1081 rays, each reading a mixture of a
-Gaussian around the canonical range, a uniform clutter term and a "no return" term, so that
-rays swallowed by reflective surfaces do not pull the estimate. Runs are filtered side by
+Measurement: a beam model on a subset of the raw 1081 rays, each echo a mixture of a Gaussian
+around the canonical range and a uniform clutter term; rays without an echo do not count, so
+that rays swallowed by reflective surfaces do not pull the estimate. Down a long hallway the
+position along it is unobservable until the front wall is in range; the filter keeps particles
+spread along the heading so that it locks on once it is. Runs are filtered side by
 side (one particle set each), one scan index at a time, so numpy casts all particles of all
 runs at once.
 
@@ -27,10 +29,14 @@ class FilterSettings:
 
     particles: int = 300
     ray_step: int = 18  # every 18th of the 1081 rays: 61 rays, 4.5 degrees apart
+    # ... and every 3rd within this many degrees of ahead: far down a hallway only rays close to
+    # ahead reach the front wall, the one thing that tells positions along the hallway apart.
+    ahead_deg: float = 15.0
+    ahead_step: int = 3
     hit_sigma: float = 0.05
     p_hit: float = 0.95
     p_clutter: float = 0.05
-    p_lost: float = 0.3
+    p_lost: float = 1.0  # glass doors swallow exactly the rays that would see the front wall
     temperature: float = 4.0  # rays are not independent: soften the joint likelihood
     position_noise: float = 0.05  # per sqrt(second)
     heading_noise: float = 0.05
@@ -38,7 +44,7 @@ class FilterSettings:
     # Along a hallway whose end is out of range nothing tells positions apart, and resampling on
     # the well-observed directions would collapse that one at random; after each resampling this
     # share of particles slides along its heading, so the right position survives until seen.
-    slide_share: float = 0.1
+    slide_share: float = 0.2
     slide_sigma: float = 1.0
     # Where runs start (wider than the simulator's start box: the filter does not know it).
     start: loop.StartBox = loop.StartBox(y1=(0.3, 1.2), y2=(8.0, 12.0), y4_deg=(-10.0, 10.0))
@@ -70,9 +76,9 @@ class PoseEstimate:
 def _log_likelihood(measured, predicted, settings: FilterSettings, limit: float) -> np.ndarray:
     """Sum over rays of log p(reading | canonical range), (..., K) -> (...).
 
-    A ray without an echo where the model sees a wall is only mildly unlikely (``p_lost``):
-    reflective walls swallow such rays, and scoring them hard would drag the particles to
-    poses where the model sees nothing either."""
+    A ray without an echo where the model sees a wall has likelihood ``p_lost`` (default 1: no
+    weight at all): reflective walls and glass swallow such rays, and scoring them would drag
+    the particles to poses where the model sees nothing either."""
     echoed = (measured > world.NO_ECHO) & (measured < limit)
     in_range = predicted < limit * 0.99
     gauss = np.exp(-0.5 * ((measured - predicted) / settings.hit_sigma) ** 2) / (np.sqrt(2 * np.pi) * settings.hit_sigma)
@@ -108,7 +114,8 @@ def estimate_poses(scans, controls, trajectory, time, *, settings: FilterSetting
     track = track or world.square()
     rng = np.random.default_rng(seed)
     full = world.scanner()
-    index = np.arange(0, 1081, settings.ray_step)
+    ahead = np.flatnonzero(np.abs(full.angles_deg) <= settings.ahead_deg)[:: settings.ahead_step]
+    index = np.union1d(np.arange(0, 1081, settings.ray_step), ahead)
     lidar = Lidar(full.angles_deg[index], full.max_range)
     runs = list(dict.fromkeys(trajectory.tolist()))
     rows = [np.flatnonzero(trajectory == r) for r in runs]

@@ -28,7 +28,7 @@ class StartBox:
     y1 in [0.65, 0.85], y2 = 9, y4 = 0)."""
 
     y1: tuple = (0.55, 0.95)
-    y2: tuple = (8.5, 9.5)
+    y2: tuple = (9.0, 11.0)
     y4_deg: tuple = (-5.0, 5.0)
 
     def sample(self, n: int, rng) -> np.ndarray:

@@ -193,14 +193,14 @@ def _torch():
 def _mlp(torch, sizes, hidden_activation, output_activation):
     layers = []
     for k, (n_in, n_out) in enumerate(zip(sizes[:-1], sizes[1:])):
-        layers.append(torch.nn.Linear(n_in, n_out, dtype=torch.float64))
+        layers.append(torch.nn.Linear(n_in, n_out))
         last = k == len(sizes) - 2
         if not last or output_activation is not None:
             layers.append((output_activation if last else hidden_activation)())
     return torch.nn.Sequential(*layers)
 
 
-def to_network(module, name: str, **output_map):
+def to_network(module, name: str):
     """A torch ``Sequential`` of Linear / Tanh / Sigmoid layers as a ``percver.Network``."""
     from percver.networks import Layer, Network
 
@@ -219,13 +219,18 @@ def to_network(module, name: str, **output_map):
             raise InputError(f"cannot convert {type(part).__name__} to a dense layer: use Linear, Tanh, Sigmoid, ReLU")
     if pending is not None:
         layers.append(Layer(*pending, "identity"))
-    return Network(layers, name=name, **output_map)
+    return Network(layers, name=name)
 
 
 def _fit(torch, module, inputs, targets, loss_fn, *, epochs, batch, lr, weight_decay, seed, progress, desc):
+    """Adam with a cosine schedule on standardised inputs; the standardisation is folded into
+    the first layer afterwards, so the module takes the raw inputs (the pose features span a
+    few hundredths, too little for a step in them to be learnt unscaled)."""
+    inputs = np.asarray(inputs, dtype=np.float64)
+    mean, scale = inputs.mean(axis=0), np.maximum(inputs.std(axis=0), 1e-3)
     generator = torch.Generator().manual_seed(seed)
-    x = torch.as_tensor(np.asarray(inputs, dtype=np.float64))
-    y = torch.as_tensor(np.asarray(targets, dtype=np.float64))
+    x = torch.as_tensor(((inputs - mean) / scale).astype(np.float32))
+    y = torch.as_tensor(np.asarray(targets, dtype=np.float32))
     optimiser = torch.optim.Adam(module.parameters(), lr=lr, weight_decay=weight_decay)
     schedule = torch.optim.lr_scheduler.CosineAnnealingLR(optimiser, max(epochs, 1))
     bar = None
@@ -242,13 +247,19 @@ def _fit(torch, module, inputs, targets, loss_fn, *, epochs, batch, lr, weight_d
             loss = loss_fn(module(x[index]), y[index])
             loss.backward()
             optimiser.step()
-            total += float(loss) * len(index)
+            total += loss.item() * len(index)
         schedule.step()
         if bar is not None:
             bar.set_postfix(loss=f"{total / len(x):.4f}")
             bar.update(1)
     if bar is not None:
         bar.close()
+    module.double()  # exported in float64: fold without rounding to float32 again
+    first = module[0]
+    with torch.no_grad():
+        weight = first.weight / torch.as_tensor(scale)
+        first.bias.copy_(first.bias - weight @ torch.as_tensor(mean))
+        first.weight.copy_(weight)
 
 
 def train_classifier(inputs, labels, hidden=SIZES["5x100"], *, epochs: int = 60, batch: int = 256, lr: float = 2e-3,
@@ -263,7 +274,7 @@ def train_classifier(inputs, labels, hidden=SIZES["5x100"], *, epochs: int = 60,
         raise InputError(f"classifier training needs inputs N x 24 and labels N x 21, got {inputs.shape} and {labels.shape}")
     torch.manual_seed(seed)
     module = _mlp(torch, (24, *hidden, 21), torch.nn.Tanh, None)
-    weight = torch.tensor(positive_weight, dtype=torch.float64)
+    weight = torch.tensor(positive_weight)
     loss = torch.nn.BCEWithLogitsLoss(pos_weight=weight)  # sigmoid folded into the loss for stability
     size = f"{len(hidden)}x{hidden[0]}" if len(set(hidden)) == 1 else "x".join(map(str, hidden))
     _fit(torch, module, inputs, labels, loss, epochs=epochs, batch=batch, lr=lr, weight_decay=0.0, seed=seed,
@@ -291,4 +302,4 @@ def train_denoiser(real_normalised, canonical_normalised, *, hidden: int = 100, 
     target = np.clip(np.asarray(canonical_normalised, dtype=float), -0.5, 0.5)
     _fit(torch, module, real_normalised, target, loss, epochs=epochs, batch=batch, lr=lr, weight_decay=weight_decay,
          seed=seed, progress=progress, desc="denoiser")
-    return Denoiser(to_network(module, "denoiser1x100" if hidden == 100 else f"denoiser1x{hidden}"))
+    return Denoiser(to_network(module, f"denoiser1x{hidden}"))

@@ -5,16 +5,18 @@ calibrates this simulator. The "real" scanner is the full sensor (1081 rays, 40 
 the canonical walls, plus what the canonical model does not know:
 
 - glossy walls: a ray meeting any wall beyond ``gloss_deg`` of incidence is mirrored away and
-  returns nothing (the soft edge ``softness_deg`` makes rays near the limit flicker);
-- reflective (metallic) panels near the first turn with much lower limits; a panel either
+  returns nothing (a soft edge of ``softness_deg`` makes rays near a limit flicker);
+- reflective panels near the first turn (``PANELS``): metal mirrors rays away beyond a much
+  lower incidence, glass lets rays through below one (windows, a glass door); a panel either
   returns nothing or saturates at the range limit;
 - range noise growing with range, mixed pixels at depth edges, random outliers and lost
   echoes ("invalid returns").
 
-Raw readings are metres rounded to millimetres; ``world.NO_ECHO`` (0.0) marks no return,
-10.0 a reading at the limit. The controllers read ``world.controller_view`` of the raw scan.
-Which rays a panel swallows depends on where the ray hits and at what angle: a discontinuous
-function of the pose, the adversarial noise of the paper.
+The real car's steering servo also lags its commands a little (``steering_lag``), which the
+canonical car does not. Raw readings are metres rounded to millimetres; 0.0 marks no return
+(anything up to ``world.NO_ECHO``), 10.0 a reading at the limit. The controllers read
+``world.controller_view`` of the raw scan. Which rays a panel swallows depends on where the ray
+hits and at what angle: a discontinuous function of the pose, the adversarial noise of the paper.
 """
 
 from __future__ import annotations
@@ -25,6 +27,7 @@ import numpy as np
 
 from percver.cases.f1tenth import controllers as ctl
 from percver.cases.f1tenth import loop, world
+from percver.cases.f1tenth.data import real_statistics
 from percver.errors import InputError
 from percver.measurements import Measurements
 from percver.sensors.lidar import Track
@@ -47,6 +50,15 @@ class Panel:
     echo: str = "none"
     fixed: bool = False
 
+    def __post_init__(self):
+        if self.material not in ("metal", "glass") or self.echo not in ("none", "max"):
+            raise InputError(
+                f"panel material '{self.material}' / echo '{self.echo}': use material 'metal' or 'glass' "
+                "and echo 'none' or 'max'"
+            )
+        if not self.start < self.end:
+            raise InputError(f"panel spans wall coordinates {self.start}..{self.end}: start must be below end")
+
 
 def _wall(segment: int, lo: float, hi: float) -> tuple:
     """Wall coordinates of metres ``lo``..``hi`` along segment ``segment`` of the square loop."""
@@ -55,9 +67,12 @@ def _wall(segment: int, lo: float, hi: float) -> tuple:
 
 
 # Square-loop segments: 0 west outer (y up), 1 north outer (x right), 4 west inner, 5 north inner.
+# The reflective surfaces of the hall, placed and sized by a random search that matched the
+# simulated runs to the real statistics (reflected rays per scan, crashes per controller).
 PANELS = (
-    Panel(*_wall(0, 2.0, 20.0), 20.0, "glass", "none", fixed=True),  # windows along the outer wall
-    Panel(*_wall(1, 0.1, 1.4), 10.0, "glass", "max"),  # glass door at the end of the first hallway
+    Panel(*_wall(0, 6.0, 20.0), 6.5, "glass", "none", fixed=True),  # windows along the outer wall
+    Panel(*_wall(1, 0.1, 1.4), 8.0, "glass", "max"),  # glass door at the end of the first hallway
+    Panel(*_wall(4, 13.0, 16.5), 53.0, "metal", "none"),  # metal cabinets on the inner wall before the turn
 )
 
 
@@ -66,14 +81,14 @@ class RealWorld:
     """The hidden environment; ``covered()`` is the same hall with the panels covered."""
 
     panels: tuple = PANELS
-    gloss_deg: float | tuple = 76.0  # one limit for all walls, or one per track segment
+    gloss_deg: float | tuple = 73.0  # one limit for all walls, or one per track segment
     softness_deg: float = 1.5
     sigma: float = 0.012
-    sigma_per_m: float = 0.004
+    sigma_per_m: float = 0.008
     mixed_pixel_jump: float = 0.25
-    outlier_rate: float = 0.004
+    outlier_rate: float = 0.04
     dropout_rate: float = 0.003
-    steering_lag: float = 0.15
+    steering_lag: float = 0.05
     track: Track = field(default_factory=world.square)
 
     def covered(self) -> "RealWorld":
@@ -132,8 +147,14 @@ class RealWorld:
         return reading
 
 
+def paper_run_counts(data=None) -> dict:
+    """Runs per controller of the real data (9 or 10 each, 116 in all)."""
+    crashes = real_statistics(data).crashes
+    return {name: len(crashes[ctl.short_name(name)]) for name in ctl.NAMES}
+
+
 def simulate(
-    runs_per_controller: int = 10,
+    runs_per_controller: int | dict = 10,
     *,
     names=None,
     world_model: RealWorld | None = None,
@@ -142,15 +163,20 @@ def simulate(
     data=None,
     controllers: dict | None = None,
 ) -> loop.Runs:
-    """Drive ``runs_per_controller`` runs of each controller (default all 12) through the first
-    turn of the "real" world, recording raw 40 Hz scans, the steering and the true states."""
-    names = list(names or ctl.NAMES)
-    if runs_per_controller < 1:
-        raise InputError(f"runs_per_controller must be at least 1, got {runs_per_controller}")
+    """Drive ``runs_per_controller`` runs (a count, or ``{name: count}`` such as
+    ``paper_run_counts()``) of each controller (default all 12) through the first turn of the
+    "real" world, recording raw 40 Hz scans, the steering and the true states."""
+    if isinstance(runs_per_controller, dict):
+        counts = {name: int(runs_per_controller[name]) for name in (names or runs_per_controller)}
+    else:
+        counts = {name: int(runs_per_controller) for name in (names or ctl.NAMES)}
+    bad = {name: count for name, count in counts.items() if count < 1}
+    if bad:
+        raise InputError(f"every controller needs at least one run, got {bad}")
     real = world_model or RealWorld()
-    loaded = controllers or ctl.load_all(names, data)
+    loaded = controllers or ctl.load_all(list(counts), data)
     rng = np.random.default_rng(seed)
-    order = [name for name in names for _ in range(runs_per_controller)]
+    order = [name for name, count in counts.items() for _ in range(count)]
     starts = (start or loop.StartBox()).sample(len(order), rng)
 
     def sense(states, rng):
@@ -214,11 +240,19 @@ def reflected_rays(view, canonical, limit: float = world.CONTROLLER_RANGE) -> np
     return (view >= limit) & (canonical < limit * 0.98)
 
 
-def calibration(runs: loop.Runs, poses=None, stats=None) -> dict:
+def _output_summary(values) -> dict:
+    return {"mean": float(values.mean()), "std": float(values.std()), "saturated": float(np.mean(np.abs(values) > 0.9)),
+            "left": float(np.mean(values > 0.5)), "right": float(np.mean(values < -0.5))}
+
+
+def calibration(runs: loop.Runs, poses=None, stats=None, controllers: dict | None = None) -> dict:
     """The simulated runs' statistics next to the real ones.
 
     ``poses`` (N x 3) are the poses at which the canonical scans are taken (default the true
     states; pass the particle filter's estimates for the comparison the real figures made).
+    With ``stats`` and ``controllers`` (``{name: Controller}`` for the 12), every controller's
+    raw outputs on every simulated scan are compared with its outputs on the real scans
+    (``ControllerOuputsOnRealData.npy``): summary statistics and the Wasserstein distance.
     """
     view = world.controller_view(runs.scans)
     poses = runs.states[:, :3] if poses is None else poses
@@ -239,4 +273,14 @@ def calibration(runs: loop.Runs, poses=None, stats=None) -> dict:
     if stats is not None:
         out["real"] = stats.summary()
         out["real"]["scans_per_run"] = stats.outputs.shape[1] / stats.runs
+        if controllers is not None:
+            from scipy.stats import wasserstein_distance
+
+            outputs = {}
+            for row, name in enumerate(ctl.NAMES):
+                if name in controllers:
+                    sim, real = controllers[name].raw(view), stats.outputs[row]
+                    outputs[name] = {"sim": _output_summary(sim), "real": _output_summary(real),
+                                     "wasserstein": float(wasserstein_distance(sim, real))}
+            out["controller_outputs"] = outputs
     return out

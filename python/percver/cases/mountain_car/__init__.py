@@ -1,7 +1,7 @@
 """Image-based Mountain Car under benign noise (paper, section 5.1 and Appendix A).
 
 - :mod:`~percver.cases.mountain_car.dynamics`: plant, reward, property and the rows of Table 1;
-- :mod:`~percver.cases.mountain_car.data`: gymnasium images, the paper's contrast and blur, data set D;
+- :mod:`~percver.cases.mountain_car.dataset`: gymnasium images, the paper's contrast and blur, data set D;
 - :mod:`~percver.cases.mountain_car.training`: the torch models, exported to ONNX (needs torch;
   imported on first use of ``train``);
 - :mod:`~percver.cases.mountain_car.networks`: the chain of networks, the authors' or ours;
@@ -16,8 +16,9 @@
     print(result.table())
 """
 
-from percver.cases.mountain_car.data import SHAPE, Camera, Dataset, blur, camera, contrast, generate, observe, render
+from percver.cases.mountain_car.dataset import SHAPE, Camera, Dataset, blur, camera, contrast, generate, observe, render
 from percver.cases.mountain_car.dynamics import NOISES, ROWS, Trajectories, equations, noise_row, simulate, step
+from percver.cases.mountain_car.evaluation import Evaluation, evaluate
 from percver.cases.mountain_car.networks import Networks, load, paper_dir
 
 

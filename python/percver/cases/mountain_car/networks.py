@@ -14,7 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
-from percver.cases.mountain_car.data import PIXELS
+from percver.cases.mountain_car.dataset import PIXELS
 from percver.errors import InputError, MissingFileError
 from percver.networks import Network, load_network
 
@@ -155,8 +155,7 @@ def load(networks="ours", *, controller=None, shared=None) -> Networks:
 
 
 def provenance(networks="ours") -> dict:
-    """The ``networks.json`` record (command, seed, losses, times) of a trained set; {} for the paper's."""
-    kind, folder = _resolve(networks, None) if networks != "paper" else ("paper", None)
-    if kind == "paper" or not (folder / "networks.json").is_file():
-        return {}
-    return json.loads((folder / "networks.json").read_text())
+    """The ``networks.json`` record (commands, seed, losses, times) of a trained set ("ours" or a
+    directory); empty for a set without one, such as the authors'."""
+    path = (PACKAGED if networks == "ours" else Path(networks)) / "networks.json"
+    return json.loads(path.read_text()) if path.is_file() else {}

@@ -28,7 +28,7 @@ from pathlib import Path
 import numpy as np
 
 from percver.cases.mountain_car import dynamics
-from percver.cases.mountain_car.data import PIXELS, Dataset
+from percver.cases.mountain_car.dataset import PIXELS, Dataset
 from percver.cases.mountain_car.networks import ESTIMATE_OFFSET, ESTIMATE_SCALE, OUR_FILES, ROLES
 from percver.errors import InputError, MissingDependencyError, NetworkFormatError
 from percver.networks import Layer, Network, load_network
@@ -58,7 +58,7 @@ PRESETS = {
         "contrast": Spec((50,), epochs=60, weight_decay=1e-6),
         "blur": Spec((50,), epochs=60, weight_decay=1e-6),
         "estimator": Spec((20, 20, 20), epochs=40, lr=2e-3),
-        "controller": Spec((16, 16), epochs=300, lr=1e-2),
+        "controller": Spec((16, 16), epochs=150, batch=1024, lr=1e-2),
     },
     # Narrower generator and noise models for percver's shipped networks: a few hundred KB in
     # all and cheaper to verify.
@@ -67,11 +67,12 @@ PRESETS = {
         "contrast": Spec((20,), epochs=60, weight_decay=1e-6),
         "blur": Spec((20,), epochs=60, weight_decay=1e-6),
         "estimator": Spec((20, 20, 20), epochs=40, lr=2e-3),
-        "controller": Spec((16, 16), epochs=300, lr=1e-2),
+        "controller": Spec((16, 16), epochs=150, batch=1024, lr=1e-2),
     },
 }
 TEST_FRACTION = 0.1
 COMPOSITES_PER_POSITION = 50  # the paper's 100,000 composites for 2000 positions
+COMPOSITE_CHUNK = 10_000
 ROUND_TRIP_TOLERANCE = 1e-5
 # Energy-pumping policy of the controller (see pump): gain on v, energy margin and its smoothing.
 PUMP_GAIN, PUMP_MARGIN, PUMP_WIDTH = 300.0, 1e-4, 2e-5
@@ -192,7 +193,7 @@ def _fit(model, loss_fn, x, y, x_test, y_test, spec: Spec, seed: int, desc: str,
             loss.backward()
             optimizer.step()
             schedule.step()
-            total += float(loss) * len(batch)
+            total += loss.item() * len(batch)
         train_loss = total / len(x)
         if progress:
             epochs.set_postfix(loss=f"{train_loss:.3g}")
@@ -224,14 +225,17 @@ def _image_fit(role, spec, x, y, x_test, y_test, seed, progress) -> Fit:
 
 
 def _composites(dataset: Dataset, index, contrast: Network, blur: Network, count: int, rng) -> tuple[np.ndarray, np.ndarray]:
-    """``count`` images g_b(g_ct(y_c, delta_c), delta_b) of random positions of ``index``, with their positions."""
+    """``count`` images g_b(g_ct(y_c, delta_c), delta_b) (float32) of random positions of ``index``, with their positions."""
     row = dynamics.noise_row("composite")
     which = rng.choice(np.asarray(index), count)
     delta_c = rng.uniform(*row["delta_c"], count)
     delta_b = rng.uniform(*row["delta_b"], count)
-    canonical = dataset.canonical[which].reshape(count, PIXELS).astype(float)
-    contrasted = contrast(np.column_stack([canonical, delta_c]))
-    return blur(np.column_stack([contrasted, delta_b])), dataset.positions[which]
+    images = np.empty((count, PIXELS), dtype=np.float32)
+    for start in range(0, count, COMPOSITE_CHUNK):  # chunks keep the float64 network passes small
+        part = slice(start, start + COMPOSITE_CHUNK)
+        contrasted = contrast(np.column_stack([dataset.canonical[which[part]].reshape(-1, PIXELS), delta_c[part]]))
+        images[part] = blur(np.column_stack([contrasted, delta_b[part]]))
+    return images, dataset.positions[which]
 
 
 def _estimator_fit(spec, dataset, train_idx, test_idx, noise_models, composites, seed, progress) -> Fit:
@@ -325,18 +329,22 @@ def train(
     models=ROLES,
     seed: int = 0,
     epochs_scale: float = 1.0,
+    overrides: dict | None = None,
     composites: int | None = None,
-    threads: int | None = None,
+    threads: int = 1,
     progress: bool = True,
     command: str | None = None,
 ) -> Training:
     """Train ``models`` (any of generator, contrast, blur, estimator, controller) on ``dataset`` (a
     :class:`Dataset` or an ``.npz`` path) and write ``ROLE.onnx`` plus ``networks.json`` to ``out``.
 
-    ``epochs_scale`` multiplies every preset's epochs (reduced runs); ``composites`` is the number of
+    ``epochs_scale`` multiplies every preset's epochs (reduced runs); ``overrides`` replaces fields of
+    the preset's :class:`Spec` per model, e.g. ``{"generator": {"batch": 16}}``; ``composites`` is the number of
     synthetic composites for the estimator (default 50 per position, the paper's 100,000 for D).
     The estimator's composites come from ``contrast.onnx`` and ``blur.onnx`` in ``out``, trained in
-    the same run or earlier. ``command`` is recorded (the CLI passes its command line).
+    the same run or earlier. ``threads`` sets torch's threads: the models are small, and more threads
+    mostly add synchronisation (on a busy 2-core machine, 2 threads ran 10-30x slower than 1).
+    ``command`` is recorded (the CLI passes its command line).
     """
     if preset not in PRESETS:
         raise InputError(f"unknown preset '{preset}'; choose one of {list(PRESETS)}")
@@ -345,12 +353,15 @@ def train(
         raise InputError(f"unknown model(s) {unknown}; choose among {list(ROLES)}")
     if not epochs_scale > 0:
         raise InputError(f"epochs_scale must be positive, got {epochs_scale}")
-    if threads:
-        torch.set_num_threads(int(threads))
+    torch.set_num_threads(int(threads))
     dataset = dataset if isinstance(dataset, Dataset) else Dataset.load(dataset)
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     specs = {role: replace(spec, epochs=max(1, round(spec.epochs * epochs_scale))) for role, spec in PRESETS[preset].items()}
+    for role, fields in (overrides or {}).items():
+        if role not in specs or not set(fields) <= set(Spec.__dataclass_fields__):
+            raise InputError(f"overrides: '{role}': {sorted(fields)} is not a model and fields of {list(Spec.__dataclass_fields__)}")
+        specs[role] = replace(specs[role], **{k: tuple(v) if k == "hidden" else v for k, v in fields.items()})
     rng = np.random.default_rng(seed)
     order = rng.permutation(dataset.n_positions)
     n_test = max(1, round(TEST_FRACTION * dataset.n_positions))
