@@ -141,3 +141,5 @@ def test_dataset_errors_name_the_file_and_field(tmp_path):
         mc.Dataset.load(tmp_path / "shape.npz")
     with pytest.raises(InputError):
         mc.generate(1, 1, progress=False)
+    with pytest.raises(InputError, match="overflow"):
+        mc.render([0.0, 40.0])

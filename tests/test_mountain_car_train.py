@@ -1,7 +1,6 @@
 """Reduced training runs of the Mountain Car models, ONNX round trips, and the shipped networks."""
 
 import json
-import zipfile
 from pathlib import Path
 
 import numpy as np
@@ -72,7 +71,7 @@ def test_onnx_round_trip(trained, role):
         expected = model(torch.as_tensor(x, dtype=torch.float32)).double().numpy()
     np.testing.assert_allclose(network(x), expected, atol=1e-5)
     session = onnxruntime.InferenceSession(str(path), providers=["CPUExecutionProvider"])
-    (output,) = session.run(None, {session.get_inputs()[0].name: x})
+    (output,) = session.run(None, {session.get_inputs()[0].name: x.astype(np.float32)})  # float32 files
     np.testing.assert_allclose(output, expected, atol=1e-5)
 
 
@@ -89,7 +88,7 @@ def test_networks_json_records_every_run(trained):
     assert len(record["runs"]) == 3
     assert record["runs"][1]["seed"] == 1 and record["runs"][1]["dataset"]["n_positions"] == 60
     assert record["models"]["generator"]["run"] == 0 and record["models"]["blur"]["run"] == 1
-    assert record["models"]["contrast"]["hidden"] == [20]
+    assert record["models"]["contrast"]["hidden"] == [32]
     assert "percver.cases.mountain_car.train" in record["runs"][0]["command"]
     chain = mc.load(out)
     assert chain.estimate(chain.images([-0.5], delta_c=1.0)).shape == (1,)
@@ -110,7 +109,7 @@ def test_training_checks_its_arguments(trained, tmp_path):
 def test_pumping_policy_meets_the_property():
     p0 = np.linspace(-0.6, -0.4, 41)
     runs = dynamics.simulate(p0, lambda k, p, v, active: training.pump(p, v))
-    assert runs.safe.all() and runs.reward.min() > 92.5
+    assert runs.safe.all() and runs.reward.min() > 92.8
 
 
 def test_shipped_networks():
@@ -119,7 +118,7 @@ def test_shipped_networks():
     assert {"generator", "contrast", "blur", "estimator", "controller"} <= set(record["models"])
     assert all("command" in run and "seed" in run for run in record["runs"])
     size = sum(path.stat().st_size for path in PACKAGED.glob("*.onnx"))
-    assert size < 800_000
+    assert size < 700_000  # float32 ONNX, 632 KB
     ours = mc.load("ours")
     assert ours.source == PACKAGED
     check = training.controller_check(ours.controller, noise=0.05)

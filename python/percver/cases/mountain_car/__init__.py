@@ -21,6 +21,12 @@ from percver.cases.mountain_car.dynamics import NOISES, ROWS, Trajectories, equa
 from percver.cases.mountain_car.evaluation import Evaluation, evaluate
 from percver.cases.mountain_car.networks import Networks, load, paper_dir
 
+__all__ = [
+    "Camera", "Dataset", "Evaluation", "Networks", "Trajectories", "NOISES", "ROWS", "SHAPE",
+    "blur", "camera", "canonical_camera", "contrast", "equations", "evaluate", "generate", "load",
+    "noise_row", "observe", "paper_dir", "render", "simulate", "step", "train",
+]  # fmt: skip
+
 
 def train(dataset, out, **options):
     """Train the models and write them as ONNX; see :func:`percver.cases.mountain_car.training.train`."""

@@ -30,6 +30,7 @@ MARGIN = 8
 CLEARANCE = 10
 LUMA = np.array([0.299, 0.587, 0.114])  # ITU-R 601, as PIL's convert("L")
 OFF_SCREEN = 10.0  # a position whose car is drawn right of the screen: the scene without the car
+RENDER_LIMIT = 5.0
 
 
 def _gymnasium():
@@ -151,6 +152,11 @@ def _positions(positions) -> np.ndarray:
     positions = np.atleast_1d(np.asarray(positions, dtype=float))
     if positions.ndim != 1 or not np.all(np.isfinite(positions)):
         raise InputError(f"positions must be a finite number or 1-D array, got shape {positions.shape}")
+    if np.any(np.abs(positions) > RENDER_LIMIT):
+        raise InputError(
+            f"positions must lie in [-{RENDER_LIMIT}, {RENDER_LIMIT}] (the track is [-1.2, 0.6]; farther out, "
+            f"gymnasium's pixel coordinates overflow), got {positions[np.abs(positions) > RENDER_LIMIT][0]}"
+        )
     return positions
 
 
@@ -181,7 +187,8 @@ def contrast(images, factor) -> np.ndarray:
     levels = np.round(np.clip(images, 0.0, 1.0) * 255.0).astype(np.uint8)
     out = np.empty(images.shape)
     for i, (image, f) in enumerate(zip(levels, factors)):
-        out[i] = np.asarray(ImageEnhance.Contrast(Image.fromarray(image, mode="L")).enhance(float(f)), dtype=float)
+        grey = Image.fromarray(image)  # 2-D uint8: mode "L"
+        out[i] = np.asarray(ImageEnhance.Contrast(grey).enhance(float(f)), dtype=float)
     return out / 255.0
 
 

@@ -1,4 +1,4 @@
-"""Mountain Car dynamics, reward and property (paper, Appendix A.1 and A.8), and the case study's rows.
+"""Mountain Car dynamics, reward and property (paper, Appendix A: "Dynamics", "Verification"), and the rows of Table 1.
 
 The plant is written once as percver expressions: :func:`simulate` evaluates them on float
 batches, and verification will evaluate the same expressions on Taylor models.
@@ -27,7 +27,7 @@ CONTRAST_RANGE = (0.3, 2.0)
 BLUR_RANGE = (0.0, 0.3)
 
 # The rows of the paper's Table 1: initial positions (v0 = 0) and noise ranges. "canonical" is the
-# noise-free chain of Figure 5, evaluated over the paper's initial set p0 in [-0.6, -0.4].
+# noise-free chain (the appendix figure of the canonical model), evaluated over the paper's initial set p0 in [-0.6, -0.4].
 ROWS = {
     "canonical": {"p0": (-0.6, -0.4)},
     "contrast": {"p0": (-0.59, -0.4), "delta_c": CONTRAST_RANGE},
@@ -94,7 +94,7 @@ class Trajectories:
 
     @property
     def reward(self) -> np.ndarray:
-        """-0.1 u^2 per step taken, +100 on reaching the goal (Appendix A.8)."""
+        """-0.1 u^2 per step taken, +100 on reaching the goal (Appendix A, "Verification")."""
         cost = CONTROL_COST * np.sum(np.where(self.active, self.u**2, 0.0), axis=1)
         return np.where(self.reached_at >= 0, GOAL_REWARD, 0.0) - cost
 

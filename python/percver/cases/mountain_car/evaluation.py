@@ -30,10 +30,10 @@ SCENARIOS = {
     "composite": [(-0.4, {"delta_c": 0.5, "delta_b": 0.15}), (-0.59, {"delta_c": 0.5, "delta_b": 0.15})],
 }
 FIGURES = {
-    "canonical": "Figure 7 of the paper (generative canonical model)",
-    "contrast": "Figures 4a and 8 (contrast model)",
-    "blur": "Figures 4b and 9 (blur model)",
-    "composite": "Figure 10 (composite model)",
+    "canonical": "the paper's appendix figure of the canonical model",
+    "contrast": "the paper's Figure 4a and appendix figure of the contrast model",
+    "blur": "the paper's Figure 4b and appendix figure of the blur model",
+    "composite": "the paper's appendix figure of the composite model",
 }
 
 
