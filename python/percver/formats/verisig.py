@@ -350,13 +350,7 @@ def _parse_modes(src: _Source, text: str, base: int, variables: set) -> dict:
                 if t.peek()[1] == "{" and t.peek(1)[0] == "num" and t.peek(2)[1] == "}":
                     t.next(), t.next(), t.next()  # nonpoly ode { N }: a queue size, not used
                 t.expect("{", "opening the ODE block")
-                while t.peek()[1] != "}":
-                    _, v, vpos = t.ident("\"x' = expression\"")
-                    if v not in variables:
-                        raise src.error(vpos, f"mode '{name}': equation for undeclared variable '{v}'")
-                    t.expect("'", f"after '{v}' in \"{v}' = ...\"")
-                    t.expect("=", f"in \"{v}' = ...\"")
-                    ode[v] = t.expr()
+                ode.update(_assignments(t, src, variables, "=", f"mode '{name}': equation for"))
                 t.expect("}")
             elif word in ("lti", "ltv"):
                 raise src.error(wpos, f"mode '{name}': '{word} ode' dynamics are not supported; write them as 'nonpoly ode'")
@@ -393,13 +387,7 @@ def _parse_jumps(src: _Source, text: str, base: int, modes: dict, variables: set
         if t.peek()[1] == "reset":
             t.next()
             t.expect("{", "opening the reset")
-            while t.peek()[1] != "}":
-                _, v, vpos = t.ident("\"x' := expression\"")
-                if v not in variables:
-                    raise src.error(vpos, f"jump {a} -> {b}: reset of undeclared variable '{v}'")
-                t.expect("'", f"after '{v}' in \"{v}' := ...\"")
-                t.expect(":=", f"in \"{v}' := ...\"")
-                reset[v] = t.expr()
+            reset.update(_assignments(t, src, variables, ":=", f"jump {a} -> {b}: reset of"))
             t.expect("}")
         kind, word, wpos = t.next()
         if word in ("interval", "parallelotope", "octagon"):
@@ -1794,3 +1782,17 @@ def _evaluate(values: list, columns: dict) -> np.ndarray:
 def _order_key(variables: list):
     index = {v: i for i, v in enumerate(variables)}
     return lambda n: (index.get(n, len(index)), n)
+
+
+def _assignments(t, src, variables, op: str, what: str) -> dict:
+    """``x' <op> expression`` lines up to the closing brace: ODE equations (``=``) or resets
+    (``:=``); ``what`` starts the error message for an undeclared variable."""
+    out = {}
+    while t.peek()[1] != "}":
+        _, v, vpos = t.ident(f"\"x' {op} expression\"")
+        if v not in variables:
+            raise src.error(vpos, f"{what} undeclared variable '{v}'")
+        t.expect("'", f"after '{v}' in \"{v}' {op} ...\"")
+        t.expect(op, f"in \"{v}' {op} ...\"")
+        out[v] = t.expr()
+    return out
