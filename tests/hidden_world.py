@@ -109,9 +109,18 @@ def _pil_contrast(image, factor):
     return np.asarray(ImageEnhance.Contrast(grey).enhance(factor), dtype=float) / 255.0
 
 
-def images(states, *, seed=0, contrast=None, blur=None, glare=None, shift_cols=0, noise=0.01):
+def blurred(look, states, delta):
+    """The paper's motion blur of the pictures ``look(states)``: half-weight copies at position
+    -/+ ``delta`` overlaid, each image rescaled to [0, 1]."""
+    out = 0.5 * look(states - delta) + look(states) + 0.5 * look(states + delta)
+    return (out - out.min(axis=(1, 2), keepdims=True)) / np.ptp(out, axis=(1, 2), keepdims=True)
+
+
+def images(states, *, seed=0, contrast=None, blur=None, glare=None, shift_cols=0, shadow=None, noise=0.01):
     """Camera images with hidden effects: PIL contrast, the paper's overlay blur, a glare disc,
-    a camera turned by whole pixels (content moves right by ``shift_cols``, edge repeated)."""
+    a camera turned by whole pixels (content moves right by ``shift_cols``, edge repeated), and
+    ``shadow`` = (p_from, factor): beyond position p_from the scene is dimmed by ``factor`` (the
+    car drives under a roof; no effect of the library does this)."""
     rng = np.random.default_rng(seed)
 
     def look(s):
@@ -120,13 +129,12 @@ def images(states, *, seed=0, contrast=None, blur=None, glare=None, shift_cols=0
             pictures = np.stack([_pil_contrast(p, contrast) for p in pictures])
         return pictures
 
-    out = look(states)
-    if blur is not None:
-        shifted = [look(states + sign * blur) for sign in (-1, 1)]
-        out = 0.5 * shifted[0] + out + 0.5 * shifted[1]
-        out = (out - out.min(axis=(1, 2), keepdims=True)) / np.ptp(out, axis=(1, 2), keepdims=True)
+    out = look(states) if blur is None else blurred(look, states, blur)
     if shift_cols:
         out = np.concatenate([np.repeat(out[:, :, :1], shift_cols, axis=2), out[:, :, :-shift_cols]], axis=2)
+    if shadow is not None:
+        start, factor = shadow
+        out = np.where(np.asarray(states, dtype=float)[:, :1, None] > start, factor * out, out)
     if glare is not None:
         r0, c0, radius = glare
         rows, cols = np.mgrid[0:H, 0:WIDTH]

@@ -1,6 +1,7 @@
 """Camera validation on images with hidden effects (PIL contrast, the paper's blur, glare, misalignment)."""
 
 import functools
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -84,3 +85,18 @@ def test_camera_model_checks_its_arguments():
         ImageModel(hidden_world.render, ["p"], (20, 30), position="q")
     with pytest.raises(pv.MeasurementError, match="measurement columns"):
         pv.compare(_camera(), pv.Measurements(POSITIONS, np.zeros((120, 10)), state_names=["p"]))
+
+
+def test_a_generator_network_is_an_image_model():
+    """The shipped Mountain Car generator (p -> image) stands in for the renderer; the blur it
+    misses is found by evaluating the network at the shifted positions."""
+    from percver.cases import mountain_car as mc
+
+    generator = ImageModel(pv.load_network(Path(mc.__file__).parent / "data" / "generator.onnx"), ["p"], mc.SHAPE)
+    positions = np.random.default_rng(2).uniform(-1.2, 0.6, (40, 1))
+    canonical = pv.Measurements(positions, mc.render(positions[:, 0]).reshape(40, -1), state_names=["p"])
+    assert pv.compare(generator, canonical).mae < 0.01  # 0.0039 measured: the network's own error
+    images = hidden_world.blurred(lambda states: mc.render(states[:, 0]), positions, 0.1).reshape(40, -1)
+    diagnosis = pv.diagnose(generator, pv.Measurements(positions, images, state_names=["p"]), ["blur", "contrast"])
+    assert diagnosis.effects == ["blur"]
+    assert _params(diagnosis, "blur")["delta"] == pytest.approx(0.1, abs=0.005)  # 0.1003 measured

@@ -84,3 +84,36 @@ def test_one_step_prediction_and_errors():
         DynamicsModel(object())
     with pytest.raises(InputError, match="velocity states"):
         DynamicsModel(FunctionPlant(hidden_world.mountain_car_step, ["p", "v"], ["u"]), velocity="w")
+
+
+def test_a_discrete_plant_of_percver_systems_is_validated_directly():
+    p, v, u = pv.variables("p v u")
+    v1 = pv.clip(v + 0.0015 * u - 0.0025 * pv.cos(3 * p), -0.07, 0.07)
+    wall = p + v1 < -1.2
+    plant = pv.Discrete({p: pv.where(wall, -1.2, p + v1), v: pv.where(wall, 0.0, v1)}, inputs=[u])
+    data = _data(drag=0.02)
+    # One update of the expressions is the hand-written step of hidden_world.
+    np.testing.assert_allclose(pv.compare(plant, data).residuals, pv.compare(_model(), data).residuals, atol=1e-12)
+    diagnosis = pv.diagnose(plant, data, effects=["linear_drag", "actuator_gain", "actuator_delay"])
+    assert diagnosis.effects == ["linear_drag"]
+    assert _params(diagnosis, "linear_drag")["coefficient"] == pytest.approx(0.02, abs=0.001)
+
+
+def test_a_continuous_plant_is_compared_over_one_control_period():
+    """A double integrator x' = w, w' = u held over 0.1 s; the real actuator delivers 70% of u."""
+    x, w, u = pv.variables("x w u")
+    plant = pv.Continuous({x: w, w: u}, inputs=[u], period=0.1)
+    rng = np.random.default_rng(8)
+    states, controls, trajectory, time = [], [], [], []
+    for run in range(6):
+        s = rng.uniform(-1, 1, 2)
+        for k in range(25):
+            thrust = rng.uniform(-1, 1)
+            states.append(s.copy()), controls.append([thrust]), trajectory.append(run), time.append(0.1 * k)
+            s = np.array([s[0] + 0.1 * s[1] + 0.7 * thrust * 0.005, s[1] + 0.7 * thrust * 0.1])  # exact for constant u
+    data = pv.Measurements(np.array(states), controls=np.array(controls), trajectory=np.array(trajectory),
+                           time=np.array(time), state_names=["x", "w"], control_names=["u"])
+    diagnosis = pv.diagnose(plant, data, effects=["actuator_gain", "actuator_bias"])
+    assert diagnosis.effects == ["actuator_gain"]
+    assert _params(diagnosis, "actuator_gain")["gain"] == pytest.approx(0.7, abs=1e-3)
+    assert diagnosis.final_error < 1e-3 * diagnosis.baseline_error

@@ -136,5 +136,17 @@ def test_diagnosis_outputs(model, tmp_path):
     page = diagnosis.to_html(tmp_path)
     assert (tmp_path / "error_fall.png").exists() and "error_fall.png" in page.read_text()
     assert "range_bias" in str(diagnosis)
-    with pytest.raises(pv.InputError, match="learn=True"):
-        pv.diagnose(model, _data(), learn=True)
+
+
+def test_a_network_or_expressions_of_the_states_are_sensor_models():
+    x, y, theta = pv.variables("x y theta")
+    rng = np.random.default_rng(3)
+    states = POSES[:200]
+    wall, heading = 20.0 - states[:, 1], states[:, 2]
+    data = pv.Measurements(states, np.column_stack([wall + 0.05, heading + rng.normal(0, 0.01, 200)]),
+                           state_names=["x", "y", "theta"], measurement_names=["north", "heading"])
+    report = pv.compare([20.0 - y, theta], data)
+    assert report.per_dimension["north"] == pytest.approx(0.05)
+    assert report.per_dimension["heading"] == pytest.approx(0.01, rel=0.2)
+    network = pv.Network([([[0.0, -1.0, 0.0], [0.0, 0.0, 1.0]], [20.0, 0.0], "identity")])
+    assert np.allclose(pv.compare(network, data).residuals, report.residuals)

@@ -71,16 +71,22 @@ def test_known_unsafe_start_is_falsified_with_a_replaying_counterexample():
     np.testing.assert_allclose(np.asarray(cex.trajectory), replay[: cex.step + 1])
 
 
-def test_unknown_cells_are_refined():
+def test_unknown_cells_are_refined(tmp_path):
     loop, p, v = mountain_car()
-    # Order 1 loses precision on the wide cell; refinement splits until cells verify.
-    res = pv.verify(loop, init={"p": (-0.53, -0.45), "v": (0, 0)}, steps=150, goal=p >= 0.45, within=True, order=2,
-                    refine=True, min_width={"p": 0.005}, progress=False)
+    # Order 2 loses precision on the wide cell; refinement splits until cells verify.
+    kwargs = dict(init={"p": (-0.53, -0.45), "v": (0, 0)}, steps=150, goal=p >= 0.45, within=True, order=2,
+                  refine=True, min_width={"p": 0.005}, progress=False, journal=str(tmp_path / "refine.jsonl"))
+    res = pv.verify(loop, **kwargs)
     assert len(res.cells) > 1
     assert all(c.verdict in ("verified", "unknown") for c in res.cells)
     widths = [c.box["p"][1] - c.box["p"][0] for c in res.cells]
     assert sum(widths) == pytest.approx(0.08)
     assert_contains_simulations(loop, res, n=200)
+    # A rerun takes everything from the journal, refined parents included, and runs nothing.
+    size = (tmp_path / "refine.jsonl").stat().st_size
+    again = pv.verify(loop, **kwargs)
+    assert sorted(c.box["p"] for c in again.cells) == sorted(c.box["p"] for c in res.cells)
+    assert (tmp_path / "refine.jsonl").stat().st_size == size
 
 
 def test_verisig_method_agrees_on_a_short_horizon():

@@ -46,7 +46,7 @@ min = minimum  # noqa: A001 - the design's names pv.min / pv.max, like numpy's
 max = maximum  # noqa: A001
 from percver.networks import Network, chain, load_network
 
-from percver import sensors, validate
+from percver import noise, sensors, validate
 from percver.measurements import Measurements
 from percver.validate import compare, diagnose
 

@@ -13,6 +13,8 @@ COMMANDS = [
     ("percver.commands.demo", "register"),
     ("percver.commands.validate", "register"),
     ("percver.commands.cases", "register"),
+    ("percver.commands.verify", "register"),
+    ("percver.commands.import_verisig", "register"),
 ]
 
 

@@ -8,6 +8,10 @@ definition of every component.
 
 from __future__ import annotations
 
+import functools
+import operator
+import re
+import warnings
 from dataclasses import dataclass, field
 from typing import Mapping, Optional, Sequence, Union
 
@@ -15,7 +19,37 @@ import numpy as np
 
 from percver import _core
 from percver.errors import InputError
-from percver.expr import Expr, ExprLike, as_expr, name_of
+from percver.expr import Condition, Expr, ExprLike, as_expr, minimum, name_of
+from percver.sets import Box, BoxLike
+
+
+class InputRangeWarning(UserWarning):
+    """The initial set leaves the input range a stage declares (``Stage(domain=...)``): the
+    component is used where it was not made (trained, calibrated) for."""
+
+
+_COMPARISONS = {"<=": operator.le, ">=": operator.ge, "<": operator.lt, ">": operator.gt}
+
+
+def condition(text: str) -> Condition:
+    """``"p >= 0.45"`` as a condition: two expressions in Flow* syntax and one of < <= > >=."""
+    parts = re.split(r"(<=|>=|<|>)", text)
+    if len(parts) != 3 or not parts[0].strip() or not parts[2].strip():
+        raise InputError(f"'{text}' is not one comparison such as 'p >= 0.45' (operators: <, <=, >, >=)")
+    return _COMPARISONS[parts[1]](as_expr(parts[0].strip()), as_expr(parts[2].strip()))
+
+
+def all_of(conditions: Sequence[Condition]) -> Condition:
+    """One condition that holds exactly where all of ``conditions`` hold: the smallest of their
+    margins (each turned to "h >= 0" or "h > 0") compared with 0. A mix of strict and non-strict
+    comparisons becomes strict (> 0): never weaker, different only where a non-strict one is
+    met with equality."""
+    conditions = list(conditions)
+    if len(conditions) == 1:
+        return conditions[0]
+    margins = [-c.margin() if c.op in ("<", "<=") else c.margin() for c in conditions]
+    smallest = functools.reduce(minimum, margins)
+    return smallest > 0.0 if any(c.op in ("<", ">") for c in conditions) else smallest >= 0.0
 
 
 class Discrete:
@@ -72,6 +106,9 @@ class Stage:
 
     ``component`` is a :class:`percver.networks.Network` or an expression (or a list of them)
     over the input names; ``inputs`` are signal names (states or earlier outputs), concatenated.
+    ``domain`` declares the range the component was made for, ``{input: (lo, hi)}`` over scalar
+    inputs (e.g. a controller's training range); an initial set leaving it draws an
+    :class:`InputRangeWarning` before verification starts.
     """
 
     component: object
@@ -80,6 +117,7 @@ class Stage:
     scale: Optional[Union[float, Sequence[float]]] = None
     offset: Optional[Union[float, Sequence[float]]] = None
     name: Optional[str] = None
+    domain: Optional[Mapping[Union[Expr, str], Sequence[float]]] = None
     input_names: list = field(init=False)
 
     def __post_init__(self):
@@ -88,18 +126,38 @@ class Stage:
         self.input_names = [name_of(i) for i in self.inputs]
         if not isinstance(self.output, str) or not self.output:
             raise InputError("a stage's output must be a signal name, e.g. output='u'")
+        self.name = self.name or self.output
         if isinstance(self.component, Network):
             if self.scale is not None or self.offset is not None:
-                self.component = _with_output_map(self.component, self.scale, self.offset)
+                self.component = _with_output_map(self.component, self._output_map(self.component.n_out))
         else:
             exprs = self.component if isinstance(self.component, (list, tuple)) else [self.component]
             exprs = [as_expr(e) for e in exprs]
             if self.scale is not None or self.offset is not None:
-                scale = np.broadcast_to(np.asarray(1.0 if self.scale is None else self.scale, float), (len(exprs),))
-                offset = np.broadcast_to(np.asarray(0.0 if self.offset is None else self.offset, float), (len(exprs),))
+                scale, offset = self._output_map(len(exprs))
                 exprs = [e * float(s) + float(o) for e, s, o in zip(exprs, scale, offset)]
             self.component = exprs
-        self.name = self.name or self.output
+        self.domain = self._checked_domain()
+
+    def _output_map(self, n: int) -> tuple:
+        """``scale`` and ``offset`` as one value per output."""
+        out = []
+        for what, value, default in (("scale", self.scale, 1.0), ("offset", self.offset, 0.0)):
+            v = np.asarray(default if value is None else value, float)
+            if v.ndim > 1 or v.size not in (1, n):
+                raise InputError(f"stage '{self.name}' has {n} outputs but {what} has {v.size} values; give one number or {n}")
+            out.append(np.broadcast_to(v.reshape(-1), (n,)))
+        return tuple(out)
+
+    def _checked_domain(self) -> dict:
+        domain = {}
+        for key, pair in (self.domain or {}).items():
+            name = name_of(key)
+            if name not in self.input_names:
+                raise InputError(f"stage '{self.name}': domain names '{name}', which is not among its inputs {self.input_names}")
+            lo, hi = Box.coerce({name: pair}).bounds[0]
+            domain[name] = (lo, hi)
+        return domain
 
     @property
     def is_network(self) -> bool:
@@ -112,16 +170,15 @@ class Stage:
         return self.component.n_out if self.is_network else len(self.component)
 
 
-def _with_output_map(net, scale, offset):
+def _with_output_map(net, output_map):
     """The network followed by y -> scale * y + offset (composed with its own output map)."""
     from percver.networks import Network
 
     n = net.n_out
-    s = np.broadcast_to(np.asarray(1.0 if scale is None else scale, float), (n,))
-    o = np.broadcast_to(np.asarray(0.0 if offset is None else offset, float), (n,))
+    s, o = output_map
     s1 = np.ones(n) if net.scale is None else np.asarray(net.scale, float)
     o1 = np.zeros(n) if net.offset is None else np.asarray(net.offset, float)
-    return Network(net.layers, scale=s * s1, offset=s * o1 + o, name=net.name, source=net.source)
+    return Network(net.layers, scale=s * s1, offset=s * o1 + o, name=net.name, source=net.source, input_names=net.input_names)
 
 
 class ClosedLoop:
@@ -133,36 +190,13 @@ class ClosedLoop:
         self.plant = plant
         self.stages = list(stages)
         self.states = list(plant.states)
+        self.accumulators: list = []  # states added by with_accumulators (they start at 0)
         # Signal name -> indices in the environment (state first, then stage outputs).
         self.signals: dict = {s: [i] for i, s in enumerate(self.states)}
         self.env_names = list(self.states)
         self.stage_inputs = []
         for k, stage in enumerate(self.stages):
-            indices = []
-            for name in stage.input_names:
-                if name not in self.signals:
-                    raise InputError(
-                        f"stage {k + 1} ('{stage.name}') reads '{name}', which is neither a state nor an earlier output "
-                        f"(known: {', '.join(self.signals)})"
-                    )
-                indices += self.signals[name]
-            n_in = stage.component.n_in if stage.is_network else None
-            if n_in is not None and n_in != len(indices):
-                parts = " + ".join(f"{n} ({len(self.signals[n])})" for n in stage.input_names)
-                raise InputError(f"stage {k + 1} ('{stage.name}') takes {n_in} inputs but is wired to {parts} = {len(indices)}")
-            if not stage.is_network:
-                names = [self.env_names[i] for i in indices]
-                for e in stage.component:
-                    unknown = set(e.variables()) - set(names)
-                    if unknown:
-                        raise InputError(f"stage {k + 1} ('{stage.name}') uses {sorted(unknown)}, which are not among its inputs {stage.input_names}")
-            if stage.output in self.signals:
-                raise InputError(f"signal '{stage.output}' is defined twice")
-            start = len(self.env_names)
-            width = stage.width
-            self.signals[stage.output] = list(range(start, start + width))
-            self.env_names += [stage.output] if width == 1 else [f"{stage.output}_{i}" for i in range(width)]
-            self.stage_inputs.append(indices)
+            self.stage_inputs.append(self._wire(k, stage))
         missing = [u for u in plant.inputs if u not in self.signals]
         if missing:
             raise InputError(f"the plant's inputs {missing} are not produced by any stage (outputs: {[s.output for s in self.stages]})")
@@ -171,11 +205,116 @@ class ClosedLoop:
         for e in used:
             unknown = set(e.variables()) - allowed
             if unknown:
-                raise InputError(f"the plant uses {sorted(unknown)}, which are neither states nor its declared inputs")
+                raise InputError(f"the plant uses {sorted(unknown)}, which are neither states nor its declared inputs{self._vector_hint(unknown)}")
         if isinstance(plant, Continuous):
             wide = [u for u in plant.inputs if len(self.signals[u]) != 1]
             if wide:
                 raise InputError(f"continuous plant inputs must be scalar signals; {wide} are vectors")
+
+    def _wire(self, k: int, stage: Stage) -> list:
+        """Checks stage k against the signals so far, adds its output; returns its input indices."""
+        where = f"stage {k + 1} ('{stage.name}')"
+        indices = []
+        for name in stage.input_names:
+            if name not in self.signals:
+                raise InputError(f"{where} reads '{name}', which is neither a state nor an earlier output (known: {', '.join(self.signals)})")
+            indices += self.signals[name]
+        wired = [self.env_names[i] for i in indices]
+        if stage.is_network:
+            net = stage.component
+            if net.n_in != len(indices):
+                parts = " + ".join(f"{n} ({len(self.signals[n])})" for n in stage.input_names)
+                raise InputError(f"{where} takes {net.n_in} inputs but is wired to {parts} = {len(indices)}")
+            # A network that names its inputs (not the default in0, in1, ...) must get those signals, in its order.
+            if any(n != w and not re.fullmatch(r"in\d+", n) for n, w in zip(net.input_names, wired)):
+                raise InputError(
+                    f"{where}: network '{net.name}' takes inputs ({', '.join(net.input_names)}) but is wired to ({', '.join(wired)}); "
+                    "list the stage's inputs in the network's order, or rename them with net.with_input_names([...])"
+                )
+        else:
+            for e in stage.component:
+                unknown = set(e.variables()) - set(wired)
+                if unknown:
+                    raise InputError(f"{where} uses {sorted(unknown)}, which are not among its inputs {stage.input_names}")
+        wide = [n for n in stage.domain if len(self.signals[n]) != 1]
+        if wide:
+            raise InputError(f"{where}: domain= bounds scalar inputs only; {wide} are vectors")
+        if stage.output in self.signals:
+            raise InputError(f"signal '{stage.output}' is defined twice")
+        start = len(self.env_names)
+        width = stage.width
+        self.signals[stage.output] = list(range(start, start + width))
+        self.env_names += [stage.output] if width == 1 else [f"{stage.output}_{i}" for i in range(width)]
+        return indices
+
+    def _vector_hint(self, names) -> str:
+        wide = [n for n in sorted(names) if len(self.signals.get(n, [0])) > 1]
+        return "".join(f"; '{n}' is a vector of {len(self.signals[n])}: use its components {n}_0 .. {n}_{len(self.signals[n]) - 1}"
+                       for n in wide)
+
+    def with_accumulators(self, sums: Mapping[Union[Expr, str], ExprLike]) -> "ClosedLoop":
+        """This loop with one more state per entry, ``name[k+1] = name[k] + expr(step k)``: a reward
+        or cost summed along the run, e.g. ``{"r": -0.1 * u**2}``, where ``expr`` reads states and
+        stage outputs. The sums are ordinary plant states, so the engine encloses them like any
+        state and simulation tracks them; they start at 0 unless the initial set says otherwise.
+        For a continuous plant the step's increment is a held input and the sum flows at
+        increment / period, so it gains exactly the increment over each period.
+        """
+        added = {}
+        for key, value in sums.items():
+            name = name_of(key)
+            if not re.fullmatch(r"[A-Za-z_]\w*", name):
+                raise InputError(f"accumulator name '{name}' must be an identifier (letters, digits, _), e.g. 'reward'")
+            if name in self.signals or name in added:
+                raise InputError(f"accumulator '{name}' has the name of an existing signal; choose another name")
+            e = as_expr(value)
+            unknown = set(e.variables()) - set(self.env_names)
+            if unknown:
+                raise InputError(f"accumulator '{name}' uses {sorted(unknown)}, which are neither states nor stage outputs "
+                                 f"({', '.join(self.env_names)}){self._vector_hint(unknown)}")
+            added[name] = e
+        if not added:
+            raise InputError("give accumulators as {name: expression}, e.g. {'r': -0.1 * u**2}")
+        plant, stages = self.plant, list(self.stages)
+        if isinstance(plant, Discrete):
+            update = dict(zip(plant.states, plant.update))
+            update.update({n: Expr.var(n) + e for n, e in added.items()})
+            new_plant = Discrete(update, inputs=plant.inputs)
+        else:
+            rhs, inputs = dict(zip(plant.states, plant.rhs)), list(plant.inputs)
+            for n, e in added.items():
+                if e.variables():
+                    rate = f"{n}__increment"
+                    stages.append(Stage([e], inputs=self._signals_of(e), output=rate))
+                    inputs.append(rate)
+                    rhs[n] = Expr.var(rate) / plant.period
+                else:
+                    rhs[n] = e / plant.period
+            new_plant = Continuous(rhs, inputs, period=plant.period, step=plant.step, remainder=plant.remainder)
+        loop = ClosedLoop(new_plant, stages)
+        loop.accumulators = self.accumulators + list(added)
+        return loop
+
+    def _signals_of(self, e: Expr) -> list:
+        """The signals (in environment order) whose values ``e`` reads."""
+        used = set(e.variables())
+        return [s for s, idx in self.signals.items() if any(self.env_names[i] in used for i in idx)]
+
+    def initial_box(self, init: BoxLike) -> Box:
+        """``init`` as a box over the states, accumulators at 0 unless given; warns
+        (:class:`InputRangeWarning`) where it leaves a stage's declared ``domain``."""
+        if isinstance(init, Box):
+            init = init.to_dict()
+        if isinstance(init, Mapping):
+            init = {**{a: (0.0, 0.0) for a in self.accumulators}, **{name_of(k): v for k, v in init.items()}}
+        box = Box.coerce(init, self.states)
+        for stage in self.stages:
+            for name, (lo, hi) in stage.domain.items():
+                if name in box.names and (box[name][0] < lo or box[name][1] > hi):
+                    warnings.warn(f"initial {name} in [{box[name][0]:g}, {box[name][1]:g}] leaves [{lo:g}, {hi:g}], the input range "
+                                  f"stage '{stage.name}' declares: its component is used outside the range it was made for",
+                                  InputRangeWarning, stacklevel=3)
+        return box
 
     def _stage_float(self, k: int, env: np.ndarray) -> np.ndarray:
         stage = self.stages[k]
@@ -207,17 +346,25 @@ class ClosedLoop:
 
     def compile(self, *, safe, goal, within: bool, steps: int):
         """The Rust form of the loop with its property."""
+        from percver.fusion import fuse
+        from percver.networks import Network
+
+        if isinstance(self.plant, Continuous):
+            reads = set(self.plant.inputs)
+        else:
+            reads = {name for e in self.plant.update for name in e.variables()}
+        fused, env = fuse(self.env_names, self.stage_inputs, self.stages, reads)
         stages = []
-        for k, stage in enumerate(self.stages):
-            if stage.is_network:
-                stages.append((stage.component._core(), self.stage_inputs[k]))
+        for stage in fused:
+            if isinstance(stage.component, Network):
+                stages.append((stage.component._core(), stage.inputs))
             else:
-                stages.append(((stage.component, [self.env_names[i] for i in self.stage_inputs[k]]), self.stage_inputs[k]))
+                stages.append(((stage.component, [env[i] for i in stage.inputs]), stage.inputs))
         if isinstance(self.plant, Continuous):
             pl = self.plant
             zero = as_expr(0.0)
-            plant = (pl.rhs + [zero] * len(pl.inputs), pl.states + pl.inputs, [self.signals[u][0] for u in pl.inputs],
+            plant = (pl.rhs + [zero] * len(pl.inputs), pl.states + pl.inputs, [env.index(self.env_names[self.signals[u][0]]) for u in pl.inputs],
                      pl.period, pl.step, pl.remainder)
         else:
             plant = self.plant.update
-        return _core.ClosedLoop(self.states, stages, self.env_names, plant, safe, goal, within, steps)
+        return _core.ClosedLoop(self.states, stages, env, plant, safe, goal, within, steps)

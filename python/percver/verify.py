@@ -9,9 +9,14 @@ Verdicts per cell: "verified" (the engine proved the property for every state of
 from __future__ import annotations
 
 import hashlib
+import itertools
 import json
 import os
+import sys
 import time
+import warnings
+import zlib
+from collections import deque
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Optional, Sequence, Union
@@ -22,11 +27,15 @@ from percver import _core
 from percver.errors import InputError, PercverError
 from percver.expr import Condition
 from percver.sets import Box, BoxLike
-from percver.systems import ClosedLoop
+from percver.systems import ClosedLoop, all_of
 
 
 class JournalError(PercverError):
     """The journal belongs to another problem, or another process is writing it."""
+
+
+class JournalWarning(UserWarning):
+    """The journal's last line was cut by an interrupted write (power loss, kill -9 mid-line)."""
 
 
 @dataclass
@@ -48,9 +57,16 @@ class Cell:
     reason: Optional[str] = None
     counterexample: Optional[Counterexample] = None
     boxes: list = field(default_factory=list)  # per step: list of (lo, hi) per state
+    # Peak resident memory (MB) of the process that ran the cell, from the start of the cell's
+    # batch to its end: an upper bound shared by the cells that ran beside it.
+    peak_rss_mb: Optional[float] = None
 
     def to_dict(self) -> dict:
-        return asdict(self)
+        # Shallow (asdict would deep-copy the reach boxes of every journaled cell).
+        d = dict(self.__dict__)
+        if self.counterexample is not None:
+            d["counterexample"] = asdict(self.counterexample)
+        return d
 
     @classmethod
     def from_dict(cls, d: dict) -> "Cell":
@@ -179,9 +195,7 @@ class _Property:
             # One unsafe half-space is the complement of a safe one.
             self.safe.append(_NEGATE[u.op](u.margin()))
         goals = _conditions(goal, "goal", self.states)
-        if len(goals) > 1:
-            raise InputError("give one goal condition (combine several with separate runs)")
-        self.goal = goals[0] if goals else None
+        self.goal = all_of(goals) if goals else None  # a list is a conjunction
         self.within = within
         self.steps = steps
         if not self.safe and self.goal is None:
@@ -250,6 +264,7 @@ class _Journal:
         self.path = Path(path) if path else None
         self.done: dict = {}
         self.file = None
+        self.synced = 0.0
         if self.path is None:
             return
         self.lock = self.path.with_suffix(self.path.suffix + ".lock")
@@ -264,7 +279,7 @@ class _Journal:
             else:
                 raise JournalError(f"journal {self.path} is in use by process {pid} (lock {self.lock}); wait for it or remove the lock if it is stale") from None
         if self.path.exists() and self.path.stat().st_size:
-            lines = self.path.read_text().split("\n")
+            lines = self.path.read_bytes().split(b"\n")
             header = json.loads(lines[0])
             if header.get("fingerprint") != fingerprint:
                 self.close()
@@ -274,9 +289,12 @@ class _Journal:
                     continue
                 try:
                     cell = Cell.from_dict(json.loads(line))
-                except (json.JSONDecodeError, TypeError):
+                except (json.JSONDecodeError, TypeError, UnicodeDecodeError):
                     if k == len(lines) or (k == len(lines) - 1 and not lines[-1]):
-                        print(f"percver: journal {self.path}: ignoring a truncated last line (line {k})")
+                        # Cut it off: the next append must start on a line of its own.
+                        os.truncate(self.path, sum(len(x) + 1 for x in lines[: k - 1]))
+                        warnings.warn(f"journal {self.path}: line {k} was cut by an interrupted write; "
+                                      "it is dropped and its cell runs again", JournalWarning, stacklevel=3)
                         continue
                     raise JournalError(f"journal {self.path}, line {k} is corrupt") from None
                 self.done[_key(cell.box)] = cell
@@ -286,14 +304,21 @@ class _Journal:
             self.file.write(json.dumps({"fingerprint": fingerprint}) + "\n")
             self.file.flush()
 
+    SYNC_SECONDS = 1.0
+
     def write(self, cell: Cell):
+        # Flushed at once (a killed process loses nothing), synced to disk at most once a second
+        # (power loss loses at most that second, and a cut last line is tolerated on reading).
         if self.file:
             self.file.write(json.dumps(cell.to_dict()) + "\n")
             self.file.flush()
-            os.fsync(self.file.fileno())
+            if time.monotonic() - self.synced > self.SYNC_SECONDS:
+                os.fsync(self.file.fileno())
+                self.synced = time.monotonic()
 
     def close(self):
         if self.file:
+            os.fsync(self.file.fileno())
             self.file.close()
             self.file = None
         if self.path is not None and self.lock.exists():
@@ -336,20 +361,35 @@ def verify(
     safe: Union[Condition, Sequence[Condition], None] = None,
     unsafe: Union[Condition, Sequence[Condition], None] = None,
     within: bool = False,
+    reward: Optional[dict] = None,
     split: Optional[dict] = None,
     refine: bool = False,
     min_width: Optional[dict] = None,
     method: str = "taylor",
     order: int = 5,
+    max_splits: int = 16,
     workers: Optional[int] = None,
     executor=None,
+    batch: Optional[int] = None,
     journal: Optional[str] = None,
     timeout_per_cell: Optional[float] = None,
     falsify: int = 32,
     progress: bool = True,
     seed: int = 0,
 ) -> Result:
-    """Prove ``loop`` satisfies the property from every state of ``init`` (see module doc)."""
+    """Prove ``loop`` satisfies the property from every state of ``init`` (see module doc).
+
+    Cells run on this machine's cores (rayon; ``workers`` threads) or, with ``executor=``, on a
+    ``dask.distributed.Client``, a scheduler address ``"tcp://host:8786"`` or any
+    ``concurrent.futures.Executor`` (``workers`` then caps the batches in flight; ``batch`` fixes
+    the cells per task, else tasks are sized to about a quarter second). A cell still running
+    after ``timeout_per_cell`` seconds stops at the next step and is bisected down to
+    ``min_width`` (default 1/64 of the initial set per dimension), then reported unknown.
+
+    Inside a cell, a part whose enclosure degrades (or that reaches a ``within`` goal only in
+    part) is split where its enclosure was last precise and continued from there, up to
+    ``max_splits`` times per cell (0: never); the splits count as branches.
+    """
     started = time.time()
     if not isinstance(loop, ClosedLoop) and isinstance(getattr(loop, "loop", None), ClosedLoop):
         # A loaded problem (e.g. pv.formats.load_verisig): its file's init, horizon and property fill what is not given.
@@ -364,79 +404,192 @@ def verify(
         raise InputError("verify() needs init={state: (lo, hi), ...}")
     if not (isinstance(steps, int) and steps >= 0):
         raise InputError(f"steps must be a non-negative integer, got {steps!r}")
-    if executor is not None:
-        raise InputError("executor= (distributed cells) is not available yet; cells run on local threads (workers=N)")
     if method not in ("taylor", "verisig"):
         raise InputError(f"unknown method '{method}'; use 'taylor' or 'verisig'")
-    box = Box.coerce(init, loop.states)
+    if reward is not None:
+        loop = loop.with_accumulators(reward)  # sums as extra states: see ClosedLoop.with_accumulators
+    box = loop.initial_box(init)
     prop = _Property(loop, safe, unsafe, goal, within, steps)
     safe_r, goal_r = prop.rust()
     problem = loop.compile(safe=safe_r, goal=goal_r, within=within, steps=steps)
-    settings = {"steps": steps, "method": method, "order": order, "timeout_per_cell": timeout_per_cell, "within": within}
-    journal_ = _Journal(journal, _fingerprint(loop, prop, settings))
-    rng = np.random.default_rng(seed)
-    cells_out: list = []
+    if not (isinstance(max_splits, int) and max_splits >= 0):
+        raise InputError(f"max_splits must be a non-negative integer, got {max_splits!r}")
+    settings = {"steps": steps, "method": method, "order": order, "max_splits": max_splits,
+                "timeout_per_cell": timeout_per_cell, "within": within}
+    fingerprint = _fingerprint(loop, prop, settings)
+    options = {"order": order, "method": method, "timeout": timeout_per_cell, "max_splits": max_splits}
+    cells, count = _grid(box, split or {})
+    runner = None
+    if executor is not None:
+        from percver.executors import Runner
+
+        runner = Runner(executor, slots=workers, batch=batch)  # checked (and connected) before any work
+    journal_ = _Journal(journal, fingerprint)
     bar = None
     try:
-        pending = box.split(split or {})
-        min_w = {n: float(w) for n, w in (min_width or {}).items()}
         if progress:
             from tqdm import tqdm
 
-            bar = tqdm(total=len(pending), unit="cell", desc="verify")
-        while pending:
-            todo = []
-            fresh = []
-            for cell in pending:
-                known = journal_.done.get(_key(cell.to_dict()))
-                if known is not None:
-                    cells_out.append(known)
-                    _tick(bar, cells_out)
-                else:
-                    fresh.append(cell)
-            for cell, cex in zip(fresh, _falsify(loop, prop, fresh, steps, falsify, rng)):
-                if cex is not None:
-                    c = Cell(cell.to_dict(), "falsified", counterexample=cex, reason=f"simulation violates {cex.violated} at step {cex.step}")
-                    journal_.write(c)
-                    cells_out.append(c)
-                    _tick(bar, cells_out)
-                else:
-                    todo.append(cell)
-            finished: dict = {}
-
-            def done(i, outcome):
-                verdict = outcome["verdict"]
-                if verdict == "violated":
-                    # The engine says every state violates, yet no simulation did: say unknown
-                    # rather than claim a counterexample we do not have.
-                    verdict = "unknown"
-                c = Cell(todo[i].to_dict(), verdict, outcome["seconds"], outcome["nn_seconds"], outcome["branches"],
-                         outcome["steps_done"], outcome["reason"], None, outcome["boxes"])
-                finished[i] = c
-                journal_.write(c)
-                cells_out.append(c)
-                _tick(bar, cells_out)
-                return True
-
-            if todo:
-                _core.verify_cells(problem, [list(c.bounds) for c in todo], done, order=order, method=method,
-                                   timeout=timeout_per_cell, workers=workers)
-            pending = []
-            if refine:
-                for i, c in finished.items():
-                    if c.verdict == "unknown" and _splittable(todo[i], box, min_w):
-                        cells_out.remove(c)
-                        halves = _bisect(todo[i], box)
-                        pending += halves
-                if bar is not None and pending:
-                    bar.total += len(pending)
-                    bar.refresh()
+            bar = tqdm(total=count, unit="cell", desc="verify")
+        campaign = _Campaign(loop, prop, box, cells, count, journal_, bar, refine=refine, timeout=timeout_per_cell,
+                             min_width={n: float(w) for n, w in (min_width or {}).items()}, falsify=falsify, seed=seed)
+        if runner is None:
+            _run_local(campaign, problem, options, workers)
+        else:
+            runner.run(campaign, (loop, safe_r, goal_r, within, steps), fingerprint, options)
     finally:
+        if runner is not None:
+            runner.close()
         if bar is not None:
             bar.close()
         journal_.close()
-    result = Result(loop.states, box.to_dict(), cells_out, time.time() - started, settings)
-    return result
+    return Result(loop.states, box.to_dict(), campaign.cells, time.time() - started, settings)
+
+
+def _grid(box: Box, split: dict):
+    """The cells of ``box.split(split)`` as a lazy iterator, and their count: a campaign of 10^4
+    cells never holds them all at once."""
+    unknown = set(split) - set(box.names)
+    if unknown:
+        raise InputError(f"split names {sorted(unknown)}, which are not states ({', '.join(box.names)})")
+    axes = [[c.bounds[j] for c in box.split({name: split[name]})] if name in split else [box.bounds[j]]
+            for j, name in enumerate(box.names)]
+    return (Box(box.names, bounds) for bounds in itertools.product(*axes)), int(np.prod([len(a) for a in axes]))
+
+
+class _Campaign:
+    """The cells of one verify() call as they flow: the lazy grid and sub-cells are looked up in
+    the journal, falsified in chunks, and handed to a backend (rayon or an executor) that returns
+    outcomes in any order; unknown cells (with refine=True) and timed-out ones (always) are
+    bisected down to min_width and their halves queued. Memory is a chunk plus the results."""
+
+    chunk = 128  # cells falsified together at most: one simulation batch, bounded trajectories
+
+    def __init__(self, loop, prop, init: Box, grid, count: int, journal, bar, *, refine: bool, timeout, min_width: dict,
+                 falsify: int, seed: int):
+        self.loop, self.prop, self.init, self.grid, self.left, self.journal, self.bar = loop, prop, init, grid, count, journal, bar
+        self.refine, self.timeout, self.min_width, self.falsify, self.seed = refine, timeout, min_width, falsify, seed
+        self.queue: list = []  # sub-cells, last in first out: depth-first keeps the queue short
+        self.ready: deque = deque()  # falsification found nothing: to be run
+        self.cells: list = []
+        self.counts = dict.fromkeys(("verified", "unknown", "falsified"), 0)
+        self.cell_seconds = [0.0, 0]  # engine seconds and cells so far, to size executor batches
+
+    def remaining(self) -> int:
+        """Cells known to be still to run (sub-cells of running cells may add more)."""
+        return self.left + len(self.queue) + len(self.ready)
+
+    def take(self, n: int) -> list:
+        """Up to n cells to run; empty when none is left for now."""
+        while len(self.ready) < n and (self.queue or self.left):
+            self._prepare(min(self.chunk, max(n - len(self.ready), 8)))
+        return [self.ready.popleft() for _ in range(min(n, len(self.ready)))]
+
+    def _prepare(self, want: int):
+        fresh = []
+        while len(fresh) < want and (self.queue or self.left):
+            if self.queue:
+                cell = self.queue.pop()
+            else:
+                cell = next(self.grid)
+                self.left -= 1
+            known = self.journal.done.get(_key(cell.to_dict()))
+            if known is not None:
+                self._settle(cell, known)
+            else:
+                fresh.append(cell)
+        for cell, cex in zip(fresh, _falsify(self.loop, self.prop, fresh, self.prop.steps, self.falsify, self.seed)):
+            if cex is None:
+                self.ready.append(cell)
+            else:
+                self._finish(cell, Cell(cell.to_dict(), "falsified", counterexample=cex,
+                                        reason=f"simulation violates {cex.violated} at step {cex.step}"))
+
+    def record(self, cell: Box, outcome: dict):
+        """A cell's outcome from the engine (``_run_cells``)."""
+        verdict = outcome["verdict"]
+        if verdict == "violated":
+            # The engine says every state violates, yet no simulation did: say unknown
+            # rather than claim a counterexample we do not have.
+            verdict = "unknown"
+        c = Cell(cell.to_dict(), verdict, outcome["seconds"], outcome["nn_seconds"], outcome["branches"],
+                 outcome["steps_done"], outcome["reason"], None, outcome["boxes"], outcome.get("peak_rss_mb"))
+        self.cell_seconds[0] += c.seconds
+        self.cell_seconds[1] += 1
+        if self._timed_out(c) and not self._splits(cell, c):
+            c.reason += "; not split further: the cell is at min_width"
+        self._finish(cell, c)
+
+    def _finish(self, cell: Box, c: Cell):
+        self.journal.write(c)
+        self._settle(cell, c)
+
+    def _timed_out(self, c: Cell) -> bool:
+        # The engine stops a cell between steps once it has run longer than the timeout.
+        return c.verdict == "unknown" and self.timeout is not None and c.seconds > self.timeout
+
+    def _splits(self, cell: Box, c: Cell) -> bool:
+        return c.verdict == "unknown" and (self.refine or self._timed_out(c)) and _splittable(cell, self.init, self.min_width)
+
+    def _settle(self, cell: Box, c: Cell):
+        """A finished cell (fresh or from the journal) is a result, or replaced by its halves."""
+        if self._splits(cell, c):
+            self.queue += _bisect(cell, self.init)
+            if self.bar is not None:
+                self.bar.total += 2
+        else:
+            self.cells.append(c)
+            self.counts[c.verdict] += 1
+        if self.bar is not None:
+            self.bar.set_postfix(self.counts, refresh=False)
+            self.bar.update(1)
+
+
+_CLEAR: dict = {}  # pid -> descriptor of /proc/self/clear_refs (a forked child opens its own)
+
+
+def _reset_peak_rss():
+    """Restarts the process's peak RSS (Linux; elsewhere the peak stays the one since the start).
+    It takes the address-space lock, so once per batch, not per cell."""
+    pid = os.getpid()
+    if pid not in _CLEAR:
+        _CLEAR.clear()
+        try:
+            _CLEAR[pid] = os.open("/proc/self/clear_refs", os.O_WRONLY)
+        except OSError:
+            _CLEAR[pid] = None
+    if _CLEAR[pid] is not None:
+        os.pwrite(_CLEAR[pid], b"5", 0)
+
+
+def _peak_rss_mb() -> float:
+    import resource
+
+    peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+    return peak / 2**20 if sys.platform == "darwin" else peak / 1024
+
+
+def _run_cells(problem, cells: list, done, options: dict, workers: Optional[int]):
+    """``_core.verify_cells`` on cells given as lists of (lo, hi), each outcome with the peak RSS
+    of this process from the batch's start to the cell's end; the one place cells run, locally
+    and on executor workers."""
+
+    def each(i, outcome):
+        outcome["peak_rss_mb"] = _peak_rss_mb()
+        return done(i, outcome)
+
+    _reset_peak_rss()
+    _core.verify_cells(problem, [list(c) for c in cells], each, workers=workers, **options)
+
+
+def _run_local(campaign: _Campaign, problem, options: dict, workers: Optional[int]):
+    """All cells on this machine's cores (rayon), a chunk at a time so sub-cells join in."""
+    chunk = 32 * (workers or os.cpu_count() or 1)
+    while True:
+        cells = campaign.take(chunk)
+        if not cells:
+            return
+        _run_cells(problem, [c.bounds for c in cells], lambda i, o: campaign.record(cells[i], o), options, workers)
 
 
 def _splittable(cell: Box, init: Box, min_width: dict) -> bool:
@@ -447,36 +600,26 @@ def _splittable(cell: Box, init: Box, min_width: dict) -> bool:
     return False
 
 
-def _tick(bar, cells):
-    if bar is None:
-        return
-    counts = {v: sum(c.verdict == v for c in cells) for v in ("verified", "unknown", "falsified")}
-    bar.set_postfix(counts, refresh=False)
-    bar.update(1)
-
-
-def _falsify(loop: ClosedLoop, prop: _Property, cells: list, steps: int, samples: int, rng) -> list:
+def _falsify(loop: ClosedLoop, prop: _Property, cells: list, steps: int, samples: int, seed: int) -> list:
     """Simulates each cell's centre, corners (up to 2^8) and random points, all cells in one
-    batch; per cell, the first violating trajectory is its counterexample (else None)."""
+    batch; per cell, the first violating trajectory is its counterexample (else None). The random
+    points are drawn from the cell itself (seeded by its bounds), so a cell gets the same ones
+    whichever order or process it is run in."""
     if not cells:
         return []
-    points, owner = [], []
-    for k, cell in enumerate(cells):
+    blocks = []
+    for cell in cells:
         lo, hi = cell.lo, cell.hi
-        pts = [0.5 * (lo + hi)]
-        free = [j for j in range(len(lo)) if hi[j] > lo[j]]
+        free = np.nonzero(hi > lo)[0]
+        corners = np.empty((0, len(lo)))
         if len(free) <= 8:
-            for mask in range(2 ** len(free)):
-                p = lo.copy()
-                for b, j in enumerate(free):
-                    if mask >> b & 1:
-                        p[j] = hi[j]
-                pts.append(p)
-        pts += list(lo + (hi - lo) * rng.random((samples, len(lo))))
-        points += pts
-        owner += [k] * len(pts)
-    x0 = np.array(points)
-    owner = np.array(owner)
+            bits = (np.arange(2 ** len(free))[:, None] >> np.arange(len(free))) & 1
+            corners = np.repeat(lo[None], len(bits), axis=0)
+            corners[:, free] = np.where(bits, hi[free], lo[free])
+        rng = np.random.default_rng([seed, zlib.crc32(_key(cell.to_dict()).encode())])
+        blocks.append(np.vstack([0.5 * (lo + hi), corners, lo + (hi - lo) * rng.random((samples, len(lo)))]))
+    x0 = np.vstack(blocks)
+    owner = np.repeat(np.arange(len(cells)), [len(b) for b in blocks])
     traj = loop.simulate(x0, steps)
     out = [None] * len(cells)
     remaining = np.ones(len(x0), dtype=bool)

@@ -20,6 +20,7 @@
 //! and multiplied with upward rounding and absorb u |midpoint| per operation. It is several
 //! times cheaper than endpoint intervals, and this bound runs once per neuron.
 use std::sync::OnceLock;
+pub static STATS: std::sync::Mutex<Vec<(usize, usize)>> = std::sync::Mutex::new(Vec::new());
 use taylor::interval::{add_up, mul_up};
 use taylor::tm::{gamma, U};
 use taylor::Interval;
@@ -27,12 +28,18 @@ use taylor::Interval;
 /// Smallest subnormal: the absolute error a product may lose to underflow.
 const ETA: f64 = f64::from_bits(1);
 
-/// [m - r, m + r] with r an upper bound (rounded up) of the distance to the true value.
+/// [m - r, m + r] with r an upper bound of the distance to the true value.
 #[derive(Clone, Copy, Debug)]
 struct Ball {
     m: f64,
     r: f64,
 }
+
+/// Radii are sums of at most four rounded non-negative terms, computed in round-to-nearest: the
+/// exact sum is at most (1 - u)^-4 times the float one, and one product by 1 + 8u (exact in
+/// f64) covers that with room for its own rounding and that of adding the underflow terms
+/// (eta per product that may underflow, added after). Cheaper than rounding every operation up.
+const GROW: f64 = 1.0 + 8.0 * U;
 
 impl Ball {
     const ZERO: Ball = Ball { m: 0.0, r: 0.0 };
@@ -42,22 +49,24 @@ impl Ball {
     fn from_interval(x: Interval) -> Ball {
         Ball { m: x.mid(), r: x.radius() }
     }
+    /// |fl(x) - x| <= u |fl(x)| for the rounded midpoint (u |m| itself may underflow).
     fn add(self, o: Ball) -> Ball {
         let m = self.m + o.m;
-        Ball { m, r: add_up(add_up(self.r, o.r), mul_up(U, m.abs())) }
+        Ball { m, r: (self.r + o.r + U * m.abs()) * GROW + 2.0 * ETA }
     }
     fn sub(self, o: Ball) -> Ball {
         self.add(Ball { m: -o.m, r: o.r })
     }
+    /// Each of the five products may underflow: eta each (and a margin).
     fn mul(self, o: Ball) -> Ball {
         let m = self.m * o.m;
-        let spread = add_up(add_up(mul_up(self.m.abs(), o.r), mul_up(self.r, o.m.abs())), mul_up(self.r, o.r));
-        Ball { m, r: add_up(spread, add_up(mul_up(U, m.abs()), ETA)) }
+        let spread = self.m.abs() * o.r + self.r * o.m.abs() + self.r * o.r;
+        Ball { m, r: (spread + U * m.abs()) * GROW + 6.0 * ETA }
     }
     /// self / k for an exact positive float k.
     fn div(self, k: f64) -> Ball {
         let m = self.m / k;
-        Ball { m, r: add_up((self.r / k).next_up(), add_up(mul_up(U, m.abs()), ETA)) }
+        Ball { m, r: (self.r / k + U * m.abs()) * GROW + 3.0 * ETA }
     }
 }
 
@@ -89,9 +98,18 @@ const PIECES: [usize; 12] = [1, 2, 3, 4, 6, 8, 12, 16, 24, 32, 48, 64];
 
 impl Smooth {
     pub fn image(&self, x: Interval) -> Interval {
+        if x.is_empty() {
+            return Interval::EMPTY;
+        }
+        self.at(x.lo()).hull(&self.at(x.hi()))
+    }
+
+    /// An enclosure of phi(x): half the work of `Interval::sigmoid` on a point, which encloses
+    /// the value at each end separately.
+    fn at(&self, x: f64) -> Interval {
         match self {
-            Smooth::Sigmoid => x.sigmoid(),
-            Smooth::Tanh => x.tanh(),
+            Smooth::Sigmoid => (Interval::ONE + Interval::point(-x).exp()).recip().unwrap_or(Interval::UNIT).intersect(&Interval::UNIT),
+            Smooth::Tanh => Interval::point(x).tanh(),
         }
     }
 
@@ -115,6 +133,12 @@ impl Smooth {
         }
     }
 
+    /// (ln rho, ln M) of the discs, for planning.
+    fn log_discs(&self) -> &'static [(f64, f64); 3] {
+        static LN: [OnceLock<[(f64, f64); 3]>; 2] = [const { OnceLock::new() }; 2];
+        LN[*self as usize].get_or_init(|| self.discs().map(|(rho, m)| (rho.ln(), m.ln())))
+    }
+
     /// An upper bound of sup_x |phi^(n)(x)| / n! * h^n (n >= 1) from the disc `disc`.
     fn tail(&self, disc: usize, n: usize, h: f64) -> f64 {
         let (rho, m) = self.discs()[disc];
@@ -122,12 +146,13 @@ impl Smooth {
         (0..n).fold(m, |acc, _| mul_up(acc, ratio))
     }
 
-    /// Enclosures of phi^(j)(c) / j! for j = 0..=k, from the ODE phi' = phi - phi^2 (sigmoid)
-    /// or phi' = 1 - phi^2 (tanh): (n + 1) y_{n+1} = [sigmoid] y_n or [tanh] [n = 0], minus the
-    /// Cauchy product sum_i y_i y_{n-i}.
-    fn taylor(&self, c: f64, k: usize) -> Vec<Ball> {
+    /// Enclosures of phi^(j)(c) / j! h^j for j = 0..=k (the expansion in w = (y - c) / h), from
+    /// the ODE phi' = phi - phi^2 (sigmoid) or phi' = 1 - phi^2 (tanh): with z_n = y_n h^n,
+    /// (n + 1) z_(n+1) = h ([sigmoid] z_n or [tanh] [n = 0] - sum_i z_i z_(n-i)).
+    fn taylor(&self, c: f64, h: f64, k: usize) -> Vec<Ball> {
+        let h = Ball::point(h);
         let mut y = Vec::with_capacity(k + 1);
-        y.push(Ball::from_interval(self.image(Interval::point(c))));
+        y.push(Ball::from_interval(self.at(c)));
         for n in 0..k {
             let mut conv = Ball::ZERO;
             for i in 0..n.div_ceil(2) {
@@ -142,7 +167,7 @@ impl Smooth {
                 Smooth::Tanh if n == 0 => Ball::point(1.0),
                 Smooth::Tanh => Ball::ZERO,
             };
-            y.push(linear.sub(conv).div((n + 1) as f64));
+            y.push(h.mul(linear.sub(conv)).div((n + 1) as f64));
         }
         y
     }
@@ -208,33 +233,55 @@ fn chebyshev_to_power() -> &'static Vec<Vec<f64>> {
     })
 }
 
+/// The linear map from phi's values at the n = d + 3 Chebyshev nodes to the power coefficients
+/// of the degree-d truncation of their interpolant (rows 0..=d) and to the two dropped Chebyshev
+/// coefficients (rows d + 1, d + 2): fixed per degree, so it is built once.
+struct Interpolation {
+    nodes: Vec<f64>,
+    rows: Vec<Vec<f64>>,
+}
+
+fn interpolation(d: usize) -> &'static Interpolation {
+    static TABLES: [OnceLock<Interpolation>; taylor::space::MAX_ORDER + 1] = [const { OnceLock::new() }; taylor::space::MAX_ORDER + 1];
+    TABLES[d].get_or_init(|| {
+        let n = d + 3;
+        let nodes: Vec<f64> = (0..n).map(|i| (std::f64::consts::PI * (i as f64 + 0.5) / n as f64).cos()).collect();
+        let table = chebyshev_to_power();
+        let mut rows = vec![vec![0.0; n]; d + 3];
+        // T_m at the nodes by T_(m+1) = 2x T_m - T_(m-1); Chebyshev coefficient m by discrete
+        // orthogonality, c_m = w_m sum_i T_m(x_i) v_i.
+        let (mut t_prev, mut t_cur) = (vec![0.0; n], vec![1.0; n]);
+        for m in 0..n {
+            let w = if m == 0 { 1.0 } else { 2.0 } / n as f64;
+            match table.get(m).filter(|_| m <= d) {
+                Some(power) => {
+                    for (row, &p) in rows.iter_mut().zip(power) {
+                        row.iter_mut().zip(&t_cur).for_each(|(r, t)| *r += p * w * t);
+                    }
+                }
+                // Beyond the conversion table (degrees above K_MAX), a coefficient counts as dropped.
+                None => rows[(d + 1).max(m)].iter_mut().zip(&t_cur).for_each(|(r, t)| *r += w * t),
+            }
+            let factor = if m == 0 { 1.0 } else { 2.0 };
+            for i in 0..n {
+                let next = factor * nodes[i] * t_cur[i] - t_prev[i];
+                t_prev[i] = t_cur[i];
+                t_cur[i] = next;
+            }
+        }
+        Interpolation { nodes, rows }
+    })
+}
+
 /// Float Chebyshev approximation of phi(c + tau / s) of degree d, in the power basis of tau:
 /// the interpolant at d + 3 nodes truncated to degree d, and the two dropped coefficients'
 /// magnitudes, an estimate of the fit error.
 fn interpolate(f: Smooth, c: f64, s: f64, d: usize) -> (Vec<f64>, f64) {
-    let n = d + 3;
-    let nodes: Vec<f64> = (0..n).map(|i| (std::f64::consts::PI * (i as f64 + 0.5) / n as f64).cos()).collect();
-    let values: Vec<f64> = nodes.iter().map(|&x| f.eval(c + x / s)).collect();
-    let table = chebyshev_to_power();
-    let mut power = vec![0.0; d + 1];
-    let mut estimate = 0.0;
-    // T_m at the nodes by T_(m+1) = 2x T_m - T_(m-1), in place.
-    let (mut t_prev, mut t_cur) = (vec![0.0; n], vec![1.0; n]);
-    for m in 0..n {
-        // Chebyshev coefficient by discrete orthogonality at the nodes.
-        let sum: f64 = t_cur.iter().zip(&values).map(|(t, v)| t * v).sum();
-        let cm = sum * if m == 0 { 1.0 } else { 2.0 } / n as f64;
-        match table.get(m).filter(|_| m <= d) {
-            Some(row) => power.iter_mut().zip(row).for_each(|(p, t)| *p += cm * t),
-            None => estimate += cm.abs(),
-        }
-        let factor = if m == 0 { 1.0 } else { 2.0 };
-        for i in 0..n {
-            let next = factor * nodes[i] * t_cur[i] - t_prev[i];
-            t_prev[i] = t_cur[i];
-            t_cur[i] = next;
-        }
-    }
+    let table = interpolation(d);
+    let values: Vec<f64> = table.nodes.iter().map(|&x| f.eval(c + x / s)).collect();
+    let dot = |row: &Vec<f64>| row.iter().zip(&values).map(|(r, v)| r * v).sum::<f64>();
+    let power = table.rows[..=d].iter().map(dot).collect();
+    let estimate = table.rows[d + 1..].iter().map(|row| dot(row).abs()).sum();
     (power, estimate)
 }
 
@@ -253,19 +300,21 @@ fn shift(q: &[f64], tau_p: Ball) -> Vec<Ball> {
 /// max |phi(y) - q(s (y - c))| over y in [c_p - h_p, c_p + h_p], rounded up.
 #[allow(clippy::too_many_arguments)]
 fn piece_bound(f: Smooth, q: &[f64], c: f64, s: f64, c_p: f64, h_p: f64, k: usize, disc: usize) -> f64 {
-    let t = f.taylor(c_p, k);
+    let t = f.taylor(c_p, h_p, k);
     let si = Ball::point(s);
     let tau_p = si.mul(Ball::point(c_p).sub(Ball::point(c)));
     let b = shift(q, tau_p);
-    let hp = Ball::point(h_p);
-    let shp = si.mul(hp);
-    let (mut h_pow, mut sh_pow) = (Ball::point(1.0), Ball::point(1.0));
+    let shp = si.mul(Ball::point(h_p));
+    let mut sh_pow = Ball::point(1.0);
     let mut diff = Vec::with_capacity(k + 1);
     for (j, tj) in t.iter().enumerate() {
-        let bj = b.get(j).copied().unwrap_or(Ball::ZERO);
-        diff.push(tj.mul(h_pow).sub(bj.mul(sh_pow)));
-        h_pow = h_pow.mul(hp);
-        sh_pow = sh_pow.mul(shp);
+        match b.get(j) {
+            Some(bj) => {
+                diff.push(tj.sub(bj.mul(sh_pow)));
+                sh_pow = sh_pow.mul(shp);
+            }
+            None => diff.push(*tj),
+        }
     }
     add_up(chebyshev_norm(&diff), f.tail(disc, k + 1, h_p))
 }
@@ -275,26 +324,32 @@ fn piece_bound(f: Smooth, q: &[f64], c: f64, s: f64, c_p: f64, h_p: f64, k: usiz
 /// is computed rigorously afterwards.
 fn plan(f: Smooth, h: f64, tail: f64, degree: usize) -> Option<(usize, usize, usize)> {
     let (ln_h, ln_tail) = (h.ln(), tail.ln());
-    let discs = f.discs();
+    let discs = f.log_discs();
     let mut best: Option<(usize, usize, usize)> = None;
     let cost = |n: usize, k: usize| n * (k + 1) * (k + 1);
-    for n in PIECES {
+    for (n, ln_n) in PIECES.iter().zip(ln_pieces()) {
+        let n = *n;
         if best.is_some_and(|(bn, bk, _)| cost(n, degree) >= cost(bn, bk)) {
             break;
         }
-        let ln_hp = ln_h - (n as f64).ln();
-        for (d, &(rho, m)) in discs.iter().enumerate() {
-            let ln_ratio = ln_hp - rho.ln();
+        let ln_hp = ln_h - ln_n;
+        for (d, &(ln_rho, ln_m)) in discs.iter().enumerate() {
+            let ln_ratio = ln_hp - ln_rho;
             if ln_ratio >= 0.0 {
                 continue;
             }
-            let k = (((ln_tail - m.ln()) / ln_ratio).ceil().max(1.0) as usize - 1).max(degree);
+            let k = (((ln_tail - ln_m) / ln_ratio).ceil().max(1.0) as usize - 1).max(degree);
             if k <= K_MAX && best.is_none_or(|(bn, bk, _)| cost(n, k) < cost(bn, bk)) {
                 best = Some((n, k, d));
             }
         }
     }
     best
+}
+
+fn ln_pieces() -> &'static [f64; PIECES.len()] {
+    static LN: OnceLock<[f64; PIECES.len()]> = OnceLock::new();
+    LN.get_or_init(|| PIECES.map(|n| (n as f64).ln()))
 }
 
 /// The enclosure of phi on `range` by a polynomial of degree `degree` (bounded, non-empty range).
@@ -311,6 +366,7 @@ pub fn enclose(f: Smooth, range: Interval, degree: usize) -> PolyEnclosure {
     let (q, estimate) = interpolate(f, c, s, degree);
     let tail = (estimate * TAIL_FRACTION).max(TAIL_MIN);
     let Some((pieces, k, disc)) = plan(f, h, tail, degree) else { return constant() };
+    STATS.lock().unwrap().push((pieces, k));
     let (lo, hi) = (range.lo(), range.hi());
     let mut err = 0.0f64;
     for i in 0..pieces {
@@ -326,10 +382,12 @@ pub fn enclose(f: Smooth, range: Interval, degree: usize) -> PolyEnclosure {
     PolyEnclosure { centre: c, scale: s, coef: q, err }
 }
 
-/// The range of phi' over `y`: phi' is unimodal with its peak at 0 (1/4 for sigmoid, 1 for tanh).
-pub fn derivative_range(f: Smooth, y: Interval) -> Interval {
-    let at = |x: f64| -> Interval {
-        let v = f.image(Interval::point(x));
+/// phi(y) and the range of phi' over `y`, from one enclosure of phi at each end: phi is
+/// increasing, and phi' (a function of phi) is unimodal with its peak at 0 (1/4 for sigmoid, 1
+/// for tanh).
+pub fn image_and_derivative(f: Smooth, y: Interval) -> (Interval, Interval) {
+    let (at_lo, at_hi) = (f.at(y.lo()), f.at(y.hi()));
+    let slope = |v: Interval| -> Interval {
         match f {
             Smooth::Sigmoid => v * (Interval::ONE - v),
             Smooth::Tanh => Interval::ONE - v.sqr(),
@@ -340,14 +398,20 @@ pub fn derivative_range(f: Smooth, y: Interval) -> Interval {
         Smooth::Sigmoid => 0.25,
         Smooth::Tanh => 1.0,
     };
-    let (a, b) = (at(y.lo()), at(y.hi()));
-    if y.lo() >= 0.0 {
+    let (a, b) = (slope(at_lo), slope(at_hi));
+    let derivative = if y.lo() >= 0.0 {
         Interval::new(b.lo(), a.hi()).unwrap_or(a.hull(&b))
     } else if y.hi() <= 0.0 {
         Interval::new(a.lo(), b.hi()).unwrap_or(a.hull(&b))
     } else {
         Interval::new(a.lo().min(b.lo()), peak).expect("ordered")
-    }
+    };
+    (at_lo.hull(&at_hi), derivative)
+}
+
+/// The range of phi' over `y`.
+pub fn derivative_range(f: Smooth, y: Interval) -> Interval {
+    image_and_derivative(f, y).1
 }
 
 #[cfg(test)]
@@ -392,12 +456,13 @@ mod tests {
 
     #[test]
     fn taylor_recurrence_matches_derivatives() {
-        // sigmoid'(0) = 1/4, sigmoid'''(0)/6 = -1/48; tanh'(0) = 1, tanh'''(0)/6 = -1/3.
+        // sigmoid'(0) = 1/4, sigmoid'''(0)/6 = -1/48; tanh'(0) = 1, tanh'''(0)/6 = -1/3; in
+        // w = (y - c) / h the j-th coefficient is scaled by h^j.
         let contains = |b: Ball, x: f64| (b.m - x).abs() <= b.r;
-        let s = Smooth::Sigmoid.taylor(0.0, 3);
+        let s = Smooth::Sigmoid.taylor(0.0, 1.0, 3);
         assert!(contains(s[1], 0.25) && contains(s[2], 0.0) && contains(s[3], -1.0 / 48.0));
-        let t = Smooth::Tanh.taylor(0.0, 3);
-        assert!(contains(t[1], 1.0) && contains(t[3], -1.0 / 3.0));
+        let t = Smooth::Tanh.taylor(0.0, 0.5, 3);
+        assert!(contains(t[1], 0.5) && contains(t[3], -1.0 / 24.0));
     }
 
     #[test]

@@ -90,6 +90,8 @@ pub struct CellSettings {
     pub timeout: Option<f64>,
     /// Widths beyond which a state enclosure counts as blown up.
     pub blow_up_width: f64,
+    /// Domain splits allowed per cell when a part of it is lost (0: never split).
+    pub max_splits: usize,
 }
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -223,13 +225,49 @@ pub fn verify_cell(lp: &ClosedLoop, cell: &[Interval], settings: &CellSettings) 
         nn_seconds: 0.0,
         branches: 0,
     };
-    let result = run(lp, cell, settings, &mut out, started);
-    if let Err(e) = result {
+    if let Err(e) = run(lp, cell, settings, &mut out, started) {
         out.verdict = Verdict::Unknown;
-        out.reason = Some(format!("step {}: {e}", out.steps_done + 1));
+        out.reason = Some(e.to_string());
     }
     out.seconds = started.elapsed().as_secs_f64();
     out
+}
+
+/// A part of the cell's domain carried through the steps on its own. Its Taylor models are
+/// over the whole normalised domain [-1, 1]^n; a split re-parameterises one variable to half
+/// of its range (x = ±1/2 + x/2), which keeps every enclosure sound and lets the pieces
+/// continue from where their parent was instead of restarting at step 0.
+struct Piece {
+    step: usize,
+    state: Vec<TaylorModel>,
+    /// The states of every step so far, oldest first: a lost piece is split at one of them.
+    history: Vec<(usize, Vec<TaylorModel>)>,
+    /// Where the goal first held on part of the piece: if the piece is lost later, it is split
+    /// there so that the arrived part stops.
+    arrival: Option<Arrival>,
+}
+
+/// Steps a piece may straddle the goal before it is split where it first did: parts that
+/// arrived would otherwise be carried past the goal (where models may not hold) for long.
+const ARRIVAL_PATIENCE: usize = 3;
+
+struct Arrival {
+    step: usize,
+    state: Vec<TaylorModel>,
+    /// The goal's margin over the piece at that step.
+    margin: TaylorModel,
+}
+
+/// How one piece ended.
+enum End {
+    /// Every state of the piece satisfies the property.
+    Done,
+    /// Every state of the piece violates the property (whole-cell violation if there was no split).
+    Violated(String),
+    /// The engine lost the piece at `step`; splitting it a few steps earlier may help.
+    Lost { step: usize, reason: String },
+    /// Out of time: nothing more is tried.
+    Timeout(String),
 }
 
 fn run(lp: &ClosedLoop, cell: &[Interval], settings: &CellSettings, out: &mut CellOutcome, started: Instant) -> Result<()> {
@@ -239,7 +277,7 @@ fn run(lp: &ClosedLoop, cell: &[Interval], settings: &CellSettings, out: &mut Ce
     }
     let space = Space::get(n, settings.order, 0)?;
     let ctx = Ctx::new(space.clone(), settings.order, settings.cutoff);
-    let mut state: Vec<TaylorModel> = cell
+    let state: Vec<TaylorModel> = cell
         .iter()
         .enumerate()
         .map(|(v, iv)| {
@@ -252,105 +290,250 @@ fn run(lp: &ClosedLoop, cell: &[Interval], settings: &CellSettings, out: &mut Ce
             }
         })
         .collect();
-    out.boxes.push(cell.to_vec());
-    let mut goal_met = false;
-    for step in 0..=lp.steps {
-        // Properties on the current state (step 0 is the initial set).
-        for c in &lp.safe {
-            match decide(c, &state, &ctx)? {
-                Some(true) => {}
-                Some(false) => {
-                    out.verdict = Verdict::Violated;
-                    out.reason = Some(format!("step {step}: '{}' is violated by the whole set", c.label));
-                    return Ok(());
+    let mut boxes: Vec<Option<Vec<Interval>>> = vec![None; lp.steps + 1];
+    boxes[0] = Some(cell.to_vec());
+    let mut work = vec![Piece { step: 0, state, history: Vec::new(), arrival: None }];
+    let mut splits = 0;
+    let mut hulls = 0;
+    let mut verified = true;
+    while let Some(mut piece) = work.pop() {
+        match advance(lp, &mut piece, &ctx, settings, out, &mut boxes, &mut hulls, started)? {
+            End::Done => {}
+            End::Violated(reason) => {
+                verified = false;
+                out.verdict = if splits == 0 { Verdict::Violated } else { Verdict::Unknown };
+                out.reason = Some(if splits == 0 { reason } else { format!("{reason} (on part of the cell, after {splits} splits)") });
+                break;
+            }
+            End::Timeout(reason) => {
+                verified = false;
+                out.reason = Some(reason);
+                break;
+            }
+            End::Lost { step, reason } => {
+                // A piece lost after part of it reached the goal is split where that happened,
+                // along the variable that decides arrival, if its polynomial part still tells the
+                // arrived part apart there; otherwise where the enclosure was last precise.
+                let arrival = piece.arrival.take().filter(|a| precise(std::slice::from_ref(&a.margin), &ctx.space));
+                let (history, focus) = match arrival {
+                    Some(arrival) => (vec![(arrival.step, arrival.state)], Some(arrival.margin)),
+                    None => {
+                        let before = piece.history.iter().filter(|(s, _)| *s < step.max(1)).count().max(1);
+                        let at = piece.history[..before].iter().rposition(|(_, st)| precise(st, &ctx.space)).unwrap_or(0);
+                        piece.history.truncate(at + 1);
+                        (piece.history, None)
+                    }
+                };
+                let last = &history.last().expect("a piece keeps its current state").1;
+                let v = split_variable(focus.as_ref().map_or(&last[..], std::slice::from_ref), &ctx);
+                match v.filter(|_| splits < settings.max_splits) {
+                    Some(v) => {
+                        if std::env::var("PV_DEBUG").is_ok() {
+                            eprintln!("split v{v} at step {} (lost at {step}: {reason}) arrival={}", history.last().unwrap().0, focus.is_some());
+                        }
+                        for half in [-0.5, 0.5] {
+                            let history: Vec<_> = history.iter().map(|(k, s)| (*k, restrict_half(s, v, half, &ctx))).collect();
+                            let (from, state) = history.last().cloned().expect("non-empty");
+                            work.push(Piece { step: from, state, history, arrival: None });
+                        }
+                        splits += 1;
+                    }
+                    None => {
+                        verified = false;
+                        out.steps_done = step;
+                        out.reason = Some(if splits == 0 { reason } else { format!("{reason} (after {splits} splits)") });
+                        break;
+                    }
                 }
+            }
+        }
+    }
+    out.branches = splits + hulls;
+    out.boxes = boxes.into_iter().take_while(|b| b.is_some()).map(|b| b.unwrap()).collect();
+    if verified {
+        out.steps_done = out.boxes.len() - 1;
+        out.verdict = Verdict::Verified;
+        out.reason = None;
+    }
+    Ok(())
+}
+
+/// Steps one piece until it satisfies the property, violates it, or is lost.
+#[allow(clippy::too_many_arguments)]
+fn advance(
+    lp: &ClosedLoop,
+    piece: &mut Piece,
+    ctx: &Ctx,
+    settings: &CellSettings,
+    out: &mut CellOutcome,
+    boxes: &mut [Option<Vec<Interval>>],
+    hulls: &mut usize,
+    started: Instant,
+) -> Result<End> {
+    let space = &ctx.space;
+    loop {
+        let step = piece.step;
+        if piece.history.last().map(|(s, _)| *s) != Some(step) {
+            piece.history.push((step, piece.state.clone()));
+        }
+        let here = |b: &[Option<Vec<Interval>>]| describe(&lp.state_names, b[step].as_deref().unwrap_or(&[]));
+        for c in &lp.safe {
+            match decide(c, &piece.state, ctx)? {
+                Some(true) => {}
+                Some(false) => return Ok(End::Violated(format!("step {step}: '{}' is violated by the whole set", c.label))),
                 None => {
-                    out.reason = Some(format!("step {step}: '{}' could not be decided (reach box {})", c.label, describe(&lp.state_names, out.boxes.last().unwrap())));
-                    return Ok(());
+                    let reason = format!("step {step}: '{}' could not be decided (reach box {})", c.label, here(boxes));
+                    return Ok(End::Lost { step, reason });
                 }
             }
         }
         if let Some(g) = &lp.goal {
             if lp.goal_within || step == lp.steps {
-                match decide(g, &state, &ctx)? {
-                    Some(true) => {
-                        goal_met = true;
-                        if lp.goal_within {
-                            break;
+                let margin = g.margin.eval(&TaylorModels { ctx }, &piece.state)?.remove(0);
+                match g.cmp.decide(taylor::bound::range(&margin, space)) {
+                    Some(true) => return Ok(End::Done),
+                    // Part of the set has arrived; the whole set often arrives a step later.
+                    None if lp.goal_within && step < lp.steps => match &piece.arrival {
+                        None => piece.arrival = Some(Arrival { step, state: piece.state.clone(), margin }),
+                        Some(a) if step >= a.step + ARRIVAL_PATIENCE => {
+                            let reason = format!("step {step}: goal '{}' holds on part of the set only since step {}", g.label, a.step);
+                            return Ok(End::Lost { step, reason });
                         }
-                    }
+                        Some(_) => {}
+                    },
                     Some(false) if step == lp.steps => {
-                        out.verdict = Verdict::Violated;
-                        out.reason = Some(format!("step {step}: goal '{}' fails on the whole set", g.label));
-                        return Ok(());
+                        return Ok(End::Violated(format!("step {step}: goal '{}' fails on the whole set", g.label)))
                     }
                     _ if step == lp.steps => {
-                        out.reason = Some(format!("step {step}: goal '{}' could not be decided (reach box {})", g.label, describe(&lp.state_names, out.boxes.last().unwrap())));
-                        return Ok(());
+                        let reason = format!("step {step}: goal '{}' could not be decided (reach box {})", g.label, here(boxes));
+                        return Ok(End::Lost { step, reason });
                     }
                     _ => {}
                 }
             }
         }
         if step == lp.steps {
-            break;
+            return Ok(End::Done);
         }
         if let Some(limit) = settings.timeout {
             if started.elapsed().as_secs_f64() > limit {
-                out.reason = Some(format!("timeout after {limit} s at step {step}"));
-                return Ok(());
+                return Ok(End::Timeout(format!("timeout after {limit} s at step {step}")));
             }
         }
-        // One step: stages, then the plant.
-        let mut env = state.clone();
-        for stage in &lp.stages {
-            let inputs: Vec<TaylorModel> = stage.inputs.iter().map(|&i| env[i].clone()).collect();
-            let outputs = match &stage.component {
-                Component::Network(net) => {
-                    let t = Instant::now();
-                    let o = apply_network(net, &inputs, &ctx, settings)?;
-                    out.nn_seconds += t.elapsed().as_secs_f64();
-                    o
-                }
-                Component::Expr(p) => p.eval(&TaylorModels { ctx: &ctx }, &inputs)?,
-            };
-            env.extend(outputs);
-        }
-        match &lp.plant {
-            Plant::Discrete(plant) => {
-                let values = plant.eval_all(&TaylorModels { ctx: &ctx }, &env)?;
-                out.branches += count_undecided(plant, &values, &ctx);
-                state = plant.outputs_of(&values);
-            }
-            Plant::Continuous { ode, inputs, period, flow } => {
-                let held: Vec<TaylorModel> = inputs.iter().map(|&i| env[i].clone()).collect();
-                match integrate_period(lp, ode, &state, &held, *period, flow, &ctx)? {
-                    Ok(next) => state = next,
-                    Err(reason) => {
-                        out.reason = Some(format!("step {}: {reason}", step + 1));
-                        return Ok(());
-                    }
-                }
-            }
-        }
-        for m in state.iter_mut() {
-            m.sweep(&ctx);
-        }
-        let b: Vec<Interval> = state.iter().map(|m| m.bound(&space)).collect();
-        out.steps_done = step + 1;
+        let next = match one_step(lp, &piece.state, ctx, settings, out, hulls) {
+            Ok(Ok(next)) => next,
+            Err(NetworkError::Input(m)) => return Err(NetworkError::Input(m)),
+            Ok(Err(reason)) => return Ok(End::Lost { step: step + 1, reason: format!("step {}: {reason}", step + 1) }),
+            Err(e) => return Ok(End::Lost { step: step + 1, reason: format!("step {}: {e}", step + 1) }),
+        };
+        let b: Vec<Interval> = next.iter().map(|m| m.bound(space)).collect();
         if let Some((i, w)) = b.iter().enumerate().find(|(_, w)| !w.is_bounded() || w.width() > settings.blow_up_width) {
-            out.boxes.push(b.clone());
-            out.reason = Some(format!("step {}: the enclosure of '{}' blew up ({w}); split the cell or raise the order", step + 1, lp.state_names[i]));
-            return Ok(());
+            let reason = format!("step {}: the enclosure of '{}' blew up ({w}); split the cell or raise the order", step + 1, lp.state_names[i]);
+            return Ok(End::Lost { step: step + 1, reason });
         }
-        out.boxes.push(b);
+        if std::env::var("PV_DEBUG").is_ok() {
+            eprintln!("step {}: {}", step + 1, next.iter().map(|m| format!("[{:.2e} rem {:.2e}]", m.bound(space).width(), m.rem.width())).collect::<Vec<_>>().join(" "));
+        }
+        if let Some(i) = (0..next.len()).find(|&i| degrading(&piece.state[i], &next[i], &b[i])) {
+            let reason = format!("step {}: the remainder of '{}' doubled and dominates its enclosure {}", step + 1, lp.state_names[i], b[i]);
+            return Ok(End::Lost { step: step + 1, reason });
+        }
+        let slot = &mut boxes[step + 1];
+        *slot = Some(match slot.take() {
+            None => b,
+            Some(old) => old.iter().zip(&b).map(|(a, c)| a.hull(c)).collect(),
+        });
+        piece.state = next;
+        piece.step = step + 1;
     }
-    // Every safety check above held (else we returned); the goal decides the rest.
-    if lp.goal.is_none() || goal_met {
-        out.verdict = Verdict::Verified;
-        out.reason = None;
+}
+
+/// Whether the polynomial parts carry the enclosures: every remainder is at most a quarter of its
+/// model's range. Splitting a piece pays off from such a state; from a later one the remainders,
+/// which splitting cannot shrink, already dominate.
+fn precise(models: &[TaylorModel], space: &Space) -> bool {
+    models.iter().all(|m| m.rem.width() <= 0.25 * m.bound(space).width())
+}
+
+/// Whether a state's enclosure is turning into a plain interval: its remainder is most of it and
+/// doubled in one step. Polynomial parts can be split apart; remainders cannot, so this is the
+/// moment to split the piece (a few steps back), before the enclosure blows up.
+fn degrading(before: &TaylorModel, after: &TaylorModel, range: &Interval) -> bool {
+    let rem = after.rem.width();
+    rem > 0.5 * range.width() && rem > 2.0 * before.rem.width()
+}
+
+/// One control step from `state`: the stages, then the plant. Ok(Err(reason)) when a
+/// continuous plant's flowpipe or a safety check along it fails.
+fn one_step(
+    lp: &ClosedLoop,
+    state: &[TaylorModel],
+    ctx: &Ctx,
+    settings: &CellSettings,
+    out: &mut CellOutcome,
+    hulls: &mut usize,
+) -> Result<std::result::Result<Vec<TaylorModel>, String>> {
+    let mut env = state.to_vec();
+    for stage in &lp.stages {
+        let inputs: Vec<TaylorModel> = stage.inputs.iter().map(|&i| env[i].clone()).collect();
+        let outputs = match &stage.component {
+            Component::Network(net) => {
+                let t = Instant::now();
+                let o = apply_network(net, &inputs, ctx, settings)?;
+                out.nn_seconds += t.elapsed().as_secs_f64();
+                o
+            }
+            Component::Expr(p) => p.eval(&TaylorModels { ctx }, &inputs)?,
+        };
+        env.extend(outputs);
     }
-    Ok(())
+    let mut next = match &lp.plant {
+        Plant::Discrete(plant) => {
+            let values = plant.eval_all(&TaylorModels { ctx }, &env)?;
+            *hulls += count_undecided(plant, &values, ctx);
+            plant.outputs_of(&values)
+        }
+        Plant::Continuous { ode, inputs, period, flow } => {
+            let held: Vec<TaylorModel> = inputs.iter().map(|&i| env[i].clone()).collect();
+            match integrate_period(lp, ode, state, &held, *period, flow, ctx)? {
+                Ok(next) => next,
+                Err(reason) => return Ok(Err(reason)),
+            }
+        }
+    };
+    for m in next.iter_mut() {
+        m.sweep(ctx);
+    }
+    Ok(Ok(next))
+}
+
+/// The domain variable whose halving shrinks the state's polynomial part most: the largest
+/// sum over states of |d state / d x_v| (bounded by sum of k |c_k| over monomials with x_v^k),
+/// relative to the state's width. None when no variable is left to split.
+fn split_variable(state: &[TaylorModel], ctx: &Ctx) -> Option<usize> {
+    let space = &ctx.space;
+    let mut score = vec![0.0f64; space.nvars];
+    for m in state {
+        let width = m.bound(space).width();
+        if !(width > 0.0) || !width.is_finite() {
+            continue;
+        }
+        for (k, &c) in m.coef.iter().enumerate() {
+            for (v, &e) in space.exponents(k).iter().enumerate() {
+                score[v] += e as f64 * c.abs() / width;
+            }
+        }
+    }
+    score.iter().enumerate().filter(|(_, &s)| s > 0.0).max_by(|a, b| a.1.total_cmp(b.1)).map(|(v, _)| v)
+}
+
+/// The models restricted to the half x_v in [half - 1/2, half + 1/2] of the domain, written
+/// over a fresh [-1, 1] variable: x_v = half + x_v / 2 (a rigorous composition).
+fn restrict_half(state: &[TaylorModel], v: usize, half: f64, ctx: &Ctx) -> Vec<TaylorModel> {
+    let args: Vec<TaylorModel> = (0..ctx.space.nvars)
+        .map(|w| if w == v { TaylorModel::affine(ctx, half, v, 0.5) } else { TaylorModel::var(ctx, w) })
+        .collect();
+    state.iter().map(|m| m.compose(&args, ctx)).collect()
 }
 
 /// `model` with each variable v of `from` renamed to v + shift in `to` (same order).
@@ -505,7 +688,7 @@ mod tests {
             steps: 40,
         };
         lp.validate().unwrap();
-        let settings = CellSettings { order: 4, cutoff: 1e-12, method: Method::Taylor, nn: NnSettings { order: 4, ..NnSettings::default() }, timeout: None, blow_up_width: 1e6 };
+        let settings = CellSettings { order: 4, cutoff: 1e-12, method: Method::Taylor, nn: NnSettings { order: 4, ..NnSettings::default() }, timeout: None, blow_up_width: 1e6, max_splits: 0 };
         let cell = [Interval::new(0.5, 0.7).unwrap(), Interval::new(-0.1, 0.1).unwrap()];
         let out = verify_cell(&lp, &cell, &settings);
         assert_eq!(out.verdict, Verdict::Verified, "{:?}", out.reason);

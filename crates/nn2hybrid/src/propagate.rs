@@ -33,7 +33,7 @@
 //! Domain splitting: a variable can be split into pieces, lazily: the layers before the first
 //! nonlinear neuron that depends on it are propagated once (for a perception chain, the whole
 //! image generator), then each piece substitutes x_v = c + r x_v' and continues.
-use crate::activation::{derivative_range, enclose, Smooth};
+use crate::activation::{enclose, image_and_derivative, Smooth};
 use crate::error::{NetworkError, Result};
 use crate::network::{Activation, Layer, Network};
 use nalgebra::DMatrix;
@@ -101,8 +101,13 @@ pub struct Models {
     pub ctx: Ctx,
     /// Polynomial coefficients per neuron: space.len_upto(order).
     m: usize,
-    /// (m + symbols) x neurons, column-major: a neuron's coefficients are contiguous.
+    /// (m + shared symbols) x neurons, column-major: a neuron's coefficients are contiguous.
     coef: DMatrix<f64>,
+    /// Symbols of one neuron each, as an activation creates them: own[i] is neuron i's
+    /// coefficient of its own symbol (0: none). Kept apart from `coef` until the next affine
+    /// map mixes them, because as rows of `coef` they would be a diagonal block (600 new symbols
+    /// of a 600-wide layer: a 600 x 600 block, and a product 600 times larger than needed).
+    own: Option<Vec<f64>>,
     pub(crate) rem: Vec<Interval>,
     /// For models built from a box: input i = centre + radius x_v for (i, v, centre, radius).
     pub variables: Vec<(usize, usize, f64, f64)>,
@@ -115,14 +120,21 @@ fn iv(lo: f64, hi: f64) -> Interval {
     Interval::new(lo, hi).unwrap_or(Interval::ENTIRE)
 }
 
-/// An upper bound of sum_j a_j b_j for non-negative a, b.
-fn dot_up(a: impl Iterator<Item = f64>, b: &[f64]) -> f64 {
-    let (mut s, mut n) = (0.0, 0usize);
-    for (x, y) in a.zip(b) {
-        s += x * y;
-        n += 1;
-    }
+/// An upper bound of sum_j |a_j| b_j for non-negative b.
+fn dot_up(a: &[f64], b: &[f64]) -> f64 {
+    let s: f64 = a.iter().zip(b).map(|(x, y)| x.abs() * y).sum();
+    dot_bound(s, a.len())
+}
+
+/// An upper bound of a sum of n non-negative products computed as `s` in floats.
+fn dot_bound(s: f64, n: usize) -> f64 {
     add_up(mul_up(s, 1.0 + 2.0 * gamma(n + 1)), ETA * n as f64)
+}
+
+/// Column i of a layer's W^T (the weights into neuron i), contiguous.
+fn weights_into(layer: &Layer, i: usize) -> &[f64] {
+    let n = layer.n_in();
+    &layer.weight_t.as_slice()[i * n..(i + 1) * n]
 }
 
 /// Sum of |x| rounded up.
@@ -138,7 +150,25 @@ impl Models {
         &self.ctx.space
     }
     pub fn symbols(&self) -> usize {
-        self.coef.nrows() - self.m
+        self.coef.nrows() - self.m + self.own.as_ref().map_or(0, |own| own.iter().filter(|&&g| g != 0.0).count())
+    }
+
+    /// The same models with the neurons' own symbols moved into rows of `coef`.
+    fn materialized(&self) -> Models {
+        let Some(own) = &self.own else { return self.clone() };
+        let owners: Vec<usize> = (0..own.len()).filter(|&i| own[i] != 0.0).collect();
+        let rows = self.coef.nrows();
+        let mut coef = DMatrix::zeros(rows + owners.len(), self.n());
+        coef.rows_mut(0, rows).copy_from(&self.coef);
+        for (k, &i) in owners.iter().enumerate() {
+            coef[(rows + k, i)] = own[i];
+        }
+        Models { coef, own: None, ..self.clone() }
+    }
+
+    /// |coefficient| of neuron i's own symbol.
+    fn own_mag(&self, i: usize) -> f64 {
+        self.own.as_ref().map_or(0.0, |own| own[i].abs())
     }
 
     /// Models of the box `input`: the `max_vars` widest non-degenerate inputs become polynomial
@@ -178,7 +208,7 @@ impl Models {
                 rem[i] = Interval::symmetric(r);
             }
         }
-        Ok(Models { ctx, m, coef, rem, variables, time_var: time_var.then_some(nv) })
+        Ok(Models { ctx, m, coef, own: None, rem, variables, time_var: time_var.then_some(nv) })
     }
 
     /// Models of given Taylor models (all in `ctx`), e.g. a closed loop's state.
@@ -198,7 +228,7 @@ impl Models {
             coef.view_mut((0, i), (t.coef.len(), 1)).copy_from_slice(&t.coef);
             rem.push(t.rem);
         }
-        Ok(Models { ctx: ctx.clone(), m, coef, rem, variables: vec![], time_var: None })
+        Ok(Models { ctx: ctx.clone(), m, coef, own: None, rem, variables: vec![], time_var: None })
     }
 
     /// The variable over [0, 1] that the Verisig ODEs integrate over, if one was added.
@@ -210,6 +240,9 @@ impl Models {
     pub fn with_time_var(&self) -> Result<Models> {
         if self.time_var().is_some() {
             return Ok(self.clone());
+        }
+        if self.own.is_some() {
+            return self.materialized().with_time_var();
         }
         let old = &self.ctx.space;
         let nv = old.nvars;
@@ -228,13 +261,13 @@ impl Models {
             }
         }
         let ctx = Ctx::new(space, self.ctx.order, self.ctx.cutoff);
-        Ok(Models { ctx, m, coef, rem: self.rem.clone(), variables: self.variables.clone(), time_var: Some(nv) })
+        Ok(Models { ctx, m, coef, own: None, rem: self.rem.clone(), variables: self.variables.clone(), time_var: Some(nv) })
     }
 
     /// Neuron i as a Taylor model: polynomial plus remainder plus the symbols' range.
     pub fn taylor_model(&self, i: usize) -> TaylorModel {
         let poly = self.column(i);
-        let mut t = TaylorModel { coef: poly[..self.m].to_vec(), rem: self.rem[i].inflate(abs_sum(&poly[self.m..])) };
+        let mut t = TaylorModel { coef: poly[..self.m].to_vec(), rem: self.rem[i].inflate(self.sym_mag(i)) };
         while t.coef.len() > 1 && t.coef.last() == Some(&0.0) {
             t.coef.pop();
         }
@@ -267,7 +300,7 @@ impl Models {
     }
 
     pub(crate) fn sym_mag(&self, i: usize) -> f64 {
-        abs_sum(&self.column(i)[self.m..])
+        add_up(abs_sum(&self.column(i)[self.m..]), self.own_mag(i))
     }
 
     /// W h + b for the layer, with the product's rounding error bounded a posteriori.
@@ -277,32 +310,56 @@ impl Models {
         }
         let n_in = self.n();
         // v_j = gamma |C_j| + r_j with r_j the remainder's radius: |W| v bounds the product's
-        // error and the remainders together; the remainders' midpoints enter as W mid.
+        // error and the remainders together; the remainders' midpoints enter as W mid. (A
+        // neuron's own symbol is part of its column C_j; its products g_j W_ij are exact to u.)
         let g = gamma(n_in);
-        let v: Vec<f64> = (0..n_in).map(|j| add_up(mul_up(g, abs_sum(self.column(j))), self.rem[j].radius())).collect();
+        let v: Vec<f64> = (0..n_in).map(|j| add_up(mul_up(g, add_up(abs_sum(self.column(j)), self.own_mag(j))), self.rem[j].radius())).collect();
         let mids: Vec<f64> = self.rem.iter().map(|r| r.mid()).collect();
         let abs_mids: Vec<f64> = mids.iter().map(|m| m.abs()).collect();
-        let mut out = &self.coef * &layer.weight_t;
+        let mut out = self.product(layer);
         let rem = (0..layer.n_out())
             .map(|i| {
-                let w = layer.weight_t.column(i);
-                let mut err = dot_up(w.iter().map(|w| w.abs()), &v);
-                // The constant term gains b_i + W_i mid: a dot product and two additions.
-                let shift: f64 = w.iter().zip(&mids).map(|(w, m)| w * m).sum();
-                let abs_shift = dot_up(w.iter().map(|w| w.abs()), &abs_mids);
-                err = add_up(err, mul_up(gamma(n_in), abs_shift));
+                let w = weights_into(layer, i);
+                // One pass: |W_i| v, and the constant term's gain b_i + W_i mid (a dot product
+                // and two additions) with its |W_i| |mid|.
+                let (mut err, mut shift, mut abs_shift) = (0.0, 0.0, 0.0);
+                for ((w, v), (m, am)) in w.iter().zip(&v).zip(mids.iter().zip(&abs_mids)) {
+                    err += w.abs() * v;
+                    shift += w * m;
+                    abs_shift += w.abs() * am;
+                }
+                let mut err = dot_bound(err, n_in);
+                err = add_up(err, mul_up(gamma(n_in), dot_bound(abs_shift, n_in)));
                 let sum = out[(0, i)] + shift + layer.bias[i];
                 err = add_up(err, mul_up(4.0 * U, add_up(sum.abs(), layer.bias[i].abs())));
                 out[(0, i)] = sum;
                 Interval::symmetric(err)
             })
             .collect();
-        Ok(Models { ctx: self.ctx.clone(), m: self.m, coef: out, rem, variables: self.variables.clone(), time_var: self.time_var })
+        Ok(Models { ctx: self.ctx.clone(), m: self.m, coef: out, own: None, rem, variables: self.variables.clone(), time_var: self.time_var })
+    }
+
+    /// C W^T with the own symbols as rows of their own: the shared part is one dense product,
+    /// and the own symbol of input j becomes the row g_j W_(., j).
+    fn product(&self, layer: &Layer) -> DMatrix<f64> {
+        let Some(own) = &self.own else { return &self.coef * &layer.weight_t };
+        let owners: Vec<usize> = (0..own.len()).filter(|&j| own[j] != 0.0).collect();
+        let rows = self.coef.nrows();
+        let mut out = DMatrix::zeros(rows + owners.len(), layer.n_out());
+        out.rows_mut(0, rows).gemm(1.0, &self.coef, &layer.weight_t, 0.0);
+        for (k, &j) in owners.iter().enumerate() {
+            let g = own[j];
+            let w = layer.weight_t.row(j);
+            for (i, &wij) in w.iter().enumerate() {
+                out[(rows + k, i)] = g * wij;
+            }
+        }
+        out
     }
 
     /// The output map y <- scale * h + offset.
     pub fn output_map(&self, scale: Option<&[f64]>, offset: Option<&[f64]>) -> Models {
-        let mut out = self.clone();
+        let mut out = self.materialized();
         for i in 0..out.n() {
             let mut column = out.coef.column_mut(i);
             if let Some(s) = scale {
@@ -390,6 +447,9 @@ pub(crate) struct NeuronOut {
 
 /// Applies a per-neuron activation result to the models, creating and capping symbols.
 fn assemble(models: &Models, outs: Vec<NeuronOut>, settings: &Settings) -> Models {
+    if models.own.is_some() {
+        return assemble(&models.materialized(), outs, settings);
+    }
     let (m, old) = (models.m, models.symbols());
     let n = outs.len();
     let space = &models.ctx.space;
@@ -400,10 +460,9 @@ fn assemble(models: &Models, outs: Vec<NeuronOut>, settings: &Settings) -> Model
             settings.symbolic && o.symbolic && r > SYMBOL_FLOOR && r > settings.symbol_min * (o.poly.poly_bound(space).width() + o.error.width())
         })
         .collect();
-    let fresh = new_symbol.iter().filter(|&&b| b).count();
-    let mut coef = DMatrix::zeros(m + old + fresh, n);
+    let mut coef = DMatrix::zeros(m + old, n);
+    let mut own = vec![0.0; n];
     let mut rem = Vec::with_capacity(n);
-    let mut next = m + old;
     for (i, o) in outs.into_iter().enumerate() {
         let mut column = coef.column_mut(i);
         let dst = column.as_mut_slice();
@@ -421,14 +480,14 @@ fn assemble(models: &Models, outs: Vec<NeuronOut>, settings: &Settings) -> Model
             let mid = o.error.mid();
             let sum = dst[0] + mid;
             dst[0] = sum;
-            dst[next] = add_up(o.error.radius(), mul_up(2.0 * U, sum.abs()));
-            next += 1;
+            own[i] = add_up(o.error.radius(), mul_up(2.0 * U, sum.abs()));
         } else {
             r = r + o.error;
         }
         rem.push(r);
     }
-    let mut out = Models { ctx: models.ctx.clone(), m, coef, rem, variables: models.variables.clone(), time_var: models.time_var };
+    let own = new_symbol.contains(&true).then_some(own);
+    let mut out = Models { ctx: models.ctx.clone(), m, coef, own, rem, variables: models.variables.clone(), time_var: models.time_var };
     cap_symbols(&mut out, settings.max_symbols);
     out
 }
@@ -436,7 +495,11 @@ fn assemble(models: &Models, outs: Vec<NeuronOut>, settings: &Settings) -> Model
 /// Boxes all but the `max` largest symbols (by total |coefficient|) into the remainders, and
 /// drops symbols no neuron uses any more.
 fn cap_symbols(models: &mut Models, max: usize) {
-    let s = models.symbols();
+    if models.own.is_some() && models.symbols() > max {
+        *models = models.materialized();
+    }
+    // The shared symbols (the own ones are in use, and within `max` together with these).
+    let s = models.coef.nrows() - models.m;
     if s == 0 {
         return;
     }
@@ -475,15 +538,73 @@ fn cap_symbols(models: &mut Models, max: usize) {
     models.coef = coef;
 }
 
-/// q(tau) by Horner's scheme in Taylor-model arithmetic. (Estrin's scheme needs half the
-/// products, but it multiplies truncation remainders by the naive bound of partial sums, which
-/// is large for fitted polynomials: measured 15% faster and 10-30% wider on image chains.)
-fn compose(q: &[f64], tau: &TaylorModel, ctx: &Ctx) -> TaylorModel {
-    let mut acc = TaylorModel::constant(*q.last().expect("degree >= 0"));
-    for &a in q.iter().rev().skip(1) {
-        acc = acc.mul(tau, ctx).add_constant(a);
+/// q(tau) for tau = s (p - c) and a polynomial p (no remainder), by Horner's scheme on float
+/// polynomials truncated at the order, with ONE error bound at the end instead of Taylor-model
+/// arithmetic per step. Let T be the float polynomial computed for tau (|T - tau| <= e_T) and
+/// A_k = A_(k+1) T + q_k + E_k the steps, E_k the terms beyond the order dropped by step k plus
+/// its rounding (each monomial is in [-1, 1], so |E_k| <= e_k, the sums of |coefficients|).
+/// Then A_0 = q(T) + sum_k E_k T^k, and |T| <= 1 + e_T = B because |tau| <= 1 (s |y - c| <= 1 on
+/// the range), so |phi(p) - A_0| <= err + B^(d-1) sum_k e_k + e_T max_{|z| <= B} |q'(z)|.
+/// Taylor-model Horner (measured 4x slower on image chains) bounds each step's remainder through
+/// the naive range of tau, which exceeds 1, and so was also wider. (Estrin's scheme had been
+/// tried there too: 15% faster, 10-30% wider.)
+fn compose(q: &[f64], centre: f64, scale: f64, p: &[f64], ctx: &Ctx) -> TaylorModel {
+    let space = &ctx.space;
+    let len = space.len_upto(ctx.order).min(p.len()).max(1);
+    let mut t: Vec<f64> = p[..len].iter().map(|&c| c * scale).collect();
+    let shifted = p[0] - centre;
+    t[0] = shifted * scale;
+    // Each coefficient of T is one rounded product (t_0 also a rounded difference): within
+    // u |t_k| (+ the underflow eta), and t_0 within s u |p_0 - c| more.
+    let e_tau = add_up(add_up(mul_up(U, abs_sum(&t)), mul_up(mul_up(U, scale), shifted.abs())), ETA * len as f64);
+    let bound = add_up(1.0, e_tau);
+    // suffix[j] = sum_(k >= j) |t_k|: the part of T that a term of A times T drops beyond the order.
+    let mut suffix = vec![0.0; len + 1];
+    for j in (0..len).rev() {
+        suffix[j] = suffix[j + 1] + t[j].abs();
     }
-    acc
+    let grow = 1.0 + gamma(2 * len + 2);
+    let g = gamma(len + 2);
+    let d = q.len() - 1;
+    let mut a = vec![0.0; len];
+    let mut next = vec![0.0; len];
+    a[0] = q[d];
+    let mut steps = 0.0;
+    for k in (0..d).rev() {
+        next.fill(0.0);
+        let (mut dropped, mut sa) = (0.0, 0.0);
+        for (i, &ai) in a.iter().enumerate() {
+            if ai == 0.0 {
+                continue;
+            }
+            sa += ai.abs();
+            let lim = len.min(space.len_upto(ctx.order - space.deg[i] as usize));
+            for &(j, out) in space.pairs_of(i) {
+                if j as usize >= lim {
+                    break;
+                }
+                next[out as usize] += ai * t[j as usize];
+            }
+            dropped += ai.abs() * suffix[lim];
+        }
+        next[0] += q[k];
+        // Float sums of non-negative terms are within a factor grow of the exact ones; each
+        // coefficient is a sum of at most len products and q_k: rounding gamma_(len + 2).
+        let rounding = mul_up(g, add_up(mul_up(mul_up(sa, suffix[0]), grow), q[k].abs()));
+        let e_k = add_up(add_up(mul_up(dropped, grow), rounding), ETA * (len * len) as f64);
+        steps = add_up(steps, e_k);
+        std::mem::swap(&mut a, &mut next);
+    }
+    let (mut power, mut lipschitz) = (1.0, 0.0);
+    for (j, &qj) in q.iter().enumerate().skip(1) {
+        lipschitz = add_up(lipschitz, mul_up(mul_up(j as f64, qj.abs()), power));
+        power = mul_up(power, bound);
+    }
+    // power is now B^d >= B^(d-1).
+    let err = add_up(mul_up(power, steps), mul_up(lipschitz, e_tau));
+    let mut out = TaylorModel { coef: a, rem: Interval::symmetric(err) };
+    out.sweep(ctx);
+    out
 }
 
 /// One smooth neuron: phi(p + delta) in q(s (p - c)) +- e + phi'(Y) delta.
@@ -491,9 +612,10 @@ fn smooth_neuron(f: Smooth, models: &Models, i: usize) -> NeuronOut {
     let ctx = &models.ctx;
     let p = TaylorModel { coef: models.poly(i).to_vec(), rem: Interval::ZERO };
     let range = p.poly_bound(&ctx.space);
-    let delta = models.rem[i].inflate(models.sym_mag(i));
+    let symbols = models.sym_mag(i);
+    let delta = models.rem[i].inflate(symbols);
     let y = range + delta;
-    let image = f.image(y);
+    let (image, slope) = image_and_derivative(f, y);
     let constant = || NeuronOut { poly: TaylorModel::constant(image.mid()), sym_factor: 0.0, error: image - Interval::point(image.mid()), symbolic: true };
     if !y.is_bounded() {
         return constant();
@@ -502,15 +624,14 @@ fn smooth_neuron(f: Smooth, models: &Models, i: usize) -> NeuronOut {
     let mut poly = if enc.scale == 0.0 {
         TaylorModel::constant(enc.coef[0])
     } else {
-        compose(&enc.coef, &p.add_constant(-enc.centre).scale(enc.scale), ctx)
+        compose(&enc.coef, enc.centre, enc.scale, &p.coef, ctx)
     };
     let mut error = Interval::symmetric(enc.err) + poly.rem;
     poly.rem = Interval::ZERO;
     let mut sym_factor = 0.0;
     if delta != Interval::ZERO {
-        let d = derivative_range(f, y);
-        let mid = d.mid();
-        let spread = (d - Interval::point(mid)).mag();
+        let mid = slope.mid();
+        let spread = (slope - Interval::point(mid)).mag();
         sym_factor = mid;
         // mid * (remainder part of delta) + spread * |delta|; the symbols keep mid * g.
         error = error + models.rem[i] * Interval::point(mid) + Interval::symmetric(mul_up(spread, delta.mag()));
@@ -518,7 +639,7 @@ fn smooth_neuron(f: Smooth, models: &Models, i: usize) -> NeuronOut {
     // On wide ranges the model can be far wider than the interval image phi(y), which saturates:
     // then the image is the better enclosure, and without this swap the excess would grow layer
     // by layer. A model somewhat wider than the image is kept: its correlations pay off later.
-    let width = (poly.poly_bound(&ctx.space) + error).width() + 2.0 * sym_factor.abs() * models.sym_mag(i);
+    let width = (poly.poly_bound(&ctx.space) + error).width() + 2.0 * sym_factor.abs() * symbols;
     if width > WIDER_THAN_IMAGE * image.width() {
         return constant();
     }
@@ -699,11 +820,10 @@ pub fn interval_bounds(net: &Network, input: &[Interval]) -> Result<Vec<Interval
         let g = gamma(layer.n_in() + 1);
         h = (0..layer.n_out())
             .map(|i| {
-                let w = layer.weight_t.column(i);
+                let w = weights_into(layer, i);
                 let c = w.iter().zip(&centre).map(|(w, c)| w * c).sum::<f64>() + layer.bias[i];
-                let abs_w = || w.iter().map(|w| w.abs());
-                let err = mul_up(g, add_up(dot_up(abs_w(), &magnitude), layer.bias[i].abs()));
-                let z = Interval::point(c).inflate(add_up(dot_up(abs_w(), &radius), err));
+                let err = mul_up(g, add_up(dot_up(w, &magnitude), layer.bias[i].abs()));
+                let z = Interval::point(c).inflate(add_up(dot_up(w, &radius), err));
                 match layer.activations[i] {
                     Activation::Sigmoid => z.sigmoid(),
                     Activation::Tanh => z.tanh(),

@@ -153,6 +153,79 @@ impl PyExpr {
     fn __repr__(&self) -> String {
         self.0.describe(2000)
     }
+    /// Pickling (Dask, process pools): the DAG as a node list, each shared node once.
+    fn __reduce__<'py>(slf: &Bound<'py, Self>) -> PyResult<(Bound<'py, PyAny>, (Vec<FlatNode>,))> {
+        Ok((slf.get_type().getattr("_from_nodes")?, (flatten(&slf.get().0),)))
+    }
+    #[staticmethod]
+    fn _from_nodes(nodes: Vec<FlatNode>) -> PyResult<Self> {
+        unflatten(&nodes).map(PyExpr)
+    }
+}
+
+/// One DAG node for pickling: (kind, operator/function index, numbers, child indices, name).
+type FlatNode = (u8, u8, Vec<f64>, Vec<usize>, String);
+const BINOPS: [BinOp; 6] = [BinOp::Add, BinOp::Sub, BinOp::Mul, BinOp::Div, BinOp::Min, BinOp::Max];
+const CMPS: [Cmp; 4] = [Cmp::Lt, Cmp::Le, Cmp::Gt, Cmp::Ge];
+const FUNCS: [Func; 11] =
+    [Func::Exp, Func::Log, Func::Sqrt, Func::Sin, Func::Cos, Func::Tan, Func::Atan, Func::Tanh, Func::Sigmoid, Func::Recip, Func::Abs];
+
+fn position<T: PartialEq>(all: &[T], x: &T) -> u8 {
+    all.iter().position(|y| y == x).expect("every variant is listed") as u8
+}
+
+/// Nodes in post-order (children before parents), the root last.
+fn flatten(root: &Expr) -> Vec<FlatNode> {
+    use taylor::expr::Node;
+    fn go(e: &Expr, memo: &mut std::collections::HashMap<usize, usize>, out: &mut Vec<FlatNode>) -> usize {
+        let key = std::sync::Arc::as_ptr(&e.0) as usize;
+        if let Some(&i) = memo.get(&key) {
+            return i;
+        }
+        let node = match &*e.0 {
+            Node::Const(c) => (0, 0, vec![*c], vec![], String::new()),
+            Node::Uncertain(iv) => (1, 0, vec![iv.lo(), iv.hi()], vec![], String::new()),
+            Node::Var(n) => (2, 0, vec![], vec![], n.clone()),
+            Node::Neg(a) => (3, 0, vec![], vec![go(a, memo, out)], String::new()),
+            Node::Binary(op, a, b) => (4, position(&BINOPS, op), vec![], vec![go(a, memo, out), go(b, memo, out)], String::new()),
+            Node::PowI(a, n) => (5, 0, vec![*n as f64], vec![go(a, memo, out)], String::new()),
+            Node::PowF(a, r) => (6, 0, vec![*r], vec![go(a, memo, out)], String::new()),
+            Node::Func(f, a) => (7, position(&FUNCS, f), vec![], vec![go(a, memo, out)], String::new()),
+            Node::Where { lhs, cmp, rhs, then, otherwise } => {
+                let args = [lhs, rhs, then, otherwise].map(|x| go(x, memo, out)).to_vec();
+                (8, position(&CMPS, cmp), vec![], args, String::new())
+            }
+        };
+        out.push(node);
+        memo.insert(key, out.len() - 1);
+        out.len() - 1
+    }
+    let mut out = Vec::new();
+    go(root, &mut std::collections::HashMap::new(), &mut out);
+    out
+}
+
+fn unflatten(nodes: &[FlatNode]) -> PyResult<Expr> {
+    let bad = || to_py(TaylorError::input("corrupt pickled expression"));
+    let mut built: Vec<Expr> = Vec::with_capacity(nodes.len());
+    for (kind, sub, x, args, name) in nodes {
+        let arg = |k: usize| args.get(k).and_then(|&i| built.get(i)).cloned().ok_or_else(bad);
+        let num = |k: usize| x.get(k).copied().ok_or_else(bad);
+        let e = match kind {
+            0 => Expr::constant(num(0)?),
+            1 => Expr::uncertain(Interval::new(num(0)?, num(1)?).py_err()?),
+            2 => Expr::var(name),
+            3 => arg(0)?.neg(),
+            4 => Expr::binary(*BINOPS.get(*sub as usize).ok_or_else(bad)?, &arg(0)?, &arg(1)?),
+            5 => arg(0)?.powi(num(0)? as i32),
+            6 => arg(0)?.powf(num(0)?),
+            7 => Expr::func(*FUNCS.get(*sub as usize).ok_or_else(bad)?, &arg(0)?),
+            8 => Expr::select(&arg(0)?, *CMPS.get(*sub as usize).ok_or_else(bad)?, &arg(1)?, &arg(2)?, &arg(3)?),
+            _ => return Err(bad()),
+        };
+        built.push(e);
+    }
+    built.pop().ok_or_else(bad)
 }
 
 #[pymethods]
@@ -180,6 +253,16 @@ impl PyCondition {
     }
     fn __repr__(&self) -> String {
         format!("{} {} {}", self.lhs.describe(1000), self.cmp.symbol(), self.rhs.describe(1000))
+    }
+    /// Pickling: rebuilt as `operator.ge(lhs, rhs)` (and so on), which calls Expr's comparison.
+    fn __reduce__<'py>(&self, py: Python<'py>) -> PyResult<(Bound<'py, PyAny>, (PyExpr, PyExpr))> {
+        let name = match self.cmp {
+            Cmp::Lt => "lt",
+            Cmp::Le => "le",
+            Cmp::Gt => "gt",
+            Cmp::Ge => "ge",
+        };
+        Ok((py.import("operator")?.getattr(name)?, (PyExpr(self.lhs.clone()), PyExpr(self.rhs.clone()))))
     }
 }
 

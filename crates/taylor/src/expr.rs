@@ -489,12 +489,25 @@ pub struct TaylorModels<'a> {
 }
 
 impl TaylorModels<'_> {
-    /// The hull of two models: `a` plus everything `b` may differ from it by.
-    fn hull(&self, a: &TaylorModel, b: &TaylorModel) -> TaylorModel {
-        let diff = b.sub(a).bound(&self.ctx.space);
-        let mut t = a.clone();
-        t.rem = a.rem.hull(&(a.rem + diff));
-        t
+    /// An enclosure of a value that is `a` or `b` and lies in `range`: `a` or `b` plus everything
+    /// the other may differ from it by, or the plain interval `range` when that is narrower
+    /// (e.g. `clip` at a bound the set straddles: the model of v is wider than [lo, hi]).
+    fn hull(&self, a: &TaylorModel, b: &TaylorModel, range: Interval) -> TaylorModel {
+        let space = &self.ctx.space;
+        let widen = |base: &TaylorModel, other: &TaylorModel| {
+            let diff = other.sub(base).bound(space);
+            let mut t = base.clone();
+            t.rem = base.rem.hull(&(base.rem + diff));
+            t
+        };
+        let (from_a, from_b) = (widen(a, b), widen(b, a));
+        let (wa, wb) = (from_a.bound(space).width(), from_b.bound(space).width());
+        let best = if wb < wa { from_b } else { from_a };
+        if range.width() < best.bound(space).width() {
+            TaylorModel::from_interval(range)
+        } else {
+            best
+        }
     }
 }
 
@@ -522,7 +535,11 @@ impl Algebra for TaylorModels<'_> {
                 match (a_smaller, op == BinOp::Min) {
                     (Some(s), true) => if s { a.clone() } else { b.clone() },
                     (Some(s), false) => if s { b.clone() } else { a.clone() },
-                    (None, _) => self.hull(a, b),
+                    (None, min) => {
+                        let (ra, rb) = (a.bound(space), b.bound(space));
+                        let range = if min { ra.min(&rb) } else { ra.max(&rb) };
+                        self.hull(a, b, range)
+                    }
                 }
             }
         })
@@ -547,7 +564,7 @@ impl Algebra for TaylorModels<'_> {
         Ok(match cmp.decide(l.sub(r).bound(&self.ctx.space)) {
             Some(true) => t.clone(),
             Some(false) => o.clone(),
-            None => self.hull(t, o),
+            None => self.hull(t, o, t.bound(&self.ctx.space).hull(&o.bound(&self.ctx.space))),
         })
     }
 }

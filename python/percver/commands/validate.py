@@ -32,6 +32,9 @@ def register(sub) -> None:
     parser.add_argument("--min-gain", type=float, default=0.05,
                         help="smallest held-out share of the current model's squared error an effect must remove "
                         "(lower end of its bootstrap interval; default: %(default)s)")
+    parser.add_argument("--learn", action="store_true",
+                        help="when effects leave a localized residual, train the paper's learned noise model on it "
+                        "(a knock-out classifier or a generative model; needs torch) and write it as ONNX into --out")
     parser.add_argument("--dropna", action="store_true", help="drop rows with NaN or inf instead of refusing the data")
     parser.add_argument("--seed", type=int, default=0, help="seed of the folds and the bootstrap (default: %(default)s)")
     parser.add_argument("--no-progress", action="store_true", help="hide the progress bar")
@@ -75,7 +78,7 @@ def run(args) -> int:
     data = Measurements.load(args.data, dropna=args.dropna)
     effects = [name.strip() for name in args.effects.split(",")] if args.effects else None
     diagnosis = validate.diagnose(
-        model, data, effects, max_steps=args.max_steps, min_gain=args.min_gain, seed=args.seed,
+        model, data, effects, max_steps=args.max_steps, min_gain=args.min_gain, learn=args.learn, seed=args.seed,
         progress=not args.no_progress and not args.json,
     )
     page = diagnosis.to_html(args.out).resolve()

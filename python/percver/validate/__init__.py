@@ -3,7 +3,9 @@
 ``compare(model, data)`` gives a ``Report`` (errors, ``where()``, ``explain()``, HTML/JSON);
 ``diagnose(model, data)`` adds effects from ``effects`` until none helps on held-out data.
 Models: ``percver.sensors.lidar.canonical(...)``, ``ImageModel``, ``DynamicsModel`` around
-any plant (``FunctionPlant`` or ``pv.Discrete``), or ``FunctionSensor`` around any function.
+any plant (``FunctionPlant``, ``pv.Discrete``, ``pv.Continuous``), or ``FunctionSensor`` around
+any function (a ``Network``, an ``Expr`` evaluator). ``diagnose(..., learn=True)`` ends with a
+learned noise model (``percver.validate.learned``) where effects leave a localized residual.
 """
 
 from percver.validate import effects
@@ -18,6 +20,7 @@ from percver.validate.models import (
     Model,
     Plant,
     SensorModel,
+    SystemPlant,
     as_model,
 )
 from percver.validate.report import Dimension, Region, Report, Where, compare
@@ -43,6 +46,7 @@ __all__ = [
     "DynamicsModel",
     "FunctionPlant",
     "Plant",
+    "SystemPlant",
     "Evaluation",
     "as_model",
 ]

@@ -6,11 +6,16 @@ import json
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
-from percver.errors import InputError
 from percver.validate.effects import GaussianNoise
 from percver.validate.fitting import plain, rank, refit
+from percver.validate.learned import check_learn
+from percver.validate.learned import learn as learned_step
 from percver.validate.models import as_model
 from percver.validate.report import compare, json_default
+
+
+# Lines of unexplained regions and dimensions in the text table (an image may have hundreds).
+UNEXPLAINED_LINES = 10
 
 
 @dataclass
@@ -30,15 +35,18 @@ class Diagnosis:
 
     ``unexplained`` lists regions and dimensions that still carry significant error, with
     their share of the final error (empty when the residual looks like noise);
-    ``noise_sigma`` is the white-noise floor of the final model's residuals.
+    ``noise_sigma`` is the white-noise floor of the final model's residuals; ``learned`` is the
+    ``Attempt`` of ``learn=True`` (None when nothing was left to learn or learning was off),
+    kept as the last step when its held-out gain is significant.
     """
 
-    def __init__(self, baseline, steps, final, rankings, noise_sigma):
+    def __init__(self, baseline, steps, final, rankings, noise_sigma, learned=None):
         self.baseline = baseline
         self.steps = steps
         self.final = final
         self.rankings = rankings
         self.noise_sigma = noise_sigma
+        self.learned = learned
         where = final.where()
         self.unexplained = [
             {"kind": "region", "where": r.describe(), "bounds": r.bounds, "share": r.share, "lift": r.lift}
@@ -72,8 +80,13 @@ class Diagnosis:
         lines.append(f"final {self.final.metric}: {self.final_error:.4g} ({self.final_error / max(self.baseline_error, 1e-300):.1%} of baseline)")
         if self.noise_sigma is not None:
             lines.append(f"noise floor sigma: {self.noise_sigma:.4g}")
-        for u in self.unexplained:
+        if self.learned is not None and not self.learned.claimed:
+            a = self.learned
+            lines.append(f"learned_{a.kind} not kept: held-out gain {a.gain:.1%} [{a.ci[0]:.1%}, {a.ci[1]:.1%}]")
+        for u in self.unexplained[:UNEXPLAINED_LINES]:
             lines.append(f"unexplained {u['kind']}: {u['where']} ({u['share']:.1%} of the remaining error)")
+        if len(self.unexplained) > UNEXPLAINED_LINES:
+            lines.append(f"... and {len(self.unexplained) - UNEXPLAINED_LINES} more unexplained regions or dimensions")
         return "\n".join(lines)
 
     def __str__(self) -> str:
@@ -97,6 +110,7 @@ class Diagnosis:
             "final_model": self.final_model.describe(),
             "noise_sigma": self.noise_sigma,
             "unexplained": self.unexplained,
+            "learned": None if self.learned is None else self.learned.to_dict(),
             "rankings": [r.to_dict() for r in self.rankings],
         }
 
@@ -122,7 +136,8 @@ def diagnose(
     bootstrap: int = 200,
     min_gain: float = 0.05,
     metric: str = "rmse",
-    learn: bool = False,
+    learn: bool | str = False,
+    learn_options: dict | None = None,
     seed: int = 0,
     progress: bool = False,
 ) -> Diagnosis:
@@ -132,13 +147,14 @@ def diagnose(
     error on held-out data (lower end of its bootstrap interval), so a small effect is still
     found once a dominant one is modelled. Systematic effects are preferred to random ones
     (dropout), and random ones are refused where their events crowd into one region.
+
+    ``learn=True`` adds, when a localized residual is left unexplained, the paper's learned
+    noise model as a last step (``learned_knockout`` or ``learned_generative``, chosen from
+    the residual; ``learn="knockout"`` or ``"generative"`` forces one), under the same held-out
+    rule (see ``percver.validate.learned``; needs torch). ``learn_options`` sets its network
+    and training: ``hidden``, ``epochs``, ``batch``, ``lr``, ``seed``, ``threads``, ...
     """
-    if learn:
-        raise InputError(
-            "diagnose(learn=True) trains the paper's learned noise models with percver.noise, which this "
-            "installation does not provide yet; run without learn=True and train a noise model on the "
-            "regions listed in Diagnosis.unexplained"
-        )
+    check_learn(learn, learn_options)
     model = as_model(model, data)
     evaluation = model.evaluate(data)
     baseline = compare(model, data, metric=metric)
@@ -163,10 +179,18 @@ def diagnose(
         if bar is not None:
             bar.close()
     final = compare(current, data, metric=metric)
+    attempt = None
+    if learn and (final.where().significant_regions or final.where().significant_dimensions):
+        learned, attempt = learned_step(current, evaluation, final, learn, learn_options, folds=folds,
+                                        bootstrap=bootstrap, min_gain=min_gain, seed=seed)
+        if learned is not None:
+            after = compare(learned, data, metric=metric)
+            steps.append(Step(learned.learned.name, dict(learned.learned.params), final.error, after.error, attempt.gain))
+            current, final = learned, after
     noise = None
     if current.kind in GaussianNoise.kinds:
         noise = GaussianNoise().fit_stochastic(current, evaluation, final.predicted).params["sigma"]
-    return Diagnosis(baseline, steps, final, rankings, noise)
+    return Diagnosis(baseline, steps, final, rankings, noise, attempt)
 
 
 def _progress(enabled):

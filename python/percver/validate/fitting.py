@@ -256,7 +256,18 @@ def _format(value):
     return f"{value:.4g}" if isinstance(value, (float, np.floating)) else str(value)
 
 
-def _folds(evaluation, count, rng):
+def gain_interval(units, before, after, draws) -> tuple:
+    """The share of squared error removed (per-row errors ``before`` and ``after``) and its 95%
+    bootstrap interval, resampling the ``units`` (0..n-1, one per row) by the rows of ``draws``."""
+    n_units = units.max() + 1
+    removed = np.bincount(units, weights=before - after, minlength=n_units)
+    weight = np.bincount(units, weights=before, minlength=n_units)
+    gain = float(removed.sum() / (weight.sum() or 1.0))
+    boot = removed[draws].sum(axis=1) / np.maximum(weight[draws].sum(axis=1), 1e-300)
+    return gain, (float(np.percentile(boot, 2.5)), float(np.percentile(boot, 97.5)))
+
+
+def folds_of(evaluation, count, rng):
     """Resampling units (whole trajectories when there are any: neighbouring rows are not
     independent) and the (train rows, test rows) of each fold."""
     if evaluation.groups is not None:
@@ -288,8 +299,7 @@ def rank(
     rng = np.random.default_rng(seed)
     pool = candidates(model, evaluation, effects)
     before = model_errors(model, evaluation)
-    total = float(np.sum(before)) or 1.0
-    units, split = _folds(evaluation, folds, rng)
+    units, split = folds_of(evaluation, folds, rng)
     parts = [(evaluation.subset(train), evaluation.subset(test), test) for train, test in split]
     n_units = units.max() + 1
     draws = rng.integers(0, n_units, size=(bootstrap, n_units))
@@ -302,11 +312,7 @@ def rank(
         after = before.copy()
         for train, test, rows in parts:
             after[rows] = model_errors(model.with_effect(fit_effect(model, effect, train, warm)), test)
-        removed = np.bincount(units, weights=before - after, minlength=n_units)
-        weight = np.bincount(units, weights=before, minlength=n_units)
-        gain = float(removed.sum() / total)
-        boot = removed[draws].sum(axis=1) / np.maximum(weight[draws].sum(axis=1), 1e-300)
-        ci = (float(np.percentile(boot, 2.5)), float(np.percentile(boot, 97.5)))
+        gain, ci = gain_interval(units, before, after, draws)
         claimed = ci[0] > min_gain
         if claimed and effect.stochastic:
             claimed = not _crowded(model.with_effect(fitted), evaluation)

@@ -204,6 +204,21 @@ def write_report(report, directory) -> Path:
     return _page(directory, "percver model validation", _report_parts(report, directory, ""))
 
 
+def _learned_parts(diagnosis, directory) -> list:
+    """The learned noise model's held-out figures, and its files (ONNX and parameters) when it was kept."""
+    attempt = diagnosis.learned
+    if attempt is None:
+        return []
+    rows = [("kind", f"learned_{attempt.kind}"), ("kept", "yes" if attempt.claimed else "no"),
+            ("held-out gain", f"{attempt.gain:.1%} [{attempt.ci[0]:.1%}, {attempt.ci[1]:.1%}]"),
+            ("held-out rows", attempt.held_out_rows), ("held-out error before", attempt.held_out_error_before),
+            ("held-out error after", attempt.held_out_error_after)]
+    learned = getattr(diagnosis.final_model, "learned", None)
+    if learned is not None:
+        rows += [("files", ", ".join(path.name for path in learned.save(directory)))]
+    return ["<h3>Learned noise model</h3>", _table(("quantity", "value"), rows)]
+
+
 def write_diagnosis(diagnosis, directory) -> Path:
     directory = Path(directory)
     directory.mkdir(parents=True, exist_ok=True)
@@ -212,6 +227,7 @@ def write_diagnosis(diagnosis, directory) -> Path:
              for i, s in enumerate(diagnosis.steps, 1)]
     parts = ["<h2>Error fall</h2>", "<img src='error_fall.png' alt='error fall'>",
              _table(("step", "effect", "parameters", "error before", "error after", "held-out gain"), steps)]
+    parts += _learned_parts(diagnosis, directory)
     if diagnosis.unexplained:
         parts += ["<h3>Still unexplained</h3>",
                   _table(("kind", "where", "share"), [(u["kind"], u["where"], f"{u['share']:.1%}") for u in diagnosis.unexplained])]

@@ -7,8 +7,8 @@ prediction while it varies an effect's parameters.
 
 Dynamics models wrap any *plant* with ``state_names``, ``control_names`` and
 ``step(states, controls) -> next_states`` (N x n, N x p -> N x n). ``FunctionPlant`` builds
-one from a function; the ``pv.Discrete`` plants of ``percver.systems`` satisfy the same
-protocol and can be passed directly.
+one from a function; ``SystemPlant`` adapts the ``pv.Discrete`` and ``pv.Continuous`` plants of
+``percver.systems`` (one update, or one control period), which can be passed directly.
 """
 
 from __future__ import annotations
@@ -240,24 +240,36 @@ class ImageModel(SensorModel):
         names = [f"px{r}_{c}" for r in range(self.shape[0]) for c in range(self.shape[1])]
         super().__init__(state_names, names, effects)
         self.render = render
-        self._cache = BatchCache()
+        # Three renders (centre and the blur's two overlays) for the data and each fold.
+        self._cache = BatchCache(size=12)
         self.position = position or self.state_names[0]
         if self.position not in self.state_names:
             raise InputError(f"position '{self.position}' is not a state of the model {list(self.state_names)}")
 
-    def images(self, states, effects=None) -> np.ndarray:
-        """Images (N x H x W) in ``states`` after ``effects`` (the model's deterministic ones by default)."""
+    def images(self, states, effects=None, *, shift: float = 0.0) -> np.ndarray:
+        """Images (N x H x W) in ``states`` after ``effects`` (the model's deterministic ones by default).
+
+        ``shift`` moves the ``position`` state first (the blur's overlays); the renders of
+        shifted states are cached too, so that fitting other effects under a fixed blur
+        does not render again.
+        """
         states = np.asarray(states, dtype=float)
-        images = self._render(states)
+        images = self._cache.get(states, shift, lambda: self._render(self._moved(states, shift)))
+        states = self._moved(states, shift)
         stack = self.deterministic_effects if effects is None else effects
         for i, effect in enumerate(stack):
             images = effect.apply(images, states, self, stack[:i])
         return images
 
+    def _moved(self, states, shift):
+        if not shift:
+            return states
+        moved = states.copy()
+        moved[:, self.state_names.index(self.position)] += shift
+        return moved
+
     def _render(self, states):
-        return self._cache.get(
-            states, None, lambda: np.asarray(self.render(states), dtype=float).reshape((len(states),) + self.shape)
-        )
+        return np.asarray(self.render(states), dtype=float).reshape((len(states),) + self.shape)
 
     def predict_inputs(self, inputs):
         return self.images(inputs["states"]).reshape(len(inputs["states"]), -1)
@@ -294,6 +306,36 @@ class FunctionPlant:
         return f"FunctionPlant(states={list(self.state_names)}, controls={list(self.control_names)})"
 
 
+class SystemPlant:
+    """A ``pv.Discrete`` plant (one update) or ``pv.Continuous`` plant (one control period, inputs
+    held) on float batches, with its states and inputs as state and control names."""
+
+    def __init__(self, system):
+        self.system = system
+        self.state_names = tuple(system.states)
+        self.control_names = tuple(system.inputs)
+
+    def step(self, states, controls):
+        from percver.expr import evaluate
+        from percver.systems import Continuous
+
+        states = np.asarray(states, dtype=float)
+        controls = np.asarray(controls, dtype=float).reshape(len(states), -1)
+        if isinstance(self.system, Continuous):
+            return self.system.advance(states, controls)
+        columns = dict(zip(self.state_names + self.control_names, np.column_stack([states, controls]).T))
+        return evaluate(self.system.update, columns).reshape(states.shape)
+
+    def __repr__(self) -> str:
+        return f"{type(self.system).__name__}(states={list(self.state_names)}, inputs={list(self.control_names)})"
+
+
+def _as_plant(plant):
+    from percver.systems import Continuous, Discrete
+
+    return SystemPlant(plant) if isinstance(plant, (Discrete, Continuous)) else plant
+
+
 _VELOCITY_WORDS = ("v", "vel", "velocity", "speed")
 
 
@@ -308,6 +350,7 @@ class DynamicsModel(Model):
     kind = "dynamics"
 
     def __init__(self, plant: Plant, *, velocity=None, effects=()):
+        plant = _as_plant(plant)
         for attribute in ("state_names", "control_names", "step"):
             if not hasattr(plant, attribute):
                 raise InputError(
@@ -377,12 +420,33 @@ class DynamicsModel(Model):
         return np.asarray(self.plant.step(states, history[:, 0, :]), dtype=float).reshape(states.shape)
 
 
+def _expression_function(model):
+    """An ``Expr`` or a list of them (one per measurement, over state names) as a function of a
+    states matrix whose columns carry the expressions' variable names; anything else unchanged."""
+    from percver.expr import Expr, evaluate
+
+    exprs = model if isinstance(model, (list, tuple)) else [model]
+    if not exprs or not all(isinstance(e, Expr) for e in exprs):
+        return model
+    names = sorted({name for e in exprs for name in e.variables()})
+
+    def function(states):
+        return evaluate(list(exprs), dict(zip(function.state_names, np.asarray(states, dtype=float).T)))
+
+    function.state_names = tuple(names)
+    return function
+
+
 def as_model(model, data=None) -> Model:
-    """Accept a percver model, a plant, an object with ``predict`` and names, or a bare function."""
+    """Accept a percver model, a plant (``pv.Discrete``, ``pv.Continuous`` or one with ``step``), an
+    object with ``predict`` and names (a ``Network`` takes the data's names), an ``Expr`` or list
+    of them over state names, or a bare function."""
     if isinstance(model, Model):
         return model
-    if hasattr(model, "step") and hasattr(model, "state_names"):
-        return DynamicsModel(model)
+    plant = _as_plant(model)
+    if hasattr(plant, "step") and hasattr(plant, "state_names"):
+        return DynamicsModel(plant)
+    model = _expression_function(model)
     state_names = getattr(model, "state_names", None)
     measurement_names = getattr(model, "measurement_names", None)
     if data is not None:

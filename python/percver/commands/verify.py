@@ -1,0 +1,293 @@
+"""``percver verify CONFIG.toml``: run ``pv.verify`` on a problem described in a TOML file.
+
+The config names the plant and the property; paths in it are relative to the config file::
+
+    [plant]                       # exactly one of python / model
+    python = "loop.py:loop"       # a pv.ClosedLoop or loaded problem, or a function returning one
+    model = "MC_sig_tmp.model"    # a Verisig 2.0 model (hybrid, DNN modes) or a Flow* continuous model
+    networks = ["sig16x16.yml"]   # the Verisig model's networks, in command-line order
+    period = 0.1                  # Flow* continuous models: step of the reach boxes (default: the file's step)
+
+    [init]                        # initial box (models: default the file's); a number is a point
+    p = [-0.53, -0.50]
+    v = 0.0
+
+    [split]                       # cells per state (an integer) or the largest cell width (a float)
+    p = 3
+
+    [property]                    # models: the file's horizon and property unless given here
+    steps = 150
+    goal = ["p >= 0.45", "r + 100 > 90"]   # a list is a conjunction
+    within = true                 # goal at some step <= steps (else at the last step)
+    safe = ["v >= -0.07", "v <= 0.07"]     # at every step
+    unsafe = ["p <= -1.3"]
+    reward = {r = "-0.1 * u^2"}   # accumulators: summed along the run, start at 0
+
+    [verify]                      # pv.verify settings
+    method = "taylor"             # or "verisig"
+    order = 5
+    refine = true
+    min_width = {p = 0.005}
+    timeout_per_cell = 600
+    falsify = 32
+    seed = 0
+    workers = 2
+    journal = "run.jsonl"
+
+    [output]
+    json = "result.json"          # default (and --out): CONFIG.result.json in the current directory
+
+Expressions use the Flow* syntax (``^`` for powers). Exit status: 0 verified, 3 unknown,
+4 falsified, 1 bad input (one line on stderr), 2 bad usage.
+"""
+
+from __future__ import annotations
+
+import argparse
+import re
+import runpy
+import sys
+import tomllib
+import warnings
+from pathlib import Path
+
+from percver.errors import InputError, MissingFileError, PercverError
+
+EXIT = {"verified": 0, "unknown": 3, "falsified": 4}
+
+# Section -> key -> accepted types (None: any key, checked later); anything else is a typo worth an error.
+NUMBER = (int, float)
+SCHEMA = {
+    "plant": {"python": str, "model": str, "networks": list, "period": NUMBER},
+    "init": None,
+    "split": None,
+    "property": {"steps": int, "goal": (str, list), "within": bool, "safe": (str, list), "unsafe": (str, list), "reward": dict},
+    "verify": {"method": str, "order": int, "refine": bool, "min_width": dict, "timeout_per_cell": NUMBER, "falsify": int,
+               "seed": int, "workers": int, "journal": str},
+    "output": {"json": str},
+}
+
+def register(sub) -> None:
+    parser = sub.add_parser(
+        "verify",
+        help="verify a closed loop described in a TOML config (cells, falsification, refinement, journal)",
+        description="Verify the closed loop of CONFIG.toml: split the initial set, falsify, verify each cell, "
+        "print the summary table and write the result as JSON. Exit status: 0 verified, 3 unknown, 4 falsified, "
+        "1 bad input.",
+        epilog=__doc__.split("\n\n", 1)[1],
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    parser.add_argument("config", help="the problem: plant, initial box, split, property, settings (TOML)")
+    parser.add_argument("--scheduler", metavar="ADDRESS", help="run the cells on a Dask scheduler, e.g. tcp://host:8786")
+    parser.add_argument("--journal", metavar="PATH", help="append finished cells here and skip them on a rerun")
+    parser.add_argument("--workers", type=int, metavar="N", help="local threads for the cells (default: all cores)")
+    parser.add_argument("--out", metavar="PATH", help="result JSON (default: [output] json, else CONFIG.result.json)")
+    parser.add_argument("--no-progress", action="store_true", help="hide the progress bar")
+    parser.add_argument("--json", action="store_true", help="print the result as JSON instead of the summary")
+    parser.set_defaults(func=run)
+
+
+def run(args) -> int:
+    from percver.verify import verify
+
+    config = Config(args.config)
+    kwargs = config.verify_kwargs()
+    if args.journal:
+        kwargs["journal"] = args.journal
+    if args.workers is not None:
+        kwargs["workers"] = args.workers
+    if args.scheduler:
+        kwargs["executor"] = args.scheduler
+    out = Path(args.out) if args.out else config.written("[output] json", config.section("output").get("json"))
+    with warnings.catch_warnings():
+        warnings.showwarning = lambda message, *_a, **_k: print(f"percver verify: warning: {message}", file=sys.stderr)
+        result = verify(config.target(), progress=not args.no_progress and not args.json, **kwargs)
+    result.to_json(str(out))
+    if args.json:
+        print(result.to_json())
+    else:
+        print(report(result))
+        print(f"result: {out}")
+    return EXIT[result.verdict]
+
+
+def report(result) -> str:
+    """The summary table, then what decided the verdict (counterexample, or where precision ran out)."""
+    lines = [result.summary(), f"verdict: {result.verdict} ({100 * result.coverage:.2f}% of the initial set verified, "
+                               f"{result.seconds:.2f} s)"]
+    cex = result.counterexample
+    if cex is not None:
+        start = ", ".join(f"{k} = {v:.9g}" for k, v in cex.initial.items())
+        lines.append(f"counterexample: from {start}: {cex.violated} fails at step {cex.step}")
+    unknown = [c for c in result.cells if c.verdict == "unknown"]
+    for c in unknown[:5]:
+        box = ", ".join(f"{k} in [{lo:.6g}, {hi:.6g}]" for k, (lo, hi) in c.box.items())
+        lines.append(f"unknown: {box}: {c.reason}")
+    if len(unknown) > 5:
+        lines.append(f"... and {len(unknown) - 5} more unknown cells (see the JSON)")
+    return "\n".join(lines)
+
+
+class Config:
+    """A parsed config file; every check happens here, before any verification work."""
+
+    def __init__(self, path: str):
+        self.path = Path(path)
+        if not self.path.is_file():
+            raise MissingFileError(f"config file not found: {self.path}")
+        try:
+            self.doc = tomllib.loads(self.path.read_text())
+        except (tomllib.TOMLDecodeError, UnicodeDecodeError) as error:
+            raise InputError(f"{self.path}: not valid TOML: {error}") from None
+        for section, value in self.doc.items():
+            if section not in SCHEMA:
+                raise InputError(f"{self.path}: unknown section [{section}] (sections: {', '.join(SCHEMA)})")
+            if not isinstance(value, dict):
+                raise InputError(f"{self.path}: '{section}' must be a table, [{section}]")
+            for key, item in value.items() if SCHEMA[section] else ():
+                if key not in SCHEMA[section]:
+                    raise self.error(f"[{section}]", f"unknown key '{key}' (known: {', '.join(SCHEMA[section])})")
+                kind = SCHEMA[section][key]
+                if not isinstance(item, kind) or isinstance(item, bool) is not (kind is bool):
+                    names = " or ".join(t.__name__ for t in (kind if isinstance(kind, tuple) else (kind,)))
+                    raise self.error(f"[{section}] {key}", f"expected {names}, got {item!r}")
+
+    def section(self, name: str) -> dict:
+        return self.doc.get(name, {})
+
+    def error(self, field: str, message: str) -> InputError:
+        return InputError(f"{self.path}: {field}: {message}")
+
+    def file(self, field: str, value) -> Path:
+        if not isinstance(value, str):
+            raise self.error(field, f"expected a file name, got {value!r}")
+        path = self.path.parent / value
+        if not path.is_file():
+            raise MissingFileError(f"{self.path}: {field}: file not found: {path}")
+        return path
+
+    def target(self):
+        """The loop or loaded problem named by [plant]."""
+        plant = self.section("plant")
+        given = [k for k in ("python", "model") if k in plant]
+        if len(given) != 1:
+            raise self.error("[plant]", "give exactly one of python = \"FILE.py:NAME\" or model = \"FILE.model\"")
+        if given == ["python"]:
+            if "networks" in plant or "period" in plant:
+                raise self.error("[plant]", "networks and period belong to model = ..., not python = ...")
+            return self._python(plant["python"])
+        return self._model(plant)
+
+    def _python(self, spec):
+        from percver.systems import ClosedLoop
+
+        path, colon, name = str(spec).rpartition(":")
+        if not colon or not path.endswith(".py") or not name.isidentifier():
+            raise self.error("[plant] python", f"'{spec}' is not FILE.py:NAME")
+        file = self.file("[plant] python", path)
+        sys.path.insert(0, str(file.parent))  # the file may import its neighbours
+        try:
+            namespace = runpy.run_path(str(file))
+        finally:
+            sys.path.remove(str(file.parent))
+        if name not in namespace:
+            raise self.error("[plant] python", f"{file} defines no '{name}'")
+        obj = namespace[name]
+        if callable(obj) and not isinstance(obj, ClosedLoop):
+            obj = obj()
+        if not isinstance(obj, ClosedLoop) and not isinstance(getattr(obj, "loop", None), ClosedLoop):
+            raise self.error("[plant] python", f"'{spec}' is a {type(obj).__name__}, not a pv.ClosedLoop or a loaded problem")
+        return obj
+
+    def _model(self, plant: dict):
+        from percver import formats
+
+        model = self.file("[plant] model", plant["model"])
+        networks = plant.get("networks", [])
+        nets = [str(self.file(f"[plant] networks[{i}]", n)) for i, n in enumerate(networks)]
+        if re.match(r"\s*continuous\s+reachability", model.read_text(errors="replace")):
+            if nets:
+                raise self.error("[plant] networks", f"{model.name} is a continuous Flow* model without networks")
+            return FlowstarProblem(formats.load_flowstar(str(model)), plant.get("period"))
+        if "period" in plant:
+            raise self.error("[plant] period", "Verisig models carry their own control period")
+        return formats.load_verisig(str(model), networks=nets)
+
+    def verify_kwargs(self) -> dict:
+        """pv.verify's keyword arguments from [init], [split], [property], [verify]."""
+        from percver.systems import condition
+
+        kwargs: dict = {}
+        if "init" in self.doc:
+            for name, value in self.section("init").items():
+                if not _number(value) and not (isinstance(value, list) and len(value) == 2 and all(map(_number, value))):
+                    raise self.error(f"[init] {name}", f"expected [lo, hi] or a number, got {value!r}")
+            kwargs["init"] = self.section("init")
+        if "split" in self.doc:
+            split = self.section("split")
+            for name, value in split.items():
+                if not _number(value):
+                    raise self.error(f"[split] {name}", f"expected a cell count (integer) or width (float), got {value!r}")
+            kwargs["split"] = split
+        prop = dict(self.section("property"))
+        if "steps" in prop:
+            kwargs["steps"] = prop.pop("steps")
+        if "within" in prop:
+            kwargs["within"] = prop.pop("within")
+        for key in ("goal", "safe", "unsafe"):
+            if key in prop:
+                texts = prop.pop(key)
+                texts = texts if isinstance(texts, list) else [texts]
+                kwargs[key] = [self._parsed(f"[property] {key}", t, condition) for t in texts]
+        if "reward" in prop:
+            kwargs["reward"] = {k: self._parsed(f"[property] reward.{k}", v, _expression) for k, v in prop.pop("reward").items()}
+        kwargs.update(self.section("verify"))
+        if "journal" in kwargs:
+            kwargs["journal"] = str(self.written("[verify] journal", kwargs["journal"]))
+        return kwargs
+
+    def written(self, field: str, value) -> Path:
+        """A file the run writes: relative to the config; the result JSON defaults to CONFIG.result.json here."""
+        if value is None:
+            return Path(f"{self.path.stem}.result.json")
+        if not (self.path.parent / value).parent.is_dir():
+            raise self.error(field, f"the directory of {self.path.parent / value} does not exist")
+        return self.path.parent / value
+
+    def _parsed(self, field: str, text, parse):
+        if not isinstance(text, str):
+            raise self.error(field, f"expected a string such as \"p >= 0.45\", got {text!r}")
+        try:
+            return parse(text)
+        except PercverError as error:
+            raise self.error(field, str(error)) from None
+
+
+def _number(value) -> bool:
+    return isinstance(value, (int, float)) and not isinstance(value, bool)
+
+
+def _expression(text: str):
+    from percver.expr import parse
+
+    return parse(text)
+
+
+class FlowstarProblem:
+    """A Flow* continuous model as a problem for ``pv.verify``: its ODE as a plant without stages,
+    reach boxes every ``period`` (default: the file's step) up to the file's time horizon, the
+    file's initial set; the property comes from the config (Flow* files have none)."""
+
+    def __init__(self, model, period=None):
+        from percver.expr import parse
+        from percver.systems import ClosedLoop, Continuous
+
+        step = model.step[1] if isinstance(model.step, tuple) else model.step
+        self.period = float(step if period is None else period)
+        if not self.period > 0:
+            raise InputError(f"{model.path}: the period must be positive, got {self.period}")
+        self.steps = max(1, round(model.t_end / self.period))
+        plant = Continuous({v: parse(model.odes[v]) for v in model.variables}, period=self.period,
+                           step=min(step, self.period), remainder=max(model.remainder))
+        self.loop = ClosedLoop(plant)
+        self.defaults = {"init": dict(model.init), "steps": self.steps}

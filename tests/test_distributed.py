@@ -1,0 +1,171 @@
+"""Cells on executors (process pools, a real Dask LocalCluster), worker loss, timeouts, the
+journal's cut last line, and the client's memory over 10,000 cells."""
+
+import json
+import os
+import pickle
+import signal
+import threading
+import time
+import tracemalloc
+from concurrent.futures import ProcessPoolExecutor
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import percver as pv
+from percver import _core
+from percver.executors import MISSING, dumps, run_batch
+from percver.networks import Layer, Network
+from percver.verify import JournalWarning, _Property
+from test_verify import mountain_car
+
+MC = dict(init={"p": (-0.55, -0.45), "v": (0, 0)}, steps=150, within=True, progress=False)
+
+
+def by_box(result):
+    return sorted(result.cells, key=lambda c: sorted(c.box.items()))
+
+
+def journal_records(path):
+    return [json.loads(line) for line in Path(path).read_text().splitlines()[1:] if line.strip()]
+
+
+def tiny_loop():
+    """A cheap loop for many cells: x+ = x + 0.1 v, v+ = v + 0.1 u, u from a 2-2-1 tanh network."""
+    x, v = pv.variables("x v")
+    u = pv.variables("u")
+    net = Network([Layer(np.array([[-0.8, -1.2], [0.3, -0.5]]), np.array([0.0, 0.1]), "tanh"),
+                   Layer(np.array([[1.0, 0.5]]), np.array([0.0]), "identity")])
+    return pv.ClosedLoop(pv.Discrete({x: x + 0.1 * v, v: v + 0.1 * u}, inputs=[u]), stages=[pv.Stage(net, inputs=[x, v], output="u")]), x
+
+
+def test_expressions_pickle_as_dags_and_evaluate_the_same():
+    p, v, u = pv.variables("p v u")
+    v_next = pv.clip(v + 0.0015 * u - 0.0025 * pv.cos(3 * p), -0.07, 0.07)
+    e = pv.where(p + v_next <= -1.2, -1.2, p + v_next) + pv.sqrt(pv.exp(v) + 1) ** 1.5 - (-u) ** 3 \
+        + pv.uncertain(0.1, 0.2) * pv.tanh(u) / (2 + pv.sigmoid(p)) + pv.maximum(pv.atan(p), pv.abs_(v))
+    back = pickle.loads(pickle.dumps(e))
+    assert back.structural_hash() == e.structural_hash()
+    x = np.random.default_rng(0).uniform(-1, 1, (200, 3))
+    np.testing.assert_array_equal(_core.eval_float([back], ["p", "v", "u"], x), _core.eval_float([e], ["p", "v", "u"], x))
+    box = [(-0.3, -0.2), (0.0, 0.01), (0.5, 0.6)]
+    assert _core.eval_interval([back], ["p", "v", "u"], box) == _core.eval_interval([e], ["p", "v", "u"], box)
+    # Shared subexpressions are pickled once: 2^60 paths, 60 nodes.
+    deep = p
+    for _ in range(60):
+        deep = deep * deep + deep
+    assert len(pickle.dumps(deep)) < 10_000
+    assert pickle.loads(pickle.dumps(deep)).structural_hash() == deep.structural_hash()
+    c = pickle.loads(pickle.dumps(p + 1 >= v))
+    assert isinstance(c, pv.Condition) and c.op == ">=" and c.margin().structural_hash() == (p + 1 >= v).margin().structural_hash()
+
+
+def test_process_pool_ships_the_problem_once_and_matches_rayon(tmp_path):
+    loop, p, v = mountain_car()
+    loop.stages[0].component._core()  # a network with its compiled twin cached still ships
+    kwargs = dict(MC, goal=p >= 0.45, split={"p": 12})
+    local = pv.verify(loop, **kwargs)
+    journal = tmp_path / "pool.jsonl"
+    with ProcessPoolExecutor(2) as pool:
+        remote = pv.verify(loop, executor=pool, journal=str(journal), **kwargs)
+    assert [c.verdict for c in by_box(remote)] == [c.verdict for c in by_box(local)]
+    records = journal_records(journal)
+    assert len(records) == 12 and all(r["peak_rss_mb"] > 10 for r in records)
+
+    # The protocol on one worker process: without the problem it answers MISSING; once given, it
+    # keeps it, and later batches carry only the fingerprint.
+    prop = _Property(loop, None, None, p >= 0.45, True, 150)
+    safe, goal = prop.rust()
+    payload = dumps((loop, safe, goal, True, 150))
+    cells = [[(-0.5, -0.499), (0.0, 0.0)]]
+    options = {"order": 5, "method": "taylor", "timeout": None}
+    with ProcessPoolExecutor(1) as pool:
+        assert pool.submit(run_batch, "fp", None, cells, options).result() == MISSING
+        first = pool.submit(run_batch, "fp", payload, cells, options).result()
+        again = pool.submit(run_batch, "fp", None, cells, options).result()
+    assert first[0]["verdict"] == again[0]["verdict"] == "verified"
+
+
+def test_dask_worker_killed_mid_campaign_loses_and_repeats_no_cell(tmp_path):
+    distributed = pytest.importorskip("distributed")
+    loop, p, v = mountain_car()
+    kwargs = dict(MC, goal=p >= 0.45, split={"p": 40})
+    reference = pv.verify(loop, **kwargs)
+    journal = tmp_path / "dask.jsonl"
+    killed = {}
+    with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None) as cluster, \
+            distributed.Client(cluster) as client:
+        pids = list(client.run(os.getpid).values())
+
+        def kill_when_started():
+            deadline = time.time() + 120
+            while time.time() < deadline and killed.get("lines") is None:
+                lines = len(journal.read_text().splitlines()) - 1 if journal.exists() else 0
+                if lines >= 5:
+                    os.kill(pids[0], signal.SIGKILL)
+                    killed["lines"] = lines
+                time.sleep(0.01)
+
+        killer = threading.Thread(target=kill_when_started)
+        killer.start()
+        # The scheduler's address: verify connects (and closes) a Client of its own.
+        result = pv.verify(loop, executor=cluster.scheduler_address, journal=str(journal), **kwargs)
+        killer.join()
+        assert pids[0] not in client.run(os.getpid).values()
+    assert 5 <= killed["lines"] < 40, "the worker must die mid-campaign"
+    boxes = [tuple(r["box"]["p"]) for r in journal_records(journal)]
+    assert len(boxes) == len(set(boxes)) == len(result.cells) == 40, "every cell journaled exactly once"
+    assert [c.verdict for c in by_box(result)] == [c.verdict for c in by_box(reference)]
+
+
+def test_timed_out_cells_are_split_to_min_width_then_unknown_with_the_reason():
+    loop, p, v = mountain_car()
+    res = pv.verify(loop, init={"p": (-0.53, -0.45), "v": (0, 0)}, steps=150, goal=p >= 0.45, within=True, progress=False,
+                    timeout_per_cell=1e-9, min_width={"p": 0.011})
+    widths = sorted(c.box["p"][1] - c.box["p"][0] for c in res.cells)
+    assert widths == pytest.approx([0.02] * 4)  # 0.08 -> 0.04 -> 0.02: halves of 0.02 would be under min_width
+    assert all(c.verdict == "unknown" and c.reason.startswith("timeout") and "min_width" in c.reason for c in res.cells)
+    # Without a timeout the same cells verify: the split came from the timeout, not from refine.
+    assert pv.verify(loop, init={"p": (-0.53, -0.45), "v": (0, 0)}, steps=150, goal=p >= 0.45, within=True,
+                     progress=False).verdict == "verified"
+
+
+def test_cut_last_journal_line_is_reported_dropped_and_rerun(tmp_path):
+    loop, p, v = mountain_car()
+    journal = tmp_path / "run.jsonl"
+    kwargs = dict(MC, goal=p >= 0.45, split={"p": 6}, journal=str(journal))
+    first = pv.verify(loop, **kwargs)
+    text = journal.read_bytes()
+    journal.write_bytes(text[:-40])  # power loss in the middle of the last line
+    with pytest.warns(JournalWarning, match="line 7 was cut"):
+        again = pv.verify(loop, **kwargs)
+    assert [c.verdict for c in by_box(again)] == [c.verdict for c in by_box(first)]
+    boxes = [tuple(r["box"]["p"]) for r in journal_records(journal)]
+    assert len(boxes) == len(set(boxes)) == 6
+    import warnings
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        assert len(pv.verify(loop, **kwargs).cells) == 6
+
+
+def test_client_memory_stays_flat_over_10000_cells(tmp_path):
+    loop, x = tiny_loop()
+    journal = tmp_path / "many.jsonl"
+    tracemalloc.start()
+    try:
+        with ProcessPoolExecutor(2) as pool:
+            res = pv.verify(loop, init={"x": (-1, 1), "v": (0, 0.1)}, steps=3, safe=x <= 2, split={"x": 10_000},
+                            journal=str(journal), progress=False, executor=pool)
+        retained, peak = tracemalloc.get_traced_memory()
+    finally:
+        tracemalloc.stop()
+    assert res.verdict == "verified" and len(res.cells) == 10_000
+    size = journal.stat().st_size
+    # What is held at the end is the result (about 3x the journal's text); what came and went on
+    # top of it (cells waiting, trajectories, batches in flight) does not scale with the cells:
+    # holding one simulation or one outcome per cell would add tens of MB here.
+    assert retained < 4 * size, (retained, size)
+    assert peak - retained < 8e6, (peak, retained)
