@@ -12,6 +12,10 @@ from pathlib import Path
 import numpy as np
 
 
+# Rows of the unexplained table: an image may have hundreds of pixels left over.
+UNEXPLAINED_ROWS = 30
+
+
 def _figure(width=7.0, height=4.0):
     from matplotlib.figure import Figure
 
@@ -229,8 +233,11 @@ def write_diagnosis(diagnosis, directory) -> Path:
              _table(("step", "effect", "parameters", "error before", "error after", "held-out gain"), steps)]
     parts += _learned_parts(diagnosis, directory)
     if diagnosis.unexplained:
+        shown = diagnosis.unexplained[:UNEXPLAINED_ROWS]
         parts += ["<h3>Still unexplained</h3>",
-                  _table(("kind", "where", "share"), [(u["kind"], u["where"], f"{u['share']:.1%}") for u in diagnosis.unexplained])]
+                  _table(("kind", "where", "share"), [(u["kind"], u["where"], f"{u['share']:.1%}") for u in shown])]
+        if len(diagnosis.unexplained) > len(shown):
+            parts.append(f"<p>... and {len(diagnosis.unexplained) - len(shown)} more (see the JSON output)</p>")
     if diagnosis.rankings:
         parts += ["<h3>First ranking of candidate effects</h3>", _ranking_table(diagnosis.rankings[0])]
     parts += ["<h2>Baseline model</h2>"] + _report_parts(diagnosis.baseline, directory, "baseline_")
