@@ -455,12 +455,19 @@ fn precise(models: &[TaylorModel], space: &Space) -> bool {
     models.iter().all(|m| m.rem.width() <= 0.25 * m.bound(space).width())
 }
 
+/// A width too small for its remainder's share to say anything (1e-4 of the value's magnitude):
+/// tiny parts of a split cell double and shed their polynomial parts in ordinary steps. A
+/// heuristic for when to split, never for soundness.
+fn negligible(range: &Interval) -> bool {
+    range.width() <= 1e-4 * range.mag().max(1.0)
+}
+
 /// Whether a state's enclosure is turning into a plain interval: its remainder is most of it and
 /// doubled in one step. Polynomial parts can be split apart; remainders cannot, so this is the
 /// moment to split the piece (a few steps back), before the enclosure blows up.
 fn degrading(before: &TaylorModel, after: &TaylorModel, range: &Interval) -> bool {
     let rem = after.rem.width();
-    rem > 0.5 * range.width() && rem > 2.0 * before.rem.width()
+    !negligible(range) && rem > 0.5 * range.width() && rem > 2.0 * before.rem.width()
 }
 
 /// One control step from `state`: the stages, then the plant. Ok(Err(reason)) when a
