@@ -9,6 +9,12 @@
 //! ([`crate::verisig`]). Piecewise plant definitions (`where`, `clip`) take the hull of both
 //! branches when the condition is undecided on the set, which is sound; each such step is
 //! counted as a branch.
+//!
+//! A cell whose enclosure is lost (blows up, cannot decide the property, leaves a function's
+//! domain, or straddles a `within` goal for several steps) is split in two along the domain
+//! variable that matters most, at the last step where its polynomial part still dominated,
+//! and both halves continue from there (up to `max_splits` per cell). Restarting halves from
+//! step 0 (the cell-level `refine`) repeats every step before the split; this does not.
 use crate::error::{NetworkError, Result};
 use crate::network::Network;
 use crate::propagate::{self, Models, Settings as NnSettings};
@@ -328,9 +334,6 @@ fn run(lp: &ClosedLoop, cell: &[Interval], settings: &CellSettings, out: &mut Ce
                 let v = split_variable(focus.as_ref().map_or(&last[..], std::slice::from_ref), &ctx);
                 match v.filter(|_| splits < settings.max_splits) {
                     Some(v) => {
-                        if std::env::var("PV_DEBUG").is_ok() {
-                            eprintln!("split v{v} at step {} (lost at {step}: {reason}) arrival={}", history.last().unwrap().0, focus.is_some());
-                        }
                         for half in [-0.5, 0.5] {
                             let history: Vec<_> = history.iter().map(|(k, s)| (*k, restrict_half(s, v, half, &ctx))).collect();
                             let (from, state) = history.last().cloned().expect("non-empty");
@@ -431,13 +434,6 @@ fn advance(
             let reason = format!("step {}: the enclosure of '{}' blew up ({w}); split the cell or raise the order", step + 1, lp.state_names[i]);
             return Ok(End::Lost { step: step + 1, reason });
         }
-        if std::env::var("PV_DEBUG").is_ok() {
-            eprintln!("step {}: {}", step + 1, next.iter().map(|m| format!("[{:.2e} rem {:.2e}]", m.bound(space).width(), m.rem.width())).collect::<Vec<_>>().join(" "));
-        }
-        if let Some(i) = (0..next.len()).find(|&i| degrading(&piece.state[i], &next[i], &b[i])) {
-            let reason = format!("step {}: the remainder of '{}' doubled and dominates its enclosure {}", step + 1, lp.state_names[i], b[i]);
-            return Ok(End::Lost { step: step + 1, reason });
-        }
         let slot = &mut boxes[step + 1];
         *slot = Some(match slot.take() {
             None => b,
@@ -453,21 +449,6 @@ fn advance(
 /// which splitting cannot shrink, already dominate.
 fn precise(models: &[TaylorModel], space: &Space) -> bool {
     models.iter().all(|m| m.rem.width() <= 0.25 * m.bound(space).width())
-}
-
-/// A width too small for its remainder's share to say anything (1e-4 of the value's magnitude):
-/// tiny parts of a split cell double and shed their polynomial parts in ordinary steps. A
-/// heuristic for when to split, never for soundness.
-fn negligible(range: &Interval) -> bool {
-    range.width() <= 1e-4 * range.mag().max(1.0)
-}
-
-/// Whether a state's enclosure is turning into a plain interval: its remainder is most of it and
-/// doubled in one step. Polynomial parts can be split apart; remainders cannot, so this is the
-/// moment to split the piece (a few steps back), before the enclosure blows up.
-fn degrading(before: &TaylorModel, after: &TaylorModel, range: &Interval) -> bool {
-    let rem = after.rem.width();
-    !negligible(range) && rem > 0.5 * range.width() && rem > 2.0 * before.rem.width()
 }
 
 /// One control step from `state`: the stages, then the plant. Ok(Err(reason)) when a
