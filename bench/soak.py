@@ -10,7 +10,7 @@ is started again on the same journal until it finishes. The round then checks: t
 each cell once, a rerun takes every cell from it without running any, and its cells and verdicts
 equal a fault-free run. Writes bench/results/soak.json.
 
-    python bench/soak.py [--minutes 30] [--every 3.0] [--seed 0]
+    python bench/soak.py [--minutes 30] [--every 1.5] [--seed 0]
 """
 
 import argparse
@@ -37,10 +37,10 @@ def campaigns() -> tuple:
     loop, p, v, u = mountain_car()
     common = dict(steps=150, goal=p >= 0.45, within=True, progress=False)
     return loop, {
-        "verified": dict(common, init={"p": (-0.55, -0.45), "v": (0, 0)}, split={"p": 40}),
-        "refined": dict(common, init={"p": (-0.53, -0.45), "v": (0, 0)}, split={"p": 4}, order=2, refine=True,
-                        min_width={"p": 0.0025}),
-        "falsified": dict(common, init={"p": (-0.62, -0.56), "v": (0, 0)}, split={"p": 30}),
+        "verified": dict(common, init={"p": (-0.55, -0.45), "v": (0, 0)}, split={"p": 120}),
+        "refined": dict(common, init={"p": (-0.58, -0.40), "v": (0, 0)}, split={"p": 6}, order=3, refine=True,
+                        min_width={"p": 0.001}),
+        "falsified": dict(common, init={"p": (-0.62, -0.56), "v": (0, 0)}, split={"p": 60}),
         "safety": dict(init={"p": (-0.5, -0.4), "v": (-0.01, 0.01)}, split={"p": 10, "v": 3}, steps=60,
                        safe=[v >= -0.07, v <= 0.07], unsafe=p <= -1.2, progress=False),
     }
@@ -59,13 +59,39 @@ def journal_boxes(path: Path) -> list:
     return [json.dumps(json.loads(line)["box"], sort_keys=True) for line in path.read_text().splitlines()[1:] if line.strip()]
 
 
+def wait_and_kill(proc, cluster, rng, every: float, stats: dict) -> None:
+    """Until the client exits: at random moments, SIGKILL a worker (2 times in 3) or the client."""
+    while proc.poll() is None:
+        try:
+            proc.wait(timeout=rng.expovariate(1 / every))
+            return
+        except subprocess.TimeoutExpired:
+            pass
+        if rng.random() < 1 / 3:
+            proc.send_signal(signal.SIGKILL)
+            proc.wait()
+            stats["client_kills"] += 1
+        else:
+            pids = [n.process.process.pid for n in cluster.workers.values() if n.process and n.process.process and n.process.process.pid]
+            try:
+                os.kill(rng.choice(pids), signal.SIGKILL)
+                stats["worker_kills"] += 1
+            except (IndexError, ProcessLookupError):  # both restarting: no kill this time
+                pass
+        if len(cluster.workers) < 2:
+            # A worker killed while its nanny restarts it can take the nanny along (Dask drops it
+            # from cluster.workers); scale() starts the missing ones again.
+            cluster.scale(2)
+            stats["nanny_repairs"] += 1
+
+
 def soak(minutes: float, every: float, seed: int) -> dict:
     from distributed import LocalCluster
 
     rng = random.Random(seed)
     loop, runs = campaigns()
     reference = {name: outcome(pv.verify(loop, **kwargs)) for name, kwargs in runs.items()}
-    stats = {"rounds": 0, "worker_kills": 0, "client_kills": 0, "client_starts": 0, "cells_checked": 0,
+    stats = {"rounds": 0, "worker_kills": 0, "client_kills": 0, "client_starts": 0, "nanny_repairs": 0, "cells_checked": 0,
              "mismatches": [], "duplicates": [], "reran_cells": [], "client_failures": [], "by_campaign": {}}
     start = time.time()
     with LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None) as cluster, \
@@ -74,36 +100,23 @@ def soak(minutes: float, every: float, seed: int) -> dict:
             name = rng.choice(sorted(runs))
             journal = Path(tmp) / f"round{stats['rounds']}.jsonl"
             log = Path(tmp) / "client.log"
-            finished = False
-            while not finished:
+            while True:
                 stats["client_starts"] += 1
                 with open(log, "w") as out:
                     proc = subprocess.Popen([sys.executable, __file__, "--client", name, str(journal), cluster.scheduler_address],
                                             stdout=out, stderr=subprocess.STDOUT)
-                while proc.poll() is None:
-                    try:
-                        proc.wait(timeout=rng.expovariate(1 / every))
-                        break
-                    except subprocess.TimeoutExpired:
-                        pass
-                    if rng.random() < 1 / 3:
-                        proc.send_signal(signal.SIGKILL)
-                        proc.wait()
-                        stats["client_kills"] += 1
-                    else:
-                        pids = [n.process.process.pid for n in cluster.workers.values() if n.process and n.process.process]
-                        try:
-                            os.kill(rng.choice(pids), signal.SIGKILL)
-                            stats["worker_kills"] += 1
-                        except (IndexError, ProcessLookupError):  # both restarting: no kill this time
-                            pass
-                    lines = len(journal.read_text().splitlines()) if journal.exists() else 0
-                    print(f"    {time.time() - start:7.1f} s  client {proc.pid} alive, journal {lines} lines", file=sys.stderr, flush=True)
+                try:
+                    wait_and_kill(proc, cluster, rng, every, stats)
+                finally:
+                    if proc.poll() is None:  # the soak itself is stopping
+                        proc.kill()
                 if proc.returncode == 0:
-                    finished = True
-                elif proc.returncode != -signal.SIGKILL:
+                    break
+                if proc.returncode != -signal.SIGKILL:
                     stats["client_failures"].append({"campaign": name, "code": proc.returncode, "log": log.read_text()[-2000:]})
-                    finished = True
+                    break
+            if not journal.exists():  # the client failed before its first cell (recorded above)
+                continue
             boxes = journal_boxes(journal)
             if len(boxes) != len(set(boxes)):
                 stats["duplicates"].append({"round": stats["rounds"], "campaign": name, "lines": len(boxes), "distinct": len(set(boxes))})
@@ -116,8 +129,8 @@ def soak(minutes: float, every: float, seed: int) -> dict:
             stats["cells_checked"] += len(final)
             stats["rounds"] += 1
             stats["by_campaign"][name] = stats["by_campaign"].get(name, 0) + 1
-            print(f"{time.time() - start:7.0f} s  round {stats['rounds']:3d} {name:9s} cells {len(final):3d}  "
-                  f"kills: workers {stats['worker_kills']}, clients {stats['client_kills']}", flush=True)
+            print(f"{time.time() - start:7.0f} s  round {stats['rounds']:3d} {name:9s} cells {len(final):3d}  kills: workers "
+                  f"{stats['worker_kills']}, clients {stats['client_kills']}; nanny repairs {stats['nanny_repairs']}", flush=True)
     stats["seconds"] = time.time() - start
     stats["ok"] = not (stats["mismatches"] or stats["duplicates"] or stats["reran_cells"] or stats["client_failures"])
     return stats
@@ -129,7 +142,7 @@ def main() -> None:
         return
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--minutes", type=float, default=30)
-    parser.add_argument("--every", type=float, default=3.0, help="mean seconds between kills")
+    parser.add_argument("--every", type=float, default=1.5, help="mean seconds between kills")
     parser.add_argument("--seed", type=int, default=0)
     args = parser.parse_args()
     stats = {"settings": vars(args), "load_average_before": os.getloadavg(), **soak(args.minutes, args.every, args.seed)}

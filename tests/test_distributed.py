@@ -2,12 +2,14 @@
 journal's cut last line, and the client's memory over 10,000 cells."""
 
 import json
+import multiprocessing
 import os
 import pickle
 import signal
 import threading
 import time
 import tracemalloc
+import warnings
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
@@ -22,6 +24,11 @@ from percver.verify import JournalWarning, _Property
 from test_verify import mountain_car
 
 MC = dict(init={"p": (-0.55, -0.45), "v": (0, 0)}, steps=150, within=True, progress=False)
+
+
+def pool(workers):
+    # Spawned, not forked: earlier tests leave threads (Dask's event loop) that a fork would copy.
+    return ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("spawn"))
 
 
 def by_box(result):
@@ -68,8 +75,8 @@ def test_process_pool_ships_the_problem_once_and_matches_rayon(tmp_path):
     kwargs = dict(MC, goal=p >= 0.45, split={"p": 12})
     local = pv.verify(loop, **kwargs)
     journal = tmp_path / "pool.jsonl"
-    with ProcessPoolExecutor(2) as pool:
-        remote = pv.verify(loop, executor=pool, journal=str(journal), **kwargs)
+    with pool(2) as executor:
+        remote = pv.verify(loop, executor=executor, journal=str(journal), **kwargs)
     assert [c.verdict for c in by_box(remote)] == [c.verdict for c in by_box(local)]
     records = journal_records(journal)
     assert len(records) == 12 and all(r["peak_rss_mb"] > 10 for r in records)
@@ -81,17 +88,17 @@ def test_process_pool_ships_the_problem_once_and_matches_rayon(tmp_path):
     payload = dumps((loop, safe, goal, True, 150))
     cells = [[(-0.5, -0.499), (0.0, 0.0)]]
     options = {"order": 5, "method": "taylor", "timeout": None}
-    with ProcessPoolExecutor(1) as pool:
-        assert pool.submit(run_batch, "fp", None, cells, options).result() == MISSING
-        first = pool.submit(run_batch, "fp", payload, cells, options).result()
-        again = pool.submit(run_batch, "fp", None, cells, options).result()
+    with pool(1) as executor:
+        assert executor.submit(run_batch, "fp", None, cells, options).result() == MISSING
+        first = executor.submit(run_batch, "fp", payload, cells, options).result()
+        again = executor.submit(run_batch, "fp", None, cells, options).result()
     assert first[0]["verdict"] == again[0]["verdict"] == "verified"
 
 
 def test_dask_worker_killed_mid_campaign_loses_and_repeats_no_cell(tmp_path):
     distributed = pytest.importorskip("distributed")
     loop, p, v = mountain_car()
-    kwargs = dict(MC, goal=p >= 0.45, split={"p": 40})
+    kwargs = dict(MC, goal=p >= 0.45, split={"p": 120})  # cells of ~10 ms: about a second of work
     reference = pv.verify(loop, **kwargs)
     journal = tmp_path / "dask.jsonl"
     killed = {}
@@ -102,7 +109,7 @@ def test_dask_worker_killed_mid_campaign_loses_and_repeats_no_cell(tmp_path):
         def kill_when_started():
             deadline = time.time() + 120
             while time.time() < deadline and killed.get("lines") is None:
-                lines = len(journal.read_text().splitlines()) - 1 if journal.exists() else 0
+                lines = journal.read_bytes().count(b"\n") - 1 if journal.exists() else 0
                 if lines >= 5:
                     os.kill(pids[0], signal.SIGKILL)
                     killed["lines"] = lines
@@ -114,9 +121,9 @@ def test_dask_worker_killed_mid_campaign_loses_and_repeats_no_cell(tmp_path):
         result = pv.verify(loop, executor=cluster.scheduler_address, journal=str(journal), **kwargs)
         killer.join()
         assert pids[0] not in client.run(os.getpid).values()
-    assert 5 <= killed["lines"] < 40, "the worker must die mid-campaign"
+    assert 5 <= killed["lines"] < 120, "the worker must die mid-campaign"
     boxes = [tuple(r["box"]["p"]) for r in journal_records(journal)]
-    assert len(boxes) == len(set(boxes)) == len(result.cells) == 40, "every cell journaled exactly once"
+    assert len(boxes) == len(set(boxes)) == len(result.cells) == 120, "every cell journaled exactly once"
     assert [c.verdict for c in by_box(result)] == [c.verdict for c in by_box(reference)]
 
 
@@ -144,8 +151,6 @@ def test_cut_last_journal_line_is_reported_dropped_and_rerun(tmp_path):
     assert [c.verdict for c in by_box(again)] == [c.verdict for c in by_box(first)]
     boxes = [tuple(r["box"]["p"]) for r in journal_records(journal)]
     assert len(boxes) == len(set(boxes)) == 6
-    import warnings
-
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         assert len(pv.verify(loop, **kwargs).cells) == 6
@@ -156,9 +161,9 @@ def test_client_memory_stays_flat_over_10000_cells(tmp_path):
     journal = tmp_path / "many.jsonl"
     tracemalloc.start()
     try:
-        with ProcessPoolExecutor(2) as pool:
+        with pool(2) as executor:
             res = pv.verify(loop, init={"x": (-1, 1), "v": (0, 0.1)}, steps=3, safe=x <= 2, split={"x": 10_000},
-                            journal=str(journal), progress=False, executor=pool)
+                            journal=str(journal), progress=False, executor=executor)
         retained, peak = tracemalloc.get_traced_memory()
     finally:
         tracemalloc.stop()
@@ -169,3 +174,16 @@ def test_client_memory_stays_flat_over_10000_cells(tmp_path):
     # holding one simulation or one outcome per cell would add tens of MB here.
     assert retained < 4 * size, (retained, size)
     assert peak - retained < 8e6, (peak, retained)
+
+
+def test_bad_executor_batch_and_split_are_refused_before_any_work(tmp_path):
+    loop, p, v = mountain_car()
+    kwargs = dict(MC, goal=p >= 0.45, journal=str(tmp_path / "never.jsonl"))
+    with pytest.raises(pv.InputError, match="concurrent.futures.Executor, got int"):
+        pv.verify(loop, executor=42, **kwargs)
+    with pytest.raises(pv.InputError, match="batch must be at least 1"):
+        with pool(1) as executor:
+            pv.verify(loop, executor=executor, batch=0, **kwargs)
+    with pytest.raises(pv.InputError, match=r"split names \['q'\]"):
+        pv.verify(loop, split={"q": 3}, **kwargs)
+    assert not (tmp_path / "never.jsonl").exists()

@@ -93,11 +93,13 @@ class Runner:
             except (OSError, TimeoutError) as error:
                 raise InputError(f"could not connect to a Dask scheduler at '{executor}': {error}") from None
         if _is_dask_client(executor):
-            capacity = sum(w.get("nthreads", 1) for w in executor.scheduler_info()["workers"].values())
+            # Asked again (1 ms) as batches go out: an adaptive cluster (dask-jobqueue) grows and shrinks.
+            self.capacity = lambda: max(1, executor.scheduler_info(n_workers=0).get("total_threads", 1))
             # pure=False: a batch sent again after a failure must run again, not reuse the failure.
             self.pool = executor.get_executor(pure=False)
         elif isinstance(executor, cf.Executor):
-            capacity = getattr(executor, "_max_workers", None) or getattr(executor, "num_workers", None) or os.cpu_count()
+            n = getattr(executor, "_max_workers", None) or getattr(executor, "num_workers", None) or os.cpu_count() or 1
+            self.capacity = lambda: n
             self.pool = executor
         else:
             raise InputError(f"executor must be a dask.distributed.Client, a scheduler address 'tcp://host:8786' or a "
@@ -106,21 +108,19 @@ class Runner:
             raise InputError(f"workers must be at least 1, got {slots}")
         if batch is not None and batch < 1:
             raise InputError(f"batch must be at least 1 cell, got {batch}")
-        self.capacity = max(1, capacity or 1)
-        self.slots = slots or 2 * self.capacity  # two per worker: the next batch is queued while one runs
-        self.batch = batch
+        self.slots, self.batch = slots, batch
 
     def close(self):
         if self.client is not None:
             self.client.close()
 
-    def _batch_size(self, campaign) -> int:
+    def _batch_size(self, campaign, capacity: int) -> int:
         if self.batch:
             return self.batch
         seconds, cells = campaign.cell_seconds
         by_time = TASK_SECONDS * cells / seconds if cells and seconds > 0 else 1
         # Near the end, smaller batches keep every worker busy.
-        by_share = campaign.remaining() // (2 * self.capacity)
+        by_share = campaign.remaining() // (2 * capacity)
         return int(max(1, min(by_time, by_share, MAX_BATCH)))
 
     def run(self, campaign, problem: tuple, fingerprint: str, options: dict):
@@ -138,8 +138,10 @@ class Runner:
 
         try:
             while True:
-                while len(inflight) < self.slots:
-                    cells = campaign.take(self._batch_size(campaign))
+                capacity = self.capacity()
+                # Two batches per worker by default: the next one is queued while one runs.
+                while len(inflight) < (self.slots or 2 * capacity):
+                    cells = campaign.take(self._batch_size(campaign, capacity))
                     if not cells:
                         break
                     submit(cells, None, 0)

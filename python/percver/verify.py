@@ -424,7 +424,12 @@ def verify(
         from percver.executors import Runner
 
         runner = Runner(executor, slots=workers, batch=batch)  # checked (and connected) before any work
-    journal_ = _Journal(journal, fingerprint)
+    try:
+        journal_ = _Journal(journal, fingerprint)
+    except BaseException:
+        if runner is not None:
+            runner.close()
+        raise
     bar = None
     try:
         if progress:
