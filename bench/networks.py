@@ -4,14 +4,20 @@ Writes bench/results/networks.json. Per network: wall time (minimum over --repea
 once) and output width of naive interval propagation, direct Taylor models and the Verisig
 translation, next to the width of the range of 10,000 float samples. The key figure is the
 paper's Mountain Car chain generator -> contraster -> estimator -> controller over
-p in [-0.5, -0.49975], contrast in [0.3, 2.0], v = 0.
+p in [-0.5, -0.49975], contrast in [0.3, 2.0], v = 0, timed with both cores (rayon) and, in a
+child process, on one thread (RAYON_NUM_THREADS=1: the figure other load disturbs least).
+``--baseline CORE.so`` times the key figure also with another build of ``percver._core`` (e.g.
+of an earlier commit), in the same processes, for a before/after on equal terms.
 
-    python bench/networks.py [--repeat 10] [--skip-verisig-chain]
+    python bench/networks.py [--repeat 10] [--skip-verisig-chain] [--baseline /path/to/lib_core.so]
 """
 
 import argparse
+import importlib.util
 import json
 import os
+import subprocess
+import sys
 import time
 from pathlib import Path
 
@@ -71,19 +77,58 @@ def mc(name: str) -> pv.Network:
     return pv.load_network(next(MC.glob(f"{name}*.yml")))
 
 
-def key_chain(repeat: int, verisig: bool) -> dict:
+BOX = {"p": (-0.5, -0.49975), "delta": (0.3, 2.0), "v": (0.0, 0.0)}
+
+
+def mountain_car_chain() -> pv.Network:
     generator, contraster, controller = mc("Generator"), mc("Contraster"), mc("ControllerSigmoid")
     estimator = pv.Network(mc("CompositeRegressor").layers, scale=0.9, offset=-0.3, name="estimator")
-    chain = pv.chain(
+    return pv.chain(
         generator.passthrough(["delta", "v"]), contraster.passthrough(["v"]), estimator.passthrough(["v"]), controller
     ).with_input_names(["p", "delta", "v"])
-    box = {"p": (-0.5, -0.49975), "delta": (0.3, 2.0), "v": (0.0, 0.0)}
+
+
+def baseline_bounds(path: str, chain: pv.Network):
+    """The key figure's direct bounds by another build of percver._core (its own Network class)."""
+    spec = importlib.util.spec_from_file_location("_core", path)
+    core = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(core)
+    network = core.Network([(layer.weight, layer.bias, list(layer.activations)) for layer in chain.layers], None, None)
+    pieces = [(chain.input_names.index(name), count) for name, count in CHAIN_SETTINGS["pieces"].items()]
+    settings = dict(order=CHAIN_SETTINGS["order"], max_vars=CHAIN_SETTINGS["max_vars"], splits=pieces)
+    return lambda: network.bounds(list(BOX.values()), "taylor", **settings)
+
+
+def key_figure(repeat: int, baseline) -> dict:
+    """Wall time and width of the key figure's direct method (and of the baseline build)."""
+    chain = mountain_car_chain()
+    seconds, bounds = timed(lambda: chain.bounds(BOX, **CHAIN_SETTINGS), repeat)
+    row = {"seconds": seconds, "width": width(bounds)}
+    if baseline:
+        seconds, bounds = timed(baseline_bounds(baseline, chain), repeat)
+        row["baseline"] = {"core": baseline, "seconds": seconds, "width": width(bounds)}
+    return row
+
+
+def one_thread(repeat: int, baseline) -> dict:
+    """The key figure in a child process whose rayon pool has one thread."""
+    command = [sys.executable, __file__, "--key-figure-only", "--repeat", str(repeat)] + (["--baseline", baseline] if baseline else [])
+    done = subprocess.run(command, env={**os.environ, "RAYON_NUM_THREADS": "1"}, capture_output=True, text=True, check=True)
+    return json.loads(done.stdout)
+
+
+def key_chain(repeat: int, verisig: bool, baseline) -> dict:
+    chain = mountain_car_chain()
+    box = BOX
     rng = np.random.default_rng(0)
     x = np.column_stack([rng.uniform(*box[k], 20_000) for k in ("p", "delta", "v")])
     u = chain(x)
     row = measure(chain, box, u, repeat, verisig=verisig, **CHAIN_SETTINGS)
     row["sampled_range"] = [float(u.min()), float(u.max())]
     row["taylor"]["cpu_seconds"] = cpu_seconds(lambda: chain.bounds(box, **CHAIN_SETTINGS), repeat)
+    row["taylor"]["one_thread"] = one_thread(repeat, baseline)
+    if baseline:
+        row["taylor"]["baseline"] = key_figure(repeat, baseline)["baseline"]
     seconds, bounds = timed(lambda: chain.bounds(box, order=5, max_vars=2), max(1, repeat // 3))
     row["taylor_unsplit"] = {"seconds": seconds, "width": width(bounds), "ratio": width(bounds) / row["sampled_width"]}
     seconds, bounds = timed(lambda: chain.bounds(box, order=4, pieces={"delta": 8}, max_vars=2), max(1, repeat // 3))
@@ -127,10 +172,15 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--repeat", type=int, default=10)
     parser.add_argument("--skip-verisig-chain", action="store_true", help="the chain through Verisig takes about a minute")
+    parser.add_argument("--baseline", help="another build of percver._core (lib_core.so) to time the key figure with")
+    parser.add_argument("--key-figure-only", action="store_true", help=argparse.SUPPRESS)
     args = parser.parse_args()
+    if args.key_figure_only:
+        print(json.dumps(key_figure(args.repeat, args.baseline)))
+        return
     result = {
         "machine": {"cpus": os.cpu_count(), "load_average": os.getloadavg()},
-        "mountain_car_chain": key_chain(args.repeat, not args.skip_verisig_chain),
+        "mountain_car_chain": key_chain(args.repeat, not args.skip_verisig_chain, args.baseline),
         "networks": shared_networks(args.repeat),
     }
     out = ROOT / "bench" / "results" / "networks.json"
@@ -141,7 +191,11 @@ def main() -> None:
         if method in chain:
             r = chain[method]
             print(f"  {method:16s}" + (f" {r['seconds'] * 1e3:9.1f} ms  width {r['width']:.4g}  ratio {r['ratio']:.3g}" if "seconds" in r else f" failed: {r['failed']}"))
-    print(f"  taylor CPU time (both cores) {chain['taylor']['cpu_seconds'] * 1e3:.1f} ms; load average {result['machine']['load_average']}")
+    taylor = chain["taylor"]
+    print(f"  taylor CPU time (both cores) {taylor['cpu_seconds'] * 1e3:.1f} ms; one thread {taylor['one_thread']['seconds'] * 1e3:.1f} ms")
+    if "baseline" in taylor:
+        print(f"  baseline build: {taylor['baseline']['seconds'] * 1e3:.1f} ms (one thread {taylor['one_thread']['baseline']['seconds'] * 1e3:.1f} ms), width {taylor['baseline']['width']:.4g}")
+    print(f"  load average {result['machine']['load_average']}")
     print(f"wrote {out}")
 
 

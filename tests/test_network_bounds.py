@@ -1,82 +1,21 @@
 """Sound bounds through networks: every float sample from inside a box lies inside the bounds.
 
 The shared networks are read from ../shared/data (the tests fail if it is missing: CI has it).
-References are onnxruntime for ONNX files and the numpy forward pass for Verisig .yml files.
+References are onnxruntime for ONNX files and the numpy forward pass for Verisig .yml files
+(tests/shared_networks.py); the Verisig translation's campaign is in test_network_bounds_verisig.py.
 """
 
-from pathlib import Path
-
 import numpy as np
-import onnx
-import onnxruntime
 import pytest
-from onnx import TensorProto, numpy_helper
+from shared_networks import MC, assert_inside, load_shared, reference, samples
 
 import percver as pv
 from percver.errors import BlowUpError, InputError, NetworkFormatError
 
-DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
-MC = DATA / "mountain_car" / "networks"
-SAMPLES = 10_000
-
-
-def _shared_paths() -> list[Path]:
-    assert DATA.is_dir(), f"shared data missing at {DATA}"
-    paths = [
-        *sorted(DATA.glob("**/*.onnx")),
-        *sorted(MC.glob("*.yml")),
-        DATA / "mountain_car" / "state_based" / "sig16x16.yml",
-        *sorted((DATA / "f1tenth" / "controllers").glob("*.yml")),
-        *sorted((DATA / "f1tenth" / "noise_models").glob("*.yml")),
-        *sorted(DATA.glob("verisig2_suite/*/*.yml")),
-    ]
-    return paths
-
 
 @pytest.fixture(scope="module")
 def shared():
-    """{path: network} for every shared network whose inputs are not images (those are chained below)."""
-    networks = {}
-    for path in _shared_paths():
-        try:
-            network = pv.load_network(path)
-        except NetworkFormatError:
-            continue  # Verisig run configs, not networks (test_networks.py counts them)
-        if network.n_in < 600:
-            networks[path] = network
-    assert len(networks) >= 50, sorted(p.name for p in networks)
-    return networks
-
-
-def _reference(path: Path, network: pv.Network, x: np.ndarray) -> np.ndarray:
-    """onnxruntime on the file's graph converted to float64 (batch made dynamic), else numpy."""
-    if path.suffix != ".onnx":
-        return network(x)
-    model = onnx.load(str(path))
-    for tensor in model.graph.initializer:
-        if tensor.data_type == TensorProto.FLOAT:
-            tensor.CopyFrom(numpy_helper.from_array(numpy_helper.to_array(tensor).astype(np.float64), tensor.name))
-    for value in [*model.graph.input, *model.graph.output]:
-        value.type.tensor_type.elem_type = TensorProto.DOUBLE
-        value.type.tensor_type.shape.dim[0].dim_param = "batch"
-    del model.graph.value_info[:]
-    session = onnxruntime.InferenceSession(model.SerializeToString(), providers=["CPUExecutionProvider"])
-    return session.run(None, {session.get_inputs()[0].name: x})[0].reshape(len(x), -1)
-
-
-def _samples(rng, box, count=SAMPLES) -> np.ndarray:
-    lo, hi = np.array(box).T
-    x = rng.uniform(lo, hi, size=(count, len(box)))
-    x[0], x[1] = lo, hi
-    return x
-
-
-def _assert_inside(bounds, y, label):
-    """Float references are within 1e-12 (relative) of the exact values that the bounds enclose."""
-    lo, hi = np.array(bounds).T
-    slack = 1e-12 * (1 + np.abs(y))
-    outside = (y < lo - slack) | (y > hi + slack)
-    assert not outside.any(), f"{label}: {outside.sum()} samples outside, first at output {np.argwhere(outside)[0]}"
+    return load_shared()
 
 
 @pytest.mark.parametrize("half_width", [1e-6, 1e-3, 0.05])
@@ -86,23 +25,10 @@ def test_shared_networks_direct_and_interval_are_sound(shared, half_width):
     for path, network in shared.items():
         centre = rng.uniform(-0.5, 0.5, network.n_in)
         box = list(zip(centre - half_width, centre + half_width))
-        x = _samples(rng, box)
-        y = _reference(path, network, x)
+        x = samples(rng, box)
+        y = reference(path, network, x)
         for method in ("taylor", "interval"):
-            _assert_inside(network.bounds(box, method=method), y, f"{path.name} {method} +-{half_width}")
-
-
-def test_shared_networks_verisig_is_sound(shared):
-    """Narrow boxes: Verisig's enclosure of a steep neuron's ODE diverges on wide pre-activations
-    (the noise models map a 1e-4 box to outputs 1e-2 wide), so those networks get 1e-6 boxes."""
-    rng = np.random.default_rng(11)
-    for path, network in shared.items():
-        centre = rng.uniform(-0.5, 0.5, network.n_in)
-        box = list(zip(centre - 1e-4, centre + 1e-4))
-        if max(hi - lo for lo, hi in network.bounds(box)) > 1e-2:
-            box = list(zip(centre - 1e-6, centre + 1e-6))
-        y = _reference(path, network, _samples(rng, box, 2000))
-        _assert_inside(network.bounds(box, method="verisig", order=3), y, f"{path.name} verisig")
+            assert_inside(network.bounds(box, method=method), y, f"{path.name} {method} +-{half_width}")
 
 
 def _mc(name: str) -> pv.Network:
@@ -132,16 +58,16 @@ def test_mountain_car_chain_is_sound_and_tight(mountain_car):
     ).with_input_names(["p", "delta", "v"])
     box = {"p": (-0.5, -0.49975), "delta": (0.3, 2.0), "v": (-1e-4, 1e-4)}
     rng = np.random.default_rng(3)
-    x = _samples(rng, list(box.values()))
+    x = samples(rng, list(box.values()))
     y = chain(x)
     np.testing.assert_allclose(y, _manual_chain(mountain_car, x), rtol=0, atol=1e-12)
     bounds = chain.bounds(box, order=4, pieces={"delta": 5}, max_vars=2)
-    _assert_inside(bounds, y, "chain, direct")
+    assert_inside(bounds, y, "chain, direct")
     sampled = y.max() - y.min()
     width = bounds[0][1] - bounds[0][0]
     assert width <= 2.0 * sampled, f"direct width {width} vs sampled {sampled}"
     naive = chain.bounds(box, method="interval")
-    _assert_inside(naive, y, "chain, interval")
+    assert_inside(naive, y, "chain, interval")
     assert naive[0][1] - naive[0][0] > 10 * width
 
 
@@ -151,11 +77,11 @@ def test_mountain_car_chain_verisig_on_a_narrow_contrast(mountain_car):
         generator.passthrough(["delta", "v"]), contraster.passthrough(["v"]), estimator.passthrough(["v"]), controller
     ).with_input_names(["p", "delta", "v"])
     box = {"p": (-0.5, -0.49975), "delta": (1.0, 1.01), "v": (-1e-4, 1e-4)}
-    y = chain(_samples(np.random.default_rng(4), list(box.values())))
+    y = chain(samples(np.random.default_rng(4), list(box.values())))
     verisig = chain.bounds(box, method="verisig", order=3, max_vars=2)
     direct = chain.bounds(box, order=4, max_vars=2)
-    _assert_inside(verisig, y, "chain, verisig")
-    _assert_inside(direct, y, "chain, direct")
+    assert_inside(verisig, y, "chain, verisig")
+    assert_inside(direct, y, "chain, direct")
     assert verisig[0][0] <= direct[0][1] and direct[0][0] <= verisig[0][1]
 
 
@@ -166,15 +92,15 @@ def test_image_networks_through_the_generator(mountain_car, noise, noise_box):
     noise_net = contraster if noise == "contraster" else blurer
     chain = pv.chain(generator.passthrough(["delta"]), noise_net, estimator).with_input_names(["p", "delta"])
     box = {"p": (-0.52, -0.51975), "delta": noise_box}
-    x = _samples(np.random.default_rng(5), list(box.values()))
+    x = samples(np.random.default_rng(5), list(box.values()))
     y = estimator(noise_net(np.column_stack([generator(x[:, :1]), x[:, 1]])))
     np.testing.assert_allclose(chain(x), y, rtol=0, atol=1e-12)
-    _assert_inside(chain.bounds(box, order=4, pieces={"delta": 4}), y, f"generator -> {noise} -> estimator")
+    assert_inside(chain.bounds(box, order=4, pieces={"delta": 4}), y, f"generator -> {noise} -> estimator")
     # The image alone and the estimator on generated images (no noise).
     image_box = {"in0": (-0.52, -0.51975)}
     images = generator(x[:, :1])
-    _assert_inside(generator.bounds(image_box), images, "generator")
-    _assert_inside(pv.chain(generator, estimator).bounds(image_box), estimator(images), "generator -> estimator")
+    assert_inside(generator.bounds(image_box), images, "generator")
+    assert_inside(pv.chain(generator, estimator).bounds(image_box), estimator(images), "generator -> estimator")
 
 
 def test_taylor_models_carry_between_networks(mountain_car):
@@ -185,11 +111,11 @@ def test_taylor_models_carry_between_networks(mountain_car):
     assert len(models) == 601 and models.order == 5
     assert [v[0] for v in models.variables] == [0, 1]
     noisy = contraster.taylor_models(models)
-    x = _samples(np.random.default_rng(6), list(box.values()), 3000)
+    x = samples(np.random.default_rng(6), list(box.values()), 3000)
     truth = estimator(contraster(np.column_stack([generator(x[:, :1]), x[:, 1]])))
     carried = estimator.bounds(noisy)
-    _assert_inside(carried, truth, "models carried generator -> contraster -> estimator")
-    _assert_inside(models.bounds(), first(x), "generator models")
+    assert_inside(carried, truth, "models carried generator -> contraster -> estimator")
+    assert_inside(models.bounds(), first(x), "generator models")
     whole = pv.chain(first, contraster, estimator).bounds(box)
     assert carried[0][1] - carried[0][0] <= 1.0001 * (whole[0][1] - whole[0][0]) + 1e-12
 

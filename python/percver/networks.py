@@ -354,6 +354,14 @@ class Network:
 
         write_verisig_yaml(self, path)
 
+    def to_flowstar(self, path, init, **options) -> Path:
+        """Write a Flow* hybrid model of this network (Verisig 1.0 style: one mode of neuron ODEs
+        per layer, affine resets), optionally closed with a discrete plant; see
+        :func:`percver.formats.to_flowstar` for ``init`` and the options."""
+        from percver.formats.flowstar_export import to_flowstar
+
+        return to_flowstar(self, path, init, **options)
+
     def __repr__(self) -> str:
         def describe(layer: Layer) -> str:
             if isinstance(layer.activation, str):

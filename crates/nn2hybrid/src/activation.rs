@@ -6,21 +6,23 @@
 //! units. A Chebyshev interpolant stays accurate there (its error decays geometrically with the
 //! degree at a rate set by the distance of the poles to the interval, not by the radius).
 //!
-//! The enclosure is q(s (y - c)) with q the Chebyshev interpolant of degree d at d + 1 nodes,
-//! computed in floats (any q is fine: the bound is what must be rigorous). The bound
+//! The enclosure is q(s (y - c)) with q the Chebyshev interpolant at d + 3 nodes truncated to
+//! degree d, computed in floats (any q is fine: the bound is what must be rigorous). The bound
 //! max |phi(y) - q(s (y - c))| over [lo, hi] is computed per piece of a subdivision: on a piece
 //! with centre c_p and half-width h_p, the difference is expanded to order K around c_p (Taylor
 //! coefficients of phi by its ODE recurrence in interval arithmetic; q shifted exactly), the
 //! expansion is converted to the Chebyshev basis of the piece and bounded by the sum of
-//! |coefficients|, and the tail is bounded by Cauchy's estimate on a disc inside the strip where
-//! phi is analytic: |phi^(n)(x)| / n! <= M / rho^n for every real x. Pieces and K are chosen to
-//! make that tail negligible at the least cost, so narrow ranges need one piece.
+//! |coefficients|, and the (Lagrange) tail is bounded by Cauchy's estimate on a disc where phi is
+//! analytic: |phi^(n)(x)| / n! <= M / rho^n for every x of the piece. The discs are either fixed
+//! ones inside the strip around the real axis, or, for pieces away from 0 where phi saturates,
+//! discs whose M is small because phi is nearly constant there. Pieces and K are chosen to make
+//! that tail negligible at the least cost, so narrow ranges need one piece.
 //!
-//! The rigorous arithmetic is midpoint-radius ("ball") arithmetic on floats: radii are summed
-//! and multiplied with upward rounding and absorb u |midpoint| per operation. It is several
-//! times cheaper than endpoint intervals, and this bound runs once per neuron.
+//! The rigorous arithmetic is midpoint-radius ("ball") arithmetic on floats: each radius absorbs
+//! u |midpoint| and is computed in round-to-nearest, then scaled by a factor covering its few
+//! roundings. It is several times cheaper than endpoint intervals, and this bound runs for
+//! every neuron.
 use std::sync::OnceLock;
-pub static STATS: std::sync::Mutex<Vec<(usize, usize)>> = std::sync::Mutex::new(Vec::new());
 use taylor::interval::{add_up, mul_up};
 use taylor::tm::{gamma, U};
 use taylor::Interval;
@@ -93,6 +95,8 @@ const K_MAX: usize = 40;
 /// (so that the bound is within a few per cent of the truth), but need not go below TAIL_MIN.
 const TAIL_FRACTION: f64 = 0.5;
 const TAIL_MIN: f64 = 1e-15;
+/// Values of a = rho - d (see `Smooth::saturated_m`) tried for the saturated discs.
+const SATURATED: [f64; 2] = [-1.0, -3.0];
 /// Piece counts tried (more pieces, lower expansion order).
 const PIECES: [usize; 12] = [1, 2, 3, 4, 6, 8, 12, 16, 24, 32, 48, 64];
 
@@ -139,9 +143,41 @@ impl Smooth {
         LN[*self as usize].get_or_init(|| self.discs().map(|(rho, m)| (rho.ln(), m.ln())))
     }
 
-    /// An upper bound of sup_x |phi^(n)(x)| / n! * h^n (n >= 1) from the disc `disc`.
-    fn tail(&self, disc: usize, n: usize, h: f64) -> f64 {
-        let (rho, m) = self.discs()[disc];
+    /// Away from 0, phi is nearly constant and the fixed discs overestimate its derivatives by
+    /// far. If every x of a piece has |x| >= d and rho < d, the disc of radius rho around x has
+    /// Re z of one sign with |Re z| >= d - rho =: -a, and there (derivatives of phi - phi(+-inf)
+    /// are phi's) |sigmoid(z) - 0 or 1| <= e^a / (1 - e^a) and |tanh(z) -+ 1| <= 2 e^(2a) /
+    /// (1 - e^(2a)): no pole is near, so M stays small for any rho. An upper bound of M for a.
+    fn saturated_m(&self, a: f64) -> f64 {
+        let e = match self {
+            Smooth::Sigmoid => Interval::point(a).exp(),
+            Smooth::Tanh => Interval::point(2.0 * a).exp(),
+        };
+        let m = (e * (Interval::ONE - e).recip().unwrap_or(Interval::ENTIRE)).hi();
+        if *self == Smooth::Tanh { mul_up(2.0, m) } else { m }
+    }
+
+    /// (M, ln M) of the saturated discs for each a in SATURATED, computed once.
+    fn saturated(&self) -> &'static [(f64, f64); SATURATED.len()] {
+        static M: [OnceLock<[(f64, f64); SATURATED.len()]>; 2] = [const { OnceLock::new() }; 2];
+        M[*self as usize].get_or_init(|| SATURATED.map(|a| (self.saturated_m(a), self.saturated_m(a).ln())))
+    }
+
+    /// An upper bound of sup_x |phi^(n)(x)| / n! * h^n (n >= 1) over the piece c +- h from
+    /// `disc` (for the Lagrange remainder of the expansion at c).
+    fn tail(&self, disc: Disc, n: usize, c: f64, h: f64) -> f64 {
+        let (rho, m) = match disc {
+            Disc::Fixed(i) => self.discs()[i],
+            Disc::Saturated(rho, k) => {
+                let distance = (c.abs() - h).next_down();
+                if distance.is_nan() || rho >= distance {
+                    return f64::INFINITY;
+                }
+                // M grows with a: the planned a (for the whole range) holds for every piece.
+                let a = (rho - distance).next_up();
+                (rho, if a <= SATURATED[k] { self.saturated()[k].0 } else { self.saturated_m(a) })
+            }
+        };
         let ratio = (h / rho).next_up();
         (0..n).fold(m, |acc, _| mul_up(acc, ratio))
     }
@@ -149,10 +185,11 @@ impl Smooth {
     /// Enclosures of phi^(j)(c) / j! h^j for j = 0..=k (the expansion in w = (y - c) / h), from
     /// the ODE phi' = phi - phi^2 (sigmoid) or phi' = 1 - phi^2 (tanh): with z_n = y_n h^n,
     /// (n + 1) z_(n+1) = h ([sigmoid] z_n or [tanh] [n = 0] - sum_i z_i z_(n-i)).
-    fn taylor(&self, c: f64, h: f64, k: usize) -> Vec<Ball> {
+    /// (On the stack: this runs for every piece of every neuron; k <= K_MAX.)
+    fn taylor(&self, c: f64, h: f64, k: usize) -> [Ball; K_MAX + 1] {
         let h = Ball::point(h);
-        let mut y = Vec::with_capacity(k + 1);
-        y.push(Ball::from_interval(self.at(c)));
+        let mut y = [Ball::ZERO; K_MAX + 1];
+        y[0] = Ball::from_interval(self.at(c));
         for n in 0..k {
             let mut conv = Ball::ZERO;
             for i in 0..n.div_ceil(2) {
@@ -167,7 +204,7 @@ impl Smooth {
                 Smooth::Tanh if n == 0 => Ball::point(1.0),
                 Smooth::Tanh => Ball::ZERO,
             };
-            y.push(h.mul(linear.sub(conv)).div((n + 1) as f64));
+            y[n + 1] = h.mul(linear.sub(conv)).div((n + 1) as f64);
         }
         y
     }
@@ -200,7 +237,7 @@ fn power_to_chebyshev() -> &'static Vec<Vec<f64>> {
 /// conversion sums together is at most gamma_(K+1) sum |m_n|.
 fn chebyshev_norm(p: &[Ball]) -> f64 {
     let table = power_to_chebyshev();
-    let mut cheb = vec![0.0; p.len()];
+    let mut cheb = [0.0; K_MAX + 1];
     let (mut radii, mut mags) = (0.0, 0.0);
     for (n, b) in p.iter().enumerate() {
         for (m, &t) in table[n].iter().enumerate() {
@@ -209,7 +246,7 @@ fn chebyshev_norm(p: &[Ball]) -> f64 {
         radii = add_up(radii, b.r);
         mags = add_up(mags, b.m.abs());
     }
-    let sum = taylor::tm::abs_sum(&cheb);
+    let sum = taylor::tm::abs_sum(&cheb[..p.len()]);
     let products = (p.len() * p.len()) as f64;
     add_up(add_up(sum, radii), add_up(mul_up(gamma(p.len() + 1), mags), ETA * products))
 }
@@ -278,7 +315,8 @@ fn interpolation(d: usize) -> &'static Interpolation {
 /// magnitudes, an estimate of the fit error.
 fn interpolate(f: Smooth, c: f64, s: f64, d: usize) -> (Vec<f64>, f64) {
     let table = interpolation(d);
-    let values: Vec<f64> = table.nodes.iter().map(|&x| f.eval(c + x / s)).collect();
+    let mut values = [0.0; taylor::space::MAX_ORDER + 3];
+    table.nodes.iter().zip(values.iter_mut()).for_each(|(&x, v)| *v = f.eval(c + x / s));
     let dot = |row: &Vec<f64>| row.iter().zip(&values).map(|(r, v)| r * v).sum::<f64>();
     let power = table.rows[..=d].iter().map(dot).collect();
     let estimate = table.rows[d + 1..].iter().map(|row| dot(row).abs()).sum();
@@ -286,9 +324,10 @@ fn interpolate(f: Smooth, c: f64, s: f64, d: usize) -> (Vec<f64>, f64) {
 }
 
 /// Coefficients of q(tau_p + w) in w (repeated synthetic division).
-fn shift(q: &[f64], tau_p: Ball) -> Vec<Ball> {
-    let mut b: Vec<Ball> = q.iter().map(|&c| Ball::point(c)).collect();
-    let d = b.len();
+fn shift(q: &[f64], tau_p: Ball) -> [Ball; K_MAX + 1] {
+    let mut b = [Ball::ZERO; K_MAX + 1];
+    b.iter_mut().zip(q).for_each(|(b, &c)| *b = Ball::point(c));
+    let d = q.len();
     for i in 0..d {
         for j in (i..d.saturating_sub(1)).rev() {
             b[j] = b[j].add(tau_p.mul(b[j + 1]));
@@ -299,33 +338,44 @@ fn shift(q: &[f64], tau_p: Ball) -> Vec<Ball> {
 
 /// max |phi(y) - q(s (y - c))| over y in [c_p - h_p, c_p + h_p], rounded up.
 #[allow(clippy::too_many_arguments)]
-fn piece_bound(f: Smooth, q: &[f64], c: f64, s: f64, c_p: f64, h_p: f64, k: usize, disc: usize) -> f64 {
-    let t = f.taylor(c_p, h_p, k);
+fn piece_bound(f: Smooth, q: &[f64], c: f64, s: f64, c_p: f64, h_p: f64, k: usize, disc: Disc) -> f64 {
+    // The expansion of phi - q: phi's coefficients minus q's shifted to c_p (q.len() <= k + 1,
+    // as the plan takes k >= the degree).
+    let mut diff = f.taylor(c_p, h_p, k);
     let si = Ball::point(s);
     let tau_p = si.mul(Ball::point(c_p).sub(Ball::point(c)));
     let b = shift(q, tau_p);
     let shp = si.mul(Ball::point(h_p));
     let mut sh_pow = Ball::point(1.0);
-    let mut diff = Vec::with_capacity(k + 1);
-    for (j, tj) in t.iter().enumerate() {
-        match b.get(j) {
-            Some(bj) => {
-                diff.push(tj.sub(bj.mul(sh_pow)));
-                sh_pow = sh_pow.mul(shp);
-            }
-            None => diff.push(*tj),
-        }
+    for (d, bj) in diff.iter_mut().zip(&b[..q.len()]) {
+        *d = d.sub(bj.mul(sh_pow));
+        sh_pow = sh_pow.mul(shp);
     }
-    add_up(chebyshev_norm(&diff), f.tail(disc, k + 1, h_p))
+    add_up(chebyshev_norm(&diff[..=k]), f.tail(disc, k + 1, c_p, h_p))
+}
+
+/// The disc a tail bound comes from: one of `Smooth::discs`, or a saturated disc of this radius.
+#[derive(Clone, Copy, Debug)]
+enum Disc {
+    Fixed(usize),
+    /// Radius and index into SATURATED.
+    Saturated(f64, usize),
 }
 
 /// The (pieces, order, disc) of least cost N (K + 1)^2 whose Cauchy tail on pieces of half-width
-/// h / N is below `tail`: M (h / (N rho))^(K + 1) <= tail. A float estimate: the bound itself
-/// is computed rigorously afterwards.
-fn plan(f: Smooth, h: f64, tail: f64, degree: usize) -> Option<(usize, usize, usize)> {
+/// h / N is below `tail`: M (h / (N rho))^(K + 1) <= tail; `distance` is the range's distance
+/// from 0 (for the saturated discs). A float estimate: the bound itself is computed rigorously
+/// afterwards.
+fn plan(f: Smooth, h: f64, distance: f64, tail: f64, degree: usize) -> Option<(usize, usize, Disc)> {
     let (ln_h, ln_tail) = (h.ln(), tail.ln());
-    let discs = f.log_discs();
-    let mut best: Option<(usize, usize, usize)> = None;
+    let mut discs: Vec<(Disc, f64, f64)> = f.log_discs().iter().enumerate().map(|(i, &(ln_rho, ln_m))| (Disc::Fixed(i), ln_rho, ln_m)).collect();
+    for (k, (&a, &(_, ln_m))) in SATURATED.iter().zip(f.saturated()).enumerate() {
+        let rho = distance + a;
+        if rho > 0.0 {
+            discs.push((Disc::Saturated(rho, k), rho.ln(), ln_m));
+        }
+    }
+    let mut best: Option<(usize, usize, Disc)> = None;
     let cost = |n: usize, k: usize| n * (k + 1) * (k + 1);
     for (n, ln_n) in PIECES.iter().zip(ln_pieces()) {
         let n = *n;
@@ -333,14 +383,14 @@ fn plan(f: Smooth, h: f64, tail: f64, degree: usize) -> Option<(usize, usize, us
             break;
         }
         let ln_hp = ln_h - ln_n;
-        for (d, &(ln_rho, ln_m)) in discs.iter().enumerate() {
+        for &(disc, ln_rho, ln_m) in &discs {
             let ln_ratio = ln_hp - ln_rho;
             if ln_ratio >= 0.0 {
                 continue;
             }
             let k = (((ln_tail - ln_m) / ln_ratio).ceil().max(1.0) as usize - 1).max(degree);
             if k <= K_MAX && best.is_none_or(|(bn, bk, _)| cost(n, k) < cost(bn, bk)) {
-                best = Some((n, k, d));
+                best = Some((n, k, disc));
             }
         }
     }
@@ -365,8 +415,8 @@ pub fn enclose(f: Smooth, range: Interval, degree: usize) -> PolyEnclosure {
     let s = Interval::point(h).recip().expect("h > 0").lo();
     let (q, estimate) = interpolate(f, c, s, degree);
     let tail = (estimate * TAIL_FRACTION).max(TAIL_MIN);
-    let Some((pieces, k, disc)) = plan(f, h, tail, degree) else { return constant() };
-    STATS.lock().unwrap().push((pieces, k));
+    let distance = range.mig();
+    let Some((pieces, k, disc)) = plan(f, h, distance, tail, degree) else { return constant() };
     let (lo, hi) = (range.lo(), range.hi());
     let mut err = 0.0f64;
     for i in 0..pieces {
@@ -438,7 +488,8 @@ mod tests {
     #[test]
     fn enclosures_hold_and_are_tight() {
         for f in [Smooth::Sigmoid, Smooth::Tanh] {
-            for &(lo, hi) in &[(-0.01, 0.02), (0.3, 1.1), (-2.0, 2.0), (-4.0, 4.0), (-1.0, 7.0), (5.0, 12.0), (-30.0, 25.0)] {
+            // Ranges away from 0 take the saturated discs (see `Smooth::saturated_m`).
+            for &(lo, hi) in &[(-0.01, 0.02), (0.3, 1.1), (-2.0, 2.0), (-4.0, 4.0), (-1.0, 7.0), (5.0, 12.0), (-30.0, 25.0), (-9.0, -4.0), (2.5, 2.6), (-12.5, -10.0), (1.0, 4.0)] {
                 for d in [1, 3, 5, 8] {
                     check(f, lo, hi, d);
                 }

@@ -1,0 +1,186 @@
+"""Flow* export in the Verisig 1.0 style, read back by percver's own Flow* parser and run by its
+own engine: the reach sets must enclose float samples of the network (numpy forward pass) or of
+the closed loop, and agree with ``net.bounds(box, method="verisig")``."""
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import percver as pv
+
+DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
+SAMPLES = 4000
+
+
+def load(name: str) -> pv.Network:
+    return pv.load_network(DATA / name)
+
+
+def around(network: pv.Network, half_width: float, seed: int) -> list:
+    centre = np.random.default_rng(seed).uniform(-0.5, 0.5, network.n_in)
+    return list(zip(centre - half_width, centre + half_width))
+
+
+def samples(box: list, seed: int = 0) -> np.ndarray:
+    lo, hi = np.array(box).T
+    return np.random.default_rng(seed).uniform(lo, hi, (SAMPLES, len(box)))
+
+
+def exported_outputs(network: pv.Network, box: list, tmp_path: Path) -> list:
+    path = network.to_flowstar(tmp_path / "network.model", box)
+    model = pv.formats.load_flowstar(str(path))
+    assert isinstance(model, pv.formats.HybridModel)
+    final = model.run().final_box("_out")
+    return [final[f"y{k + 1}"] for k in range(network.n_out)]
+
+
+MC_CONTROLLER = "verisig2_suite/mountain_car_small/sig16x16.yml"
+
+
+def check_against_methods(network: pv.Network, box: list, exported: list) -> None:
+    """Sound for samples; equal to interval propagation up to the ODE remainders (both box every
+    layer, the export with each activation integrated); the size of the Verisig method's bounds
+    (Taylor models through the same ODEs: tighter where correlations between neurons matter)."""
+    y = network(samples(box))
+    verisig = network.bounds(box, method="verisig")
+    interval = network.bounds(box, method="interval")
+    for k, ((lo, hi), (v_lo, v_hi), (i_lo, i_hi)) in enumerate(zip(exported, verisig, interval)):
+        assert lo <= y[:, k].min() and y[:, k].max() <= hi, (k, (lo, hi), y[:, k].min(), y[:, k].max())
+        tolerance = 0.05 * (i_hi - i_lo) + 5e-4
+        assert abs(lo - i_lo) <= tolerance and abs(hi - i_hi) <= tolerance, (k, (lo, hi), (i_lo, i_hi))
+        assert max(lo, v_lo) <= min(hi, v_hi) and hi - lo <= 3.0 * (v_hi - v_lo) + 1e-3, (k, (lo, hi), (v_lo, v_hi))
+
+
+@pytest.mark.parametrize(
+    "name, box",
+    [
+        (MC_CONTROLLER, [(-0.5, -0.5 + 2e-6), (0.001, 0.001 + 2e-6)]),  # sigmoid layers, tanh output
+        (MC_CONTROLLER, [(-0.51, -0.5), (0.0, 0.002)]),
+        ("verisig2_suite/ex1_tanh/tanh20x20.yml", 1e-3),
+        ("onnx/nn_1_sigmoid.onnx", 1e-2),  # output map 8 y - 4
+        ("onnx/acc_tanh20x20x20_.onnx", 1e-3),  # affine output layer: a mode of zero dwell
+    ],
+)
+def test_exported_network_encloses_samples_and_agrees_with_verisig(tmp_path, name, box):
+    network = load(name)
+    box = around(network, box, seed=len(name)) if isinstance(box, float) else box
+    check_against_methods(network, box, exported_outputs(network, box, tmp_path))
+
+
+def test_chain_with_passthrough_and_output_maps(tmp_path):
+    # Identity neurons (the carried input) sit in sigmoid/tanh layers: set by the resets directly.
+    first, second = load("onnx/nn_1_tanh.onnx"), load("onnx/nn_1_sigmoid.onnx")
+    network = pv.chain(first.passthrough(["x2"]), second)
+    box = [(0.1, 0.1002), (-0.3, -0.2998), (0.25, 0.2502)]
+    check_against_methods(network, box, exported_outputs(network, box, tmp_path))
+
+
+def test_the_file_is_verisig_style(tmp_path):
+    network = load(MC_CONTROLLER)
+    text = network.to_flowstar(tmp_path / "mc.model", [(-0.5, -0.49), (0.0, 0.0)]).read_text()
+    assert text.startswith("hybrid reachability")
+    assert "_z1' = _a1 * _z1 * (1 - _z1)" in text  # sigmoid layers
+    assert "_z1' = _a1 * (1 - _z1 * _z1)" in text  # the tanh output layer
+    model = pv.formats.load_flowstar(str(tmp_path / "mc.model"))
+    assert list(model.modes) == ["_start", "layer1", "layer2", "layer3", "_out"]
+    assert [(j.source, j.target) for j in model.jumps] == [("_start", "layer1"), ("layer1", "layer2"), ("layer2", "layer3"), ("layer3", "_out")]
+
+
+def mountain_car_plant():
+    p, v, u = pv.variables("p v u")
+    v_next = pv.clip(v + 0.0015 * u - 0.0025 * pv.cos(3 * p), -0.07, 0.07)
+    return pv.Discrete({p: p + v_next, v: v_next}, inputs=[u])
+
+
+def simulate(network: pv.Network, plant: pv.Discrete, x: np.ndarray, steps: int) -> np.ndarray:
+    """The closed loop in floats, the plant through its own expressions."""
+    for _ in range(steps):
+        u = network(x[:, [plant.states.index(n) for n in network.input_names]])
+        values = {**dict(zip(plant.states, x.T)), **dict(zip(plant.inputs, u.T))}
+        x = pv.evaluate(plant.update, values)
+    return x
+
+
+def test_closed_loop_with_a_piecewise_plant(tmp_path):
+    # Mountain Car with the Verisig 2.0 suite's controller: cos via the _reset_plant mode, the
+    # velocity clip as one jump per branch combination.
+    network = load(MC_CONTROLLER).with_input_names(["p", "v"])
+    plant, steps = mountain_car_plant(), 6
+    init = {"p": (-0.52, -0.518), "v": (0.0, 0.0)}
+    path = network.to_flowstar(tmp_path / "loop.model", init, plant=plant, steps=steps)
+    text = path.read_text()
+    assert "_reset_plant" in text and text.count("_reset_plant -> _start") == 3
+    run = pv.formats.load_flowstar(str(path)).run()
+    final = run.final_box("_done")
+    x = simulate(network, plant, samples([init["p"], init["v"]]), steps)
+    for k, name in enumerate(plant.states):
+        lo, hi = final[name]
+        assert lo <= x[:, k].min() and x[:, k].max() <= hi, (name, (lo, hi), x[:, k].min(), x[:, k].max())
+        assert hi - lo < 2.0 * (x[:, k].max() - x[:, k].min()) + 1e-4, (name, hi - lo)
+
+
+def test_where_and_abs_become_branches(tmp_path):
+    x, y, u = pv.variables("x y u")
+    plant = pv.Discrete({x: pv.where(x >= 0, 0.5 * x, -x) + 0.1 * u, y: pv.abs_(y - x) + pv.exp(u) * 0.01}, inputs=[u])
+    network = load("onnx/nn_1_tanh.onnx").with_input_names(["x", "y"])
+    init = {"x": (-0.02, 0.03), "y": (0.2, 0.21)}
+    path = network.to_flowstar(tmp_path / "branches.model", init, plant=plant, steps=3)
+    final = pv.formats.load_flowstar(str(path)).run().final_box("_done")
+    points = simulate(network, plant, samples([init["x"], init["y"]], seed=3), 3)
+    for k, name in enumerate(plant.states):
+        assert final[name][0] <= points[:, k].min() and points[:, k].max() <= final[name][1], name
+
+
+class TestBadInput:
+    def test_relu_networks_are_refused(self, tmp_path):
+        with pytest.raises(pv.InputError, match=r"layer 1: \['relu'\] neurons have no Verisig ODE"):
+            load("onnx/nn_1_relu.onnx").to_flowstar(tmp_path / "x.model", [(0, 1), (0, 1)])
+
+    def test_plant_mismatches(self, tmp_path):
+        network = load(MC_CONTROLLER)
+        with pytest.raises(pv.InputError, match=r"reads \['in0', 'in1'\], which are not states of the plant"):
+            network.to_flowstar(tmp_path / "x.model", {"p": (0, 0), "v": (0, 0)}, plant=mountain_car_plant())
+        p, v = pv.variables("p v")
+        with pytest.raises(pv.InputError, match="1 outputs but the plant has 0 inputs"):
+            network.with_input_names(["p", "v"]).to_flowstar(tmp_path / "x.model", {"p": (0, 0), "v": (0, 0)}, plant=pv.Discrete({p: p, v: v}))
+        u = pv.variables("u")
+        with pytest.raises(pv.InputError, match=r"Flow\* has no sigmoid\(\)"):
+            network.with_input_names(["p", "v"]).to_flowstar(
+                tmp_path / "x.model", {"p": (0, 0), "v": (0, 0)}, plant=pv.Discrete({p: p + pv.sigmoid(u), v: v}, inputs=[u])
+            )
+
+    def test_bad_boxes_and_names(self, tmp_path):
+        network = load(MC_CONTROLLER)
+        with pytest.raises(pv.InputError, match=r"init \(one interval per network input: in0, in1\): bound of 'in0' is NaN"):
+            network.to_flowstar(tmp_path / "x.model", [(float("nan"), 1.0), (0, 1)])
+        with pytest.raises(pv.InputError, match="box has 2 names but 1 intervals"):
+            network.to_flowstar(tmp_path / "x.model", [(0, 1)])
+        with pytest.raises(pv.InputError, match="'clock' cannot be a Flow. variable"):
+            network.with_input_names(["clock", "v"]).to_flowstar(tmp_path / "x.model", [(0, 1), (0, 1)])
+
+    def test_verisig_2_models_point_to_load_verisig(self):
+        with pytest.raises(pv.ParseError, match=r"MC_small_sig_verisig.model, line \d+: mode DNNm1 .*load_verisig"):
+            pv.formats.load_flowstar(str(DATA / "verisig2_suite" / "mountain_car_small" / "MC_small_sig_verisig.model"))
+
+    def test_modes_need_a_clock(self, tmp_path):
+        network = load(MC_CONTROLLER)
+        path = network.to_flowstar(tmp_path / "x.model", [(0, 0.1), (0, 0.1)])
+        text = path.read_text()
+        # Drop layer1's invariant: the runner cannot tell how long the mode lasts.
+        start = text.index("\t\tlayer1\n")
+        invariant = "\t\t\tinv\n\t\t\t{\n\t\t\t\tclock <= 1\n\t\t\t}\n"
+        at = text.index(invariant, start)
+        path.write_text(text[:at] + text[at + len(invariant):])
+        line = text[:start].count("\n") + 1
+        with pytest.raises(pv.ParseError, match=rf"x.model, line {line}: mode layer1 has no invariant 'clock <= c'"):
+            pv.formats.load_flowstar(str(path))
+
+    def test_jumps_must_wait_for_the_clock(self, tmp_path):
+        path = load(MC_CONTROLLER).to_flowstar(tmp_path / "x.model", [(0, 0.1), (0, 0.1)])
+        text = path.read_text()
+        at = text.index("\t\tlayer1 -> layer2\n")
+        path.write_text(text[:at] + text[at:].replace("guard { clock = 1 }", "guard { }", 1))
+        line = text[:at].count("\n") + 1
+        with pytest.raises(pv.ParseError, match=rf"line {line}: jump layer1 -> layer2 can fire during the flow of layer1"):
+            pv.formats.load_flowstar(str(path))
