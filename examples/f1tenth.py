@@ -9,6 +9,8 @@
    read back with pv.load_network; the authors' classifier and denoiser run alongside.
 5. The paper's metrics: whole-scan accuracy, control error, and safe runs real vs simulated
    with the noise model (Table 2); plots of the runs (Figure 6) and control outputs (Figure 5).
+6. Verification (Table 1): canonical LiDAR -> authors' classifier with thresholds -> denoiser ->
+   TD3_L21_64x64_C2 -> bicycle model, from a slice of the original initial range (two cells).
 
     python examples/f1tenth.py [--runs 3] [--size 5x100] [--epochs 40] [--out out/f1tenth]
 
@@ -102,3 +104,11 @@ run = int(np.flatnonzero(dataset.crashed)[0]) if dataset.crashed.any() else 0
 noised = world.denormalise(model.apply(world.normalise(dataset.canonical), world.pose_features(dataset.local)))
 figures.append(plots.control_outputs(dataset, run, noised, cars, out / "controls.png"))
 print("figures:", ", ".join(str(f) for f in figures + [out / "t_delta.png"]))
+
+# ---- 6. verification of the paper's loop from two 5e-5 cells (the whole range: bench/f1tenth.py)
+from percver.cases.f1tenth import verification  # noqa: E402
+
+result = verification.verify(y1=(0.75, 0.7501), networks="paper", workers=2)
+print()
+print(verification.table(result))
+result.plot("y1", out / "verified_y1.png")

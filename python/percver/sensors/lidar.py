@@ -334,8 +334,13 @@ class Lidar:
                 toward = px.where(gap >= 0, toward, -toward)
                 # t <= limit by construction: a ray that cannot reach the line within range reads the limit.
                 t = distance / px.maximum(px.maximum(toward, distance / limit), _GRAZING)
-                hit_at = along + t * _affine(0.0, (ex, c), (ey, s))
-                reading = px.where(hit_at >= 0.0, px.where(hit_at <= length, t, limit), limit)
+                # Which wall is hit, decided without dividing (hit position times toward, as in
+                # ``ranges``): on sets near a wall's line, distance / toward is loose, and the
+                # hull of a wrongly undecided miss spoils the ray (verification of the turn).
+                scaled = along * toward + distance * _affine(0.0, (ex, c), (ey, s))
+                hit = px.where(scaled >= 0.0, px.where(scaled <= length * toward, t, limit), limit)
+                # Strict: a ray along a line it starts on (toward = distance = 0) hits nothing.
+                reading = px.where(toward * limit > distance, hit, limit)
                 nearest = reading if nearest is None else px.minimum(nearest, reading)
             out.append(nearest)
         return out
