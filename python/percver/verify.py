@@ -368,6 +368,7 @@ def verify(
     method: str = "taylor",
     order: int = 5,
     max_splits: int = 16,
+    rebox: bool = False,
     workers: Optional[int] = None,
     executor=None,
     batch: Optional[int] = None,
@@ -388,7 +389,10 @@ def verify(
 
     Inside a cell, a part whose enclosure degrades (or that reaches a ``within`` goal only in
     part) is split where its enclosure was last precise and continued from there, up to
-    ``max_splits`` times per cell (0: never); the splits count as branches.
+    ``max_splits`` times per cell (0: never); the splits count as branches. ``rebox=True`` restarts
+    a part from its box whenever a remainder is most of a state's enclosure (for loops whose
+    remainders feed back and grow, such as the F1/10 LiDAR loop; it loses the dependency on the
+    initial state, so it can be looser elsewhere).
     """
     started = time.time()
     if not isinstance(loop, ClosedLoop) and isinstance(getattr(loop, "loop", None), ClosedLoop):
@@ -414,10 +418,10 @@ def verify(
     problem = loop.compile(safe=safe_r, goal=goal_r, within=within, steps=steps)
     if not (isinstance(max_splits, int) and max_splits >= 0):
         raise InputError(f"max_splits must be a non-negative integer, got {max_splits!r}")
-    settings = {"steps": steps, "method": method, "order": order, "max_splits": max_splits,
+    settings = {"steps": steps, "method": method, "order": order, "max_splits": max_splits, "rebox": bool(rebox),
                 "timeout_per_cell": timeout_per_cell, "within": within}
     fingerprint = _fingerprint(loop, prop, settings)
-    options = {"order": order, "method": method, "timeout": timeout_per_cell, "max_splits": max_splits}
+    options = {"order": order, "method": method, "timeout": timeout_per_cell, "max_splits": max_splits, "rebox": bool(rebox)}
     cells, count = _grid(box, split or {})
     runner = None
     if executor is not None:

@@ -98,6 +98,10 @@ pub struct CellSettings {
     pub blow_up_width: f64,
     /// Domain splits allowed per cell when a part of it is lost (0: never split).
     pub max_splits: usize,
+    /// Restart a part from its box when a remainder is most of a state's enclosure: the
+    /// dependency on the initial state is lost, but remainders stop feeding back through the
+    /// loop (they can grow geometrically when the controller's correction adds to them).
+    pub rebox: bool,
 }
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -283,19 +287,7 @@ fn run(lp: &ClosedLoop, cell: &[Interval], settings: &CellSettings, out: &mut Ce
     }
     let space = Space::get(n, settings.order, 0)?;
     let ctx = Ctx::new(space.clone(), settings.order, settings.cutoff);
-    let state: Vec<TaylorModel> = cell
-        .iter()
-        .enumerate()
-        .map(|(v, iv)| {
-            let m = iv.mid();
-            let r = (iv.hi() - m).max(m - iv.lo()).next_up();
-            if r == 0.0 {
-                TaylorModel::constant(m)
-            } else {
-                TaylorModel::affine(&ctx, m, v, r)
-            }
-        })
-        .collect();
+    let state = box_models(cell, &ctx);
     let mut boxes: Vec<Option<Vec<Interval>>> = vec![None; lp.steps + 1];
     boxes[0] = Some(cell.to_vec());
     let mut work = vec![Piece { step: 0, state, history: Vec::new(), arrival: None }];
@@ -359,6 +351,22 @@ fn run(lp: &ClosedLoop, cell: &[Interval], settings: &CellSettings, out: &mut Ce
         out.reason = None;
     }
     Ok(())
+}
+
+/// The box as Taylor models: state i = centre + radius x_i over the normalised domain.
+fn box_models(cell: &[Interval], ctx: &Ctx) -> Vec<TaylorModel> {
+    cell.iter()
+        .enumerate()
+        .map(|(v, iv)| {
+            let m = iv.mid();
+            let r = (iv.hi() - m).max(m - iv.lo()).next_up();
+            if r == 0.0 {
+                TaylorModel::constant(m)
+            } else {
+                TaylorModel::affine(ctx, m, v, r)
+            }
+        })
+        .collect()
 }
 
 /// Steps one piece until it satisfies the property, violates it, or is lost.
@@ -434,6 +442,7 @@ fn advance(
             let reason = format!("step {}: the enclosure of '{}' blew up ({w}); split the cell or raise the order", step + 1, lp.state_names[i]);
             return Ok(End::Lost { step: step + 1, reason });
         }
+        let next = if settings.rebox && next.iter().zip(&b).any(|(m, r)| m.rem.width() > 0.5 * r.width()) { box_models(&b, ctx) } else { next };
         let slot = &mut boxes[step + 1];
         *slot = Some(match slot.take() {
             None => b,
@@ -676,7 +685,7 @@ mod tests {
             steps: 40,
         };
         lp.validate().unwrap();
-        let settings = CellSettings { order: 4, cutoff: 1e-12, method: Method::Taylor, nn: NnSettings { order: 4, ..NnSettings::default() }, timeout: None, blow_up_width: 1e6, max_splits: 0 };
+        let settings = CellSettings { order: 4, cutoff: 1e-12, method: Method::Taylor, nn: NnSettings { order: 4, ..NnSettings::default() }, timeout: None, blow_up_width: 1e6, max_splits: 0, rebox: false };
         let cell = [Interval::new(0.5, 0.7).unwrap(), Interval::new(-0.1, 0.1).unwrap()];
         let out = verify_cell(&lp, &cell, &settings);
         assert_eq!(out.verdict, Verdict::Verified, "{:?}", out.reason);
