@@ -74,6 +74,17 @@ def test_engine_mode_boxes_contain_1000_trajectories():
     assert inside(canonical.simulate(starts(0.70, 0.701, 1000, seed=2), 12), cell.boxes)
 
 
+def test_engine_forks_on_undecided_knockouts_and_boxes_contain_1000_trajectories(loop):
+    # The whole loop with the classifier in the engine: parts restart from their boxes (rebox) and
+    # fork where a knock-out is undecided; every sampled run stays inside the per-step boxes.
+    res = pv.verify(loop, {**V.INIT, "y1": (0.75, 0.751)}, steps=30, safe=V.property_()["safe"], progress=False,
+                    workers=1, falsify=0, rebox=True, max_splits=64)
+    cell = res.cells[0]
+    assert cell.branches > 0, cell  # the test is about forks: this cell has undecided knock-outs
+    runs = loop.simulate(starts(0.75, 0.751, 1000, seed=5), len(cell.boxes) - 1)
+    assert inside(runs, cell.boxes)
+
+
 def test_knockout_cases_cover_a_step_where_a_ray_is_undecided(loop, networks):
     # 26 periods after this cell the straight-ahead ray's knock-out probability sits on its threshold.
     states = loop.simulate(starts(0.6515, 0.65155, 400, seed=3), 26)[:, -1]

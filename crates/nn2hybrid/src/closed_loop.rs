@@ -96,7 +96,8 @@ pub struct CellSettings {
     pub timeout: Option<f64>,
     /// Widths beyond which a state enclosure counts as blown up.
     pub blow_up_width: f64,
-    /// Domain splits allowed per cell when a part of it is lost (0: never split).
+    /// Branches allowed per cell: domain splits when a part is lost, and forks of parts at an
+    /// expression stage's undecided conditions (0: never; conditions then take the hull).
     pub max_splits: usize,
     /// Restart a part from its box when a remainder is most of a state's enclosure: the
     /// dependency on the initial state is lost, but remainders stop feeding back through the
@@ -261,6 +262,7 @@ struct Piece {
 /// arrived would otherwise be carried past the goal (where models may not hold) for long.
 const ARRIVAL_PATIENCE: usize = 3;
 
+#[derive(Clone)]
 struct Arrival {
     step: usize,
     state: Vec<TaylorModel>,
@@ -278,6 +280,8 @@ enum End {
     Lost { step: usize, reason: String },
     /// Out of time: nothing more is tried.
     Timeout(String),
+    /// An undecided condition of a stage split the piece into these successors.
+    Forked(Vec<Piece>),
 }
 
 fn run(lp: &ClosedLoop, cell: &[Interval], settings: &CellSettings, out: &mut CellOutcome, started: Instant) -> Result<()> {
@@ -295,8 +299,13 @@ fn run(lp: &ClosedLoop, cell: &[Interval], settings: &CellSettings, out: &mut Ce
     let mut hulls = 0;
     let mut verified = true;
     while let Some(mut piece) = work.pop() {
-        match advance(lp, &mut piece, &ctx, settings, out, &mut boxes, &mut hulls, started)? {
+        let forks = settings.max_splits.saturating_sub(splits);
+        match advance(lp, &mut piece, &ctx, settings, forks, out, &mut boxes, &mut hulls, started)? {
             End::Done => {}
+            End::Forked(pieces) => {
+                splits += pieces.len() - 1;
+                work.extend(pieces);
+            }
             End::Violated(reason) => {
                 verified = false;
                 out.verdict = if splits == 0 { Verdict::Violated } else { Verdict::Unknown };
@@ -376,6 +385,7 @@ fn advance(
     piece: &mut Piece,
     ctx: &Ctx,
     settings: &CellSettings,
+    forks: usize,
     out: &mut CellOutcome,
     boxes: &mut [Option<Vec<Interval>>],
     hulls: &mut usize,
@@ -431,24 +441,35 @@ fn advance(
                 return Ok(End::Timeout(format!("timeout after {limit} s at step {step}")));
             }
         }
-        let next = match one_step(lp, &piece.state, ctx, settings, out, hulls) {
-            Ok(Ok(next)) => next,
+        let nexts = match one_step(lp, &piece.state, ctx, settings, forks, out, hulls) {
+            Ok(Ok(nexts)) => nexts,
             Err(NetworkError::Input(m)) => return Err(NetworkError::Input(m)),
             Ok(Err(reason)) => return Ok(End::Lost { step: step + 1, reason: format!("step {}: {reason}", step + 1) }),
             Err(e) => return Ok(End::Lost { step: step + 1, reason: format!("step {}: {e}", step + 1) }),
         };
-        let b: Vec<Interval> = next.iter().map(|m| m.bound(space)).collect();
-        if let Some((i, w)) = b.iter().enumerate().find(|(_, w)| !w.is_bounded() || w.width() > settings.blow_up_width) {
-            let reason = format!("step {}: the enclosure of '{}' blew up ({w}); split the cell or raise the order", step + 1, lp.state_names[i]);
-            return Ok(End::Lost { step: step + 1, reason });
+        let mut states = Vec::with_capacity(nexts.len());
+        for next in nexts {
+            let b: Vec<Interval> = next.iter().map(|m| m.bound(space)).collect();
+            if let Some((i, w)) = b.iter().enumerate().find(|(_, w)| !w.is_bounded() || w.width() > settings.blow_up_width) {
+                let reason = format!("step {}: the enclosure of '{}' blew up ({w}); split the cell or raise the order", step + 1, lp.state_names[i]);
+                return Ok(End::Lost { step: step + 1, reason });
+            }
+            let next = if settings.rebox && next.iter().zip(&b).any(|(m, r)| m.rem.width() > 0.5 * r.width()) { box_models(&b, ctx) } else { next };
+            let slot = &mut boxes[step + 1];
+            *slot = Some(match slot.take() {
+                None => b,
+                Some(old) => old.iter().zip(&b).map(|(a, c)| a.hull(c)).collect(),
+            });
+            states.push(next);
         }
-        let next = if settings.rebox && next.iter().zip(&b).any(|(m, r)| m.rem.width() > 0.5 * r.width()) { box_models(&b, ctx) } else { next };
-        let slot = &mut boxes[step + 1];
-        *slot = Some(match slot.take() {
-            None => b,
-            Some(old) => old.iter().zip(&b).map(|(a, c)| a.hull(c)).collect(),
-        });
-        piece.state = next;
+        if states.len() > 1 {
+            let forked = states
+                .into_iter()
+                .map(|state| Piece { step: step + 1, state, history: piece.history.clone(), arrival: piece.arrival.clone() })
+                .collect();
+            return Ok(End::Forked(forked));
+        }
+        piece.state = states.pop().expect("one successor");
         piece.step = step + 1;
     }
 }
@@ -460,48 +481,87 @@ fn precise(models: &[TaylorModel], space: &Space) -> bool {
     models.iter().all(|m| m.rem.width() <= 0.25 * m.bound(space).width())
 }
 
-/// One control step from `state`: the stages, then the plant. Ok(Err(reason)) when a
-/// continuous plant's flowpipe or a safety check along it fails.
+/// One control step from `state`: the stages, then the plant. An expression stage with
+/// undecided conditions forks (each branch assumed in turn, see [`taylor::expr::Forking`]) while
+/// `forks` allow, so one state may have several successors. Ok(Err(reason)) when a continuous
+/// plant's flowpipe or a safety check along it fails.
+#[allow(clippy::too_many_arguments)]
 fn one_step(
     lp: &ClosedLoop,
     state: &[TaylorModel],
     ctx: &Ctx,
     settings: &CellSettings,
+    forks: usize,
     out: &mut CellOutcome,
     hulls: &mut usize,
-) -> Result<std::result::Result<Vec<TaylorModel>, String>> {
-    let mut env = state.to_vec();
+) -> Result<std::result::Result<Vec<Vec<TaylorModel>>, String>> {
+    let mut envs = vec![state.to_vec()];
     for stage in &lp.stages {
-        let inputs: Vec<TaylorModel> = stage.inputs.iter().map(|&i| env[i].clone()).collect();
-        let outputs = match &stage.component {
-            Component::Network(net) => {
-                let t = Instant::now();
-                let o = apply_network(net, &inputs, ctx, settings)?;
-                out.nn_seconds += t.elapsed().as_secs_f64();
-                o
+        let mut grown = Vec::with_capacity(envs.len());
+        for (k, env) in envs.iter().enumerate() {
+            let inputs: Vec<TaylorModel> = stage.inputs.iter().map(|&i| env[i].clone()).collect();
+            // Successors this environment may have: 1 + forks in all, the others keep one each.
+            let most = (1 + forks).saturating_sub(grown.len() + envs.len() - k - 1).max(1);
+            let alternatives = match &stage.component {
+                Component::Network(net) => {
+                    let t = Instant::now();
+                    let o = apply_network(net, &inputs, ctx, settings)?;
+                    out.nn_seconds += t.elapsed().as_secs_f64();
+                    vec![o]
+                }
+                Component::Expr(p) => branches(p, &inputs, ctx, most)?,
+            };
+            for o in alternatives {
+                let mut e = env.clone();
+                e.extend(o);
+                grown.push(e);
             }
-            Component::Expr(p) => p.eval(&TaylorModels { ctx }, &inputs)?,
+        }
+        envs = grown;
+    }
+    let mut nexts = Vec::with_capacity(envs.len());
+    for env in &envs {
+        let mut next = match &lp.plant {
+            Plant::Discrete(plant) => {
+                let values = plant.eval_all(&TaylorModels { ctx }, env)?;
+                *hulls += count_undecided(plant, &values, ctx);
+                plant.outputs_of(&values)
+            }
+            Plant::Continuous { ode, inputs, period, flow } => {
+                let held: Vec<TaylorModel> = inputs.iter().map(|&i| env[i].clone()).collect();
+                match integrate_period(lp, ode, state, &held, *period, flow, ctx)? {
+                    Ok(next) => next,
+                    Err(reason) => return Ok(Err(reason)),
+                }
+            }
         };
-        env.extend(outputs);
-    }
-    let mut next = match &lp.plant {
-        Plant::Discrete(plant) => {
-            let values = plant.eval_all(&TaylorModels { ctx }, &env)?;
-            *hulls += count_undecided(plant, &values, ctx);
-            plant.outputs_of(&values)
+        for m in next.iter_mut() {
+            m.sweep(ctx);
         }
-        Plant::Continuous { ode, inputs, period, flow } => {
-            let held: Vec<TaylorModel> = inputs.iter().map(|&i| env[i].clone()).collect();
-            match integrate_period(lp, ode, state, &held, *period, flow, ctx)? {
-                Ok(next) => next,
-                Err(reason) => return Ok(Err(reason)),
+        nexts.push(next);
+    }
+    Ok(Ok(nexts))
+}
+
+/// The outputs of an expression program on `inputs`, one per branch combination of its
+/// undecided conditions, at most `most` of them (conditions beyond take the hull).
+fn branches(program: &Program, inputs: &[TaylorModel], ctx: &Ctx, most: usize) -> Result<Vec<Vec<TaylorModel>>> {
+    let mut done = Vec::new();
+    let mut plans: Vec<Vec<bool>> = vec![Vec::new()];
+    while let Some(plan) = plans.pop() {
+        let alg = taylor::expr::Forking::new(ctx, &plan);
+        let outputs = program.eval(&alg, inputs)?;
+        if alg.beyond() && done.len() + plans.len() + 2 <= most {
+            for choice in [false, true] {
+                let mut more = plan.clone();
+                more.push(choice);
+                plans.push(more);
             }
+        } else {
+            done.push(outputs);
         }
-    };
-    for m in next.iter_mut() {
-        m.sweep(ctx);
     }
-    Ok(Ok(next))
+    Ok(done)
 }
 
 /// The domain variable whose halving shrinks the state's polynomial part most: the largest

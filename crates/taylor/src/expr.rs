@@ -569,6 +569,69 @@ impl Algebra for TaylorModels<'_> {
     }
 }
 
+/// Taylor-model arithmetic that follows a plan through undecided conditions: the k-th
+/// undecided `where` met takes branch `plan[k]` (and evaluates only that branch), conditions
+/// beyond the plan take the hull. Evaluating every plan a condition tree allows, each branch
+/// assumed on the whole set, covers every point: a point's own path through the conditions is
+/// one of the plans. `beyond` reports whether a condition past the plan was undecided.
+pub struct Forking<'a> {
+    pub tm: TaylorModels<'a>,
+    pub plan: &'a [bool],
+    seen: std::cell::Cell<usize>,
+    beyond: std::cell::Cell<bool>,
+}
+
+impl<'a> Forking<'a> {
+    pub fn new(ctx: &'a crate::tm::Ctx, plan: &'a [bool]) -> Self {
+        Forking { tm: TaylorModels { ctx }, plan, seen: std::cell::Cell::new(0), beyond: std::cell::Cell::new(false) }
+    }
+    /// Whether an undecided condition was met after the plan ran out.
+    pub fn beyond(&self) -> bool {
+        self.beyond.get()
+    }
+}
+
+impl Algebra for Forking<'_> {
+    type Value = TaylorModel;
+    fn constant(&self, c: f64) -> TaylorModel {
+        self.tm.constant(c)
+    }
+    fn uncertain(&self, iv: Interval) -> TaylorModel {
+        self.tm.uncertain(iv)
+    }
+    fn neg(&self, a: &TaylorModel) -> TaylorModel {
+        self.tm.neg(a)
+    }
+    fn binary(&self, op: BinOp, a: &TaylorModel, b: &TaylorModel) -> Result<TaylorModel> {
+        self.tm.binary(op, a, b)
+    }
+    fn powi(&self, a: &TaylorModel, n: i32) -> Result<TaylorModel> {
+        self.tm.powi(a, n)
+    }
+    fn powf(&self, a: &TaylorModel, r: f64) -> Result<TaylorModel> {
+        self.tm.powf(a, r)
+    }
+    fn func(&self, f: Func, a: &TaylorModel) -> Result<TaylorModel> {
+        self.tm.func(f, a)
+    }
+    fn decide(&self, l: &TaylorModel, cmp: Cmp, r: &TaylorModel) -> Option<bool> {
+        let decided = self.tm.decide(l, cmp, r);
+        if decided.is_some() {
+            return decided;
+        }
+        let k = self.seen.get();
+        self.seen.set(k + 1);
+        let forced = self.plan.get(k).copied();
+        if forced.is_none() {
+            self.beyond.set(true);
+        }
+        forced
+    }
+    fn select(&self, l: &TaylorModel, cmp: Cmp, r: &TaylorModel, t: &TaylorModel, o: &TaylorModel) -> Result<TaylorModel> {
+        self.tm.select(l, cmp, r, t, o)
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
