@@ -71,7 +71,7 @@ def main():
     if not args.no_campaign:
         before = load()
         res = V.verify(tuple(args.y1), cell=args.cell, workers=args.workers, journal=args.journal,
-                       max_splits=args.max_splits, falsify=args.falsify, sample=args.sample)
+                       max_splits=args.max_splits, falsify=args.falsify, sample=args.sample, mode="stepwise")
         print(V.table(res))
         total = int(round((args.y1[1] - args.y1[0]) / args.cell))
         row = V.row(res)

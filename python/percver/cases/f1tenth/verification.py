@@ -173,13 +173,15 @@ def property_() -> dict:
 
 
 def verify(y1=INIT["y1"], networks="paper", *, noise_model: bool = True, controller: str = ctl.VERIFIED,
-           cell: float = PAPER_CELL, steps: int = STEPS, mode: str = "stepwise", sample: int | None = None, data=None,
+           cell: float = PAPER_CELL, steps: int = STEPS, mode: str = "engine", sample: int | None = None, data=None,
            **verify_kwargs):
     """Verify the loop from y1 in ``y1`` (the other initial values and the property are the
     original model's), in cells of ``cell`` metres (the paper's 5e-5 by default); returns a
     ``pv.Result``. ``noise_model=False`` verifies the loop without classifier and denoiser.
 
-    ``mode="engine"`` passes ``verify_kwargs`` to ``pv.verify``; ``mode="stepwise"`` takes
+    ``mode="engine"`` (the default) passes ``verify_kwargs`` to ``pv.verify``, with ``rebox=True``
+    and ``max_splits=64`` unless given (undecided knock-outs fork, remainders do not feed back);
+    ``mode="stepwise"`` (Python-driven, one period at a time from boxes) takes
     ``order``, ``method``, ``max_splits`` (box bisections per cell, default 16), ``workers``,
     ``journal``, ``falsify``, ``progress`` and ``seed``; with ``sample=N`` it runs only N cells
     spread evenly over the range (an estimate of coverage and time; the result's coverage is
@@ -203,6 +205,10 @@ def verify(y1=INIT["y1"], networks="paper", *, noise_model: bool = True, control
         loop = closed_loop(networks, noise_model=False, controller=controller, data=data)
     init = {**INIT, "y1": (lo, hi)}
     if mode == "engine":
+        if sample is not None:
+            raise InputError("sample= runs with mode='stepwise'; for the engine see bench/f1tenth_engine.py")
+        verify_kwargs.setdefault("rebox", True)
+        verify_kwargs.setdefault("max_splits", 64)
         return pv.verify(loop, init, steps=steps, split={"y1": cell}, **property_(), **verify_kwargs)
     if mode == "stepwise":
         verify_kwargs.setdefault("scale", {"y4": LEVER})
