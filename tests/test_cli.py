@@ -15,13 +15,13 @@ def test_help_lists_commands():
     assert "demo" in r.stdout
 
 
-def test_demo_writes_plot_and_final_box(tmp_path):
+def test_demo_verifies_a_slice_with_the_shipped_networks(tmp_path):
+    """The demo on a two-cell slice (the default slice is the same computation, 60 cells)."""
     out = tmp_path / "demo.png"
-    r = run("demo", "--out", str(out), "--no-progress", "--json")
+    r = run("demo", "--out", str(out), "--p0", "-0.5", "-0.4995", "--delta-c", "1.5", "1.6", "--no-progress", "--json")
     assert r.returncode == 0, r.stderr
     doc = json.loads(r.stdout.strip().splitlines()[-1])
-    assert set(doc["final_box"]) == {"x", "y"}
+    assert doc["verdict"] == "verified" and doc["row"]["coverage"] == 1.0
+    assert doc["init"]["p"] == [-0.5, -0.4995] and doc["init"]["dc"] == [1.5, 1.6]
+    assert doc["row"]["intervals"] == 2 and doc["row"]["avg_seconds"] > 0
     assert out.stat().st_size > 5000
-    # The Van der Pol set returns near its start after one period (about 6.7 time units).
-    lo, hi = doc["final_box"]["x"]
-    assert -3 < lo < hi < 3

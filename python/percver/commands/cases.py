@@ -1,4 +1,4 @@
-"""``percver cases CASE STAGE``: run one stage of a case study (``percver cases mountain-car data|train|evaluate``)."""
+"""``percver cases CASE STAGE``: run one stage of a case study (``percver cases mountain-car data|train|evaluate|verify``)."""
 
 from __future__ import annotations
 
@@ -11,12 +11,12 @@ from percver.errors import InputError
 
 
 def register(sub) -> None:
-    parser = sub.add_parser("cases", help="run a stage of a case study of the paper (data, train, evaluate)",
+    parser = sub.add_parser("cases", help="run a stage of a case study of the paper (data, train, evaluate, verify)",
                             description="Stages of the paper's case studies.")  # fmt: skip
     cases = parser.add_subparsers(dest="case", metavar="CASE")
     mountain_car = cases.add_parser(
         "mountain-car", help="image-based Mountain Car under contrast and blur (paper, section 5.1, Appendix A)",
-        description="Image-based Mountain Car: data set D, models (torch -> ONNX), state-estimation metric.",
+        description="Image-based Mountain Car: data set D, models (torch -> ONNX), state-estimation metric, verification (Table 1).",
     )
     mountain_car.set_defaults(func=lambda args: _usage(mountain_car))
     parser.set_defaults(func=lambda args: _usage(parser))
@@ -59,6 +59,7 @@ def register(sub) -> None:
     evaluate.add_argument("--no-plots", action="store_true", help="write summary.json only")
     _common(evaluate)
     evaluate.set_defaults(func=_evaluate)
+    _register_mc_verify(stages)
     _register_f1tenth(cases)
 
 
@@ -135,6 +136,71 @@ def _evaluate(args) -> int:
     return 0
 
 
+def _register_mc_verify(stages) -> None:
+    verify = stages.add_parser(
+        "verify", help="verify a row of Table 1 (or a slice): the goal with reward > 90 from p0 under contrast/blur",
+        description="Verify the closed loop generator -> noise model -> estimator -> controller -> plant: from v0 = 0, "
+        "reach p >= 0.45 within 150 steps with reward > 90. Prints the table row next to the paper's and writes "
+        "result.json, row.json, coverage.png (cells over p0 x noise) and tube.png (reach tube of p) to --out. "
+        "Exit status: 0 verified, 3 unknown cells left, 4 falsified.",
+    )
+    verify.add_argument("--noise", default="contrast", choices=["canonical", "contrast", "blur", "composite"],
+                        help="the row (default: %(default)s)")
+    verify.add_argument("--p0", nargs=2, type=float, metavar=("LO", "HI"), help="initial positions (default: the row's)")
+    verify.add_argument("--delta-c", nargs=2, type=float, metavar=("LO", "HI"), help="contrast range (default: the row's)")
+    verify.add_argument("--delta-b", nargs=2, type=float, metavar=("LO", "HI"), help="blur range (default: the row's)")
+    verify.add_argument("--networks", default="paper", help="paper (the authors', from the shared data), ours (shipped) or DIR")
+    verify.add_argument("--shared", help="the shared data folder (default: ../shared/data next to the repository)")
+    verify.add_argument("--split", metavar="NAME=W,...", help="initial cell widths, e.g. p=0.005,dc=0.2 (default: per row)")
+    verify.add_argument("--min-width", metavar="NAME=W,...", help="refinement stops at these widths, e.g. p=0.0003,dc=0.02")
+    verify.add_argument("--no-refine", action="store_true", help="report unknown cells instead of bisecting them")
+    verify.add_argument("--max-splits", type=int, default=64, help="in-cell splits per cell (default: %(default)s)")
+    verify.add_argument("--timeout-per-cell", type=float, help="seconds before a cell is stopped and bisected")
+    verify.add_argument("--workers", type=int, help="threads (default: all cores)")
+    verify.add_argument("--journal", help="JSONL journal: finished cells are kept, a rerun resumes")
+    verify.add_argument("--out", default="mountain_car_verification", help="directory for the JSON and PNGs (default: %(default)s)")
+    _common(verify)
+    verify.set_defaults(func=_mc_verify)
+
+
+def _widths(text: str | None, option: str) -> dict | None:
+    """``p=0.005,dc=0.2`` as ``{"p": 0.005, "dc": 0.2}``."""
+    if text is None:
+        return None
+    out = {}
+    for item in _names(text, option):
+        name, _, value = item.partition("=")
+        try:
+            out[name.strip()] = float(value)
+        except ValueError:
+            raise InputError(f"{option} takes NAME=WIDTH pairs such as p=0.005,dc=0.2; '{item}' is not one") from None
+    return out
+
+
+def _mc_verify(args) -> int:
+    from percver.cases.mountain_car import verification
+    from percver.commands.verify import EXIT
+
+    options = {k: v for k, v in (("split", _widths(args.split, "--split")), ("min_width", _widths(args.min_width, "--min-width")),
+                                 ("timeout_per_cell", args.timeout_per_cell), ("workers", args.workers),
+                                 ("journal", args.journal)) if v is not None}  # fmt: skip
+    result = verification.verify(args.noise, args.p0, args.networks, delta_c=args.delta_c, delta_b=args.delta_b,
+                                 shared=args.shared, refine=not args.no_refine, max_splits=args.max_splits,
+                                 progress=not args.no_progress and not args.json, **options)
+    record = verification.save(result, args.out, shared=args.shared)
+    if args.json:
+        print(json.dumps(record))
+    else:
+        print(verification.format_row(args.noise, record["row"], record["paper"]))
+        for variable, first, last, n in record["reasons"]:
+            print(f"unknown: {n} cells, the enclosure of '{variable}' blew up at steps {first}-{last}")
+        cex = result.counterexample
+        if cex is not None:
+            print(f"falsified: from p0 = {cex.initial['p']:.9g}: {cex.violated} fails at step {cex.step}")
+        print(f"result, row, coverage and tube -> {Path(args.out).resolve()}")
+    return EXIT[result.verdict]
+
+
 # ------------------------------------------------------------------------------------------ F1/10
 def _register_f1tenth(cases) -> None:
     f1 = cases.add_parser(
@@ -196,6 +262,22 @@ def _register_f1tenth(cases) -> None:
     evaluate.add_argument("--data", help=shared)
     _common(evaluate)
     evaluate.set_defaults(func=_f1_evaluate)
+
+    verify = stages.add_parser("verify", help="Table 1's F1/10 row (or a slice): LiDAR -> classifier -> denoiser -> controller")
+    verify.add_argument("--y1", nargs=2, type=float, metavar=("LO", "HI"), default=[0.65, 0.85],
+                        help="initial distance to the left wall, m (default: %(default)s)")
+    verify.add_argument("--cell", type=float, default=5e-5, help="cell width in y1, m (default: the paper's %(default)s)")
+    verify.add_argument("--networks", default="paper", help="paper (the authors' classifier and denoiser), ours or DIR from `train`")
+    verify.add_argument("--canonical", action="store_true", help="verify the loop without classifier and denoiser")
+    verify.add_argument("--mode", default="stepwise", choices=["stepwise", "engine"],
+                        help="one control period at a time from boxes, or pv.verify as is (default: %(default)s)")
+    verify.add_argument("--max-splits", type=int, default=16, help="branches per cell (default: %(default)s)")
+    verify.add_argument("--workers", type=int, help="threads (default: all cores)")
+    verify.add_argument("--journal", help="JSONL journal: finished cells are kept, a rerun resumes")
+    verify.add_argument("--out", default="f1tenth_verification", help="directory for result.json and row.json (default: %(default)s)")
+    verify.add_argument("--data", help=shared)
+    _common(verify)
+    verify.set_defaults(func=_f1_verify)
 
 
 def _count(text: str, option: str) -> int:
@@ -282,3 +364,20 @@ def _f1_evaluate(args) -> int:
     lines.append(f"evaluation -> {record['out']}")
     return _f1_report(args, record, lines)
 
+
+def _f1_verify(args) -> int:
+    from percver.cases.f1tenth import verification
+    from percver.commands.verify import EXIT
+
+    result = verification.verify(tuple(args.y1), args.networks, noise_model=not args.canonical, cell=args.cell,
+                                 mode=args.mode, data=args.data, max_splits=args.max_splits, workers=args.workers,
+                                 journal=args.journal, progress=not args.no_progress and not args.json)
+    record = verification.save(result, args.out, data=args.data)
+    lines = [verification.table(result, args.data)]
+    lines += [f"unknown: {n} cells lost at step {step}" for step, n in record["unknown_steps"]]
+    if result.counterexample is not None:
+        cex = result.counterexample
+        lines.append(f"falsified: from y1 = {cex.initial['y1']:.9g}: {cex.violated} fails at step {cex.step}")
+    lines.append(f"result and row -> {Path(args.out).resolve()}")
+    _f1_report(args, record, lines)
+    return EXIT[result.verdict]

@@ -5,7 +5,8 @@
 - :mod:`~percver.cases.mountain_car.training`: the torch models, exported to ONNX (needs torch;
   imported on first use of ``train``);
 - :mod:`~percver.cases.mountain_car.networks`: the chain of networks, the authors' or ours;
-- :mod:`~percver.cases.mountain_car.evaluation`: the paper's state-estimation metric, plots, summary.
+- :mod:`~percver.cases.mountain_car.evaluation`: the paper's state-estimation metric, plots, summary;
+- :mod:`~percver.cases.mountain_car.verification`: the closed loop and the rows of Table 1.
 
 ::
 
@@ -14,17 +15,19 @@
     mc.train(data, "mc-networks")                    # g_c, g_ct, g_b, h_e and a controller, as ONNX
     result = mc.evaluate("mc-networks", trajectories=1000)
     print(result.table())
+    res = mc.verify("contrast", p0=(-0.5, -0.49), networks="paper")   # a slice of Table 1's contrast row
 """
 
 from percver.cases.mountain_car.dataset import SHAPE, Camera, Dataset, blur, camera, contrast, generate, observe, render
 from percver.cases.mountain_car.dynamics import NOISES, ROWS, Trajectories, equations, noise_row, simulate, step
 from percver.cases.mountain_car.evaluation import Evaluation, evaluate
 from percver.cases.mountain_car.networks import Networks, load, paper_dir
+from percver.cases.mountain_car.verification import closed_loop, verify
 
 __all__ = [
     "Camera", "Dataset", "Evaluation", "Networks", "Trajectories", "NOISES", "ROWS", "SHAPE",
-    "blur", "camera", "canonical_camera", "contrast", "equations", "evaluate", "generate", "load",
-    "noise_row", "observe", "paper_dir", "render", "simulate", "step", "train",
+    "blur", "camera", "canonical_camera", "closed_loop", "contrast", "equations", "evaluate", "generate", "load",
+    "noise_row", "observe", "paper_dir", "render", "simulate", "step", "train", "verify",
 ]  # fmt: skip
 
 

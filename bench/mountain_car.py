@@ -1,0 +1,99 @@
+"""Benchmark (run by hand): the Mountain Car rows of the paper's Table 1 with percver.
+
+For each row (contrast, blur, composite) and network set (the authors' "paper", percver's "ours"),
+verifies the row's whole initial set (or ``--p0 LO HI``) with ``pv.cases.mountain_car.verify``'s
+defaults on ``--workers`` threads, journaled (``--journal-dir``; a killed run resumes where it
+stopped, and the wall time adds up the sessions). Records per-cell times and verdicts, coverage,
+wall time, ``os.getloadavg()`` at the start and end of each session (other jobs share this
+machine), why cells stayed unknown, and the paper's published numbers, in
+``bench/results/mountain_car.json`` (one entry per row and network set, merged with earlier runs),
+plus a coverage map per entry (``bench/results/mountain_car_<row>_<networks>.png``).
+
+    python bench/mountain_car.py --rows contrast --networks paper [--p0 -0.5 -0.45] [--workers 2]
+"""
+
+import argparse
+import json
+import os
+import time
+from pathlib import Path
+
+from percver.cases.mountain_car import verification
+from percver.verify import Cell
+
+ROOT = Path(__file__).resolve().parent
+RESULTS = ROOT / "results"
+
+
+def _journal_cells(path: Path) -> list:
+    """Every cell the journal holds, refined (bisected) ones included."""
+    if not path.exists():
+        return []
+    return [Cell.from_dict(json.loads(line)) for line in path.read_text().splitlines()[1:] if line.strip()]
+
+
+def _sessions(path: Path, journal: Path) -> list:
+    """Earlier sessions of this run; one cut short (killed) ends at the journal's last write."""
+    sessions = json.loads(path.read_text()) if path.exists() else []
+    for s in sessions:
+        if s.get("end") is None:
+            s["end"], s["interrupted"] = (journal.stat().st_mtime if journal.exists() else s["start"]), True
+    return sessions
+
+
+def run(noise: str, networks: str, p0, workers: int, journal_dir: Path, options: dict) -> dict:
+    tag = f"{noise}_{networks}" + ("" if p0 is None else f"_{p0[0]:g}_{p0[1]:g}")
+    journal = journal_dir / f"mc_{tag}.jsonl"
+    session_file = journal_dir / f"mc_{tag}.sessions.json"
+    sessions = _sessions(session_file, journal)
+    session = {"start": time.time(), "end": None, "loadavg_start": os.getloadavg(), "cells_in_journal": len(_journal_cells(journal))}
+    session_file.write_text(json.dumps(sessions + [session]))
+    result = verification.verify(noise, p0, networks, workers=workers, journal=str(journal), **options)
+    session.update(end=time.time(), loadavg_end=os.getloadavg())
+    sessions.append(session)
+    session_file.write_text(json.dumps(sessions))
+    attempts = _journal_cells(journal)
+    row = verification.table_row(result)
+    row["wall_seconds"] = sum(s["end"] - s["start"] for s in sessions)
+    row["engine_seconds_all_attempts"] = sum(c.seconds for c in attempts)
+    plot = RESULTS / f"mountain_car_{tag}.png"
+    verification.plot_coverage(result, plot)
+    noise_states = verification.NOISE_STATES[noise]
+    return {
+        "noise": noise, "networks": networks, "init": result.init, "settings": result.settings, "workers": workers,
+        "cpu_count": os.cpu_count(), "sessions": sessions, "row": row, "reasons": verification.reasons(result),
+        "paper": verification.published(noise), "coverage_plot": str(plot.relative_to(ROOT.parent)),
+        # Per cell: p0 interval, noise intervals, verdict, engine seconds, NN seconds, branches, reason.
+        "cells": [[*c.box["p"], *(x for n in noise_states for x in c.box[n]), c.verdict, round(c.seconds, 3), round(c.nn_seconds, 3),
+                   c.branches, c.reason] for c in result.cells],
+        "cell_columns": ["p_lo", "p_hi", *(f"{n}_{e}" for n in noise_states for e in ("lo", "hi")), "verdict", "seconds",
+                         "nn_seconds", "branches", "reason"],
+        "refined_attempts": len(attempts) - len(result.cells),
+    }
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--rows", default="contrast,blur,composite")
+    parser.add_argument("--networks", default="paper")
+    parser.add_argument("--p0", nargs=2, type=float, help="a sub-range of the rows' initial positions")
+    parser.add_argument("--workers", type=int, default=2)
+    parser.add_argument("--journal-dir", default="/tmp/percver-bench-mountain-car", help="journals (large; not in the repository)")
+    parser.add_argument("--timeout-per-cell", type=float, help="override the case's default")
+    parser.add_argument("--out", default=str(RESULTS / "mountain_car.json"))
+    args = parser.parse_args()
+    journal_dir = Path(args.journal_dir)
+    journal_dir.mkdir(parents=True, exist_ok=True)
+    options = {} if args.timeout_per_cell is None else {"timeout_per_cell": args.timeout_per_cell}
+    out = Path(args.out)
+    for networks in args.networks.split(","):
+        for noise in args.rows.split(","):
+            entry = run(noise, networks, args.p0, args.workers, journal_dir, options)
+            doc = json.loads(out.read_text()) if out.exists() else {}
+            doc[f"{noise}/{networks}" + ("" if args.p0 is None else f"/{args.p0[0]:g},{args.p0[1]:g}")] = entry
+            out.write_text(json.dumps(doc, indent=1))
+            print(verification.format_row(noise, entry["row"], entry["paper"]), flush=True)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,360 @@
+"""Verification of the Mountain Car chain: the rows of the paper's Table 1 (section 5.1, Appendix A).
+
+The loop has states ``p``, ``v`` and the noise parameters of the row as constant states (``dc`` for
+contrast, ``db`` for blur, both for the composite); each step runs generator(p) -> image ->
+contrast(image, dc) and/or blur(image, db) -> estimator -> controller(p_hat, v) -> u, then the
+plant of :func:`dynamics.equations`. The property is Verisig's (``SingleNoiseModel.yml``): from
+v0 = 0 reach p >= 0.45 within 150 steps with reward > 90, the reward being -0.1 u^2 per step and
++100 at the goal (so the running sum ``r`` must stay above -10 when the car arrives).
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+
+from percver.cases.mountain_car import dynamics
+from percver.cases.mountain_car.networks import Networks, load
+from percver.errors import InputError, MissingFileError
+
+# The noise states of each row and the keyword that overrides each one's range.
+NOISE_STATES = {"canonical": (), "contrast": ("dc",), "blur": ("db",), "composite": ("dc", "db")}
+KEYWORDS = {"dc": "delta_c", "db": "delta_b"}
+# Cells the rows start from, and how far unknown cells are bisected (``refine=True``). The widths are
+# measured (bench/mountain_car.py): a wide noise range costs more per cell than a finer p0 split.
+SPLIT = {
+    "canonical": {"p": 0.005},
+    "contrast": {"p": 0.005, "dc": 0.1},
+    "blur": {"p": 0.005, "db": 0.05},
+    "composite": {"p": 0.005, "dc": 0.25, "db": 0.05},
+}
+MIN_WIDTH = {"p": 0.0003, "dc": 0.0125, "db": 0.004}
+
+# Table 1 of the paper (Verisig 2.0 on 0.00025-wide p0 intervals, each over the row's whole noise range).
+PAPER_INTERVAL = 0.00025
+PUBLISHED = {
+    "contrast": {"intervals": 816, "avg_seconds": 48396.0, "avg_nn_seconds": 26259.0, "avg_branches": 1.26},
+    "blur": {"intervals": 2057, "avg_seconds": 62476.0, "avg_nn_seconds": 29702.0, "avg_branches": 1.02},
+    "composite": {"intervals": 1272, "avg_seconds": 61395.0, "avg_nn_seconds": 32894.0, "avg_branches": 1.38},
+}
+# The authors' per-interval logs in ../shared/data/mountain_car/published_results.
+PUBLISHED_FILES = {"blur": "BLUR_RESULTS_SUMMARY.txt", "composite": "COMPOSITE_RESULTS_SUMMARY.txt"}
+
+
+def _noise(noise: str) -> tuple:
+    if noise not in NOISE_STATES:
+        raise InputError(f"unknown Mountain Car noise '{noise}'; choose one of {list(NOISE_STATES)}")
+    return NOISE_STATES[noise]
+
+
+def closed_loop(noise: str = "contrast", networks="paper", *, shared=None):
+    """The closed loop of one row (``pv.ClosedLoop``; states ``p``, ``v`` and the row's noise states).
+
+    ``networks`` is "paper", "ours", a directory (see :func:`networks.load`) or a loaded :class:`Networks`.
+    Each network is its own stage; ``pv.verify`` fuses the chain into one network.
+    """
+    import percver as pv
+
+    states = _noise(noise)
+    nets = networks if isinstance(networks, Networks) else load(networks, shared=shared)
+    p, v, u = pv.variables("p v u")
+    noise_vars = {name: pv.variables(name) for name in states}
+    step = dynamics.equations()
+    plant = pv.Discrete({p: step["p"], v: step["v"], **{d: d for d in noise_vars.values()}}, inputs=[u])
+    stages = [pv.Stage(nets.generator, inputs=[p], output="image")]
+    for name, network in (("dc", nets.contrast), ("db", nets.blur)):
+        if name in noise_vars:
+            stages.append(pv.Stage(network, inputs=[stages[-1].output, noise_vars[name]], output=f"image_{name}"))
+    stages += [pv.Stage(nets.estimator, inputs=[stages[-1].output], output="p_hat"),
+               pv.Stage(nets.controller, inputs=["p_hat", v], output="u")]
+    return pv.ClosedLoop(plant, stages)
+
+
+def specification() -> dict:
+    """``pv.verify`` keywords of the property: the reward sum ``r`` and the goal at the first arrival."""
+    import percver as pv
+
+    p, u, r = pv.variables("p u r")
+    return {"steps": dynamics.STEPS, "reward": {r: -dynamics.CONTROL_COST * u**2},
+            "goal": [p >= dynamics.GOAL, r > dynamics.REWARD_BOUND - dynamics.GOAL_REWARD], "within": True}
+
+
+def initial_set(noise: str = "contrast", p0=None, *, delta_c=None, delta_b=None) -> dict:
+    """``{"p": p0, "v": (0, 0), noise state: range}``: the row's ranges unless given."""
+    states = _noise(noise)
+    row = dynamics.noise_row(noise)
+    given = {"delta_c": delta_c, "delta_b": delta_b}
+    extra = [KEYWORDS[k] for k in ("dc", "db") if k not in states and given[KEYWORDS[k]] is not None]
+    if extra:
+        raise InputError(f"the {noise} row has no {' or '.join(extra)}; its noise states are {list(states) or 'none'}")
+    box = {"p": _pair(row["p0"] if p0 is None else p0, "p0"), "v": (0.0, 0.0)}
+    for name in states:
+        key = KEYWORDS[name]
+        box[name] = _pair(row[key] if given[key] is None else given[key], key)
+    return box
+
+
+def _pair(value, what: str) -> tuple:
+    try:
+        lo, hi = (float(x) for x in value)
+    except (TypeError, ValueError):
+        raise InputError(f"{what} must be a pair (lo, hi), got {value!r}") from None
+    if not (math.isfinite(lo) and math.isfinite(hi) and lo <= hi):
+        raise InputError(f"{what} = ({lo}, {hi}) is not an interval lo <= hi of finite numbers")
+    return (lo, hi)
+
+
+def verify(noise: str = "contrast", p0=None, networks="paper", *, delta_c=None, delta_b=None, shared=None, **verify_kwargs):
+    """Verify one row of Table 1 (or a slice of it) and return the ``pv.Result``.
+
+    ``p0``, ``delta_c``, ``delta_b`` default to the row's ranges (:data:`dynamics.ROWS`). The
+    remaining keywords go to ``pv.verify``; by default cells of :data:`SPLIT` are run with up to 16
+    in-cell splits, and unknown ones (or ones still running after 60 s) bisected down to
+    :data:`MIN_WIDTH` (``refine=True``): a hard cell costs less as two halves than split inside. The
+    result's ``settings["case"]`` records the row, the networks and the initial set.
+    """
+    import percver as pv
+
+    loop = closed_loop(noise, networks, shared=shared)
+    init = initial_set(noise, p0, delta_c=delta_c, delta_b=delta_b)
+    overlap = set(verify_kwargs) & set(specification())
+    if overlap:
+        raise InputError(f"{sorted(overlap)} are fixed by the Mountain Car property; use pv.verify(closed_loop(...)) to change them")
+    options = {"split": SPLIT[noise], "refine": True, "min_width": MIN_WIDTH, "max_splits": 16, "timeout_per_cell": 60.0,
+               **verify_kwargs}
+    result = pv.verify(loop, init, **specification(), **options)
+    name = networks.name if isinstance(networks, Networks) else str(networks)
+    result.settings["case"] = {"case": "mountain_car", "noise": noise, "networks": name, "init": init,
+                               "split": options["split"], "min_width": options["min_width"]}
+    return result
+
+
+def reasons(result) -> list:
+    """Why cells stayed unknown: ``(variable, first step, last step, cells)`` per variable whose enclosure blew up."""
+    import re
+
+    groups: dict = {}
+    for cell in result.cells:
+        if cell.verdict != "unknown":
+            continue
+        found = re.search(r"step (\d+): .*?'(\w+)'", cell.reason or "")
+        step, variable = (int(found.group(1)), found.group(2)) if found else (cell.steps_done, "?")
+        lo, hi, n = groups.get(variable, (step, step, 0))
+        groups[variable] = (min(lo, step), max(hi, step), n + 1)
+    return sorted(((v, lo, hi, n) for v, (lo, hi, n) in groups.items()), key=lambda g: -g[3])
+
+
+def table_row(result) -> dict:
+    """The paper's columns (intervals, average time, NN time and branches) and ours: verdict counts,
+    coverage, wall time and the engine time per 0.00025 of p0 (the paper's interval width).
+
+    Times of cells that were bisected by refinement are not in the result; the wall time includes them.
+    """
+    run = [c for c in result.cells if c.verdict != "falsified"]
+    mean = lambda xs: float(np.mean(xs)) if xs else 0.0  # noqa: E731
+    p_lo, p_hi = result.init["p"]
+    per_interval = PAPER_INTERVAL / (p_hi - p_lo) if p_hi > p_lo else 1.0
+    seconds = [c.seconds for c in run]
+    return {
+        "intervals": len(result.cells),
+        **{v: sum(c.verdict == v for c in result.cells) for v in ("verified", "unknown", "falsified")},
+        "avg_seconds": mean(seconds), "median_seconds": float(np.median(seconds)) if seconds else 0.0,
+        "max_seconds": max(seconds, default=0.0),
+        "avg_nn_seconds": mean([c.nn_seconds for c in run]), "avg_branches": mean([c.branches for c in run]),
+        "coverage": result.coverage, "wall_seconds": result.seconds,
+        "engine_seconds": float(sum(seconds)), "engine_seconds_per_paper_interval": float(sum(seconds)) * per_interval,
+        "wall_seconds_per_paper_interval": result.seconds * per_interval,
+    }
+
+
+def published(noise: str, *, shared=None) -> dict:
+    """The paper's Table 1 row for ``noise``, with a summary of the authors' per-interval log where one is in the shared data."""
+    _noise(noise)
+    if noise not in PUBLISHED:
+        return {}
+    out = {"table": dict(PUBLISHED[noise]), "interval_width": PAPER_INTERVAL}
+    if noise in PUBLISHED_FILES:
+        try:
+            out["log"] = read_published(PUBLISHED_FILES[noise], shared=shared)
+        except MissingFileError:
+            pass
+    return out
+
+
+def read_published(name: str, *, shared=None) -> dict:
+    """Summary of one of the authors' per-interval logs: verdict counts, p0 and noise ranges covered, times."""
+    from percver.cases.mountain_car.networks import default_shared
+
+    base = Path(shared) if shared is not None else default_shared()
+    path = next((f for f in (base / name, base / "mountain_car" / "published_results" / name,
+                             base / "data" / "mountain_car" / "published_results" / name) if f.is_file()), None)
+    if path is None:
+        raise MissingFileError(f"the authors' log {name} is not under {base} (mountain_car/published_results)")
+    rows = []
+    for line in path.read_text().splitlines()[1:]:
+        fields = [f.strip() for f in line.split(",")]
+        if len(fields) == 9 and fields[4] in ("SAFE", "UNSAFE", "NONE"):
+            rows.append(fields)
+    finished = np.array([[float(x) for x in r[:4] + r[5:8]] for r in rows if r[4] != "NONE"]).reshape(-1, 7)
+    times = finished[:, 4]
+    return {
+        "file": path.name, "intervals": len(rows), "safe": sum(r[4] == "SAFE" for r in rows),
+        "unfinished": sum(r[4] == "NONE" for r in rows),
+        "p0": (float(finished[:, 0].min()), float(finished[:, 1].max())),
+        "noise": (float(finished[:, 2].min()), float(finished[:, 3].max())),
+        "avg_seconds": float(times.mean()), "median_seconds": float(np.median(times)),
+        "min_seconds": float(times.min()), "max_seconds": float(times.max()),
+        "avg_nn_seconds": float(finished[:, 5].mean()), "avg_branches": float(finished[:, 6].mean()),
+    }
+
+
+def format_row(noise: str, row: dict, paper: dict | None = None) -> str:
+    """The row as text, the paper's numbers beneath when given."""
+    head = (f"{'':10} {'intervals':>9} {'verified':>8} {'unknown':>7} {'falsified':>9} {'avg s':>9} {'avg NN s':>9} "
+            f"{'avg br':>6} {'coverage':>8} {'wall s':>8} {'s/0.00025':>10}")
+    lines = [head, f"{'percver':10} {row['intervals']:>9} {row['verified']:>8} {row['unknown']:>7} {row['falsified']:>9} "
+                   f"{row['avg_seconds']:>9.2f} {row['avg_nn_seconds']:>9.2f} {row['avg_branches']:>6.2f} "
+                   f"{100 * row['coverage']:>7.2f}% {row['wall_seconds']:>8.1f} {row['wall_seconds_per_paper_interval']:>10.2f}"]
+    table = (paper or {}).get("table")
+    if table:
+        lines.append(f"{'paper':10} {table['intervals']:>9} {'':>8} {'':>7} {'':>9} {table['avg_seconds']:>9.0f} "
+                     f"{table['avg_nn_seconds']:>9.0f} {table['avg_branches']:>6.2f} {'100.00%':>8} {'':>8} {table['avg_seconds']:>10.0f}")
+    return f"Mountain Car, {noise}\n" + "\n".join(lines)
+
+
+def with_reward(loop):
+    """``loop`` with the reward sum ``r`` as a state, as ``pv.verify`` runs it (unchanged if it has one)."""
+    return loop if "r" in loop.states else loop.with_accumulators(specification()["reward"])
+
+
+def runs(loop, x0, steps: int = dynamics.STEPS):
+    """Simulated runs of ``loop`` with the reward sum from the rows of ``x0`` (over the loop's states,
+    ``r`` last or left out for 0): trajectories (n, steps + 1, states with ``r``) and each run's first
+    step at the goal p >= 0.45 (-1: never)."""
+    x0 = np.atleast_2d(np.asarray(x0, dtype=float))
+    if "r" not in loop.states and x0.shape[1] == len(loop.states):
+        x0 = np.column_stack([x0, np.zeros(len(x0))])
+    loop = with_reward(loop)
+    traj = loop.simulate(x0, steps)
+    at_goal = traj[:, :, loop.states.index("p")] >= dynamics.GOAL
+    first = np.where(at_goal.any(axis=1), np.argmax(at_goal, axis=1), -1)
+    return traj, first
+
+
+def outside_boxes(result, loop, samples: int = 1000, seed: int = 0) -> list:
+    """Sampled runs that leave the per-step reach boxes of their cell (each run checked up to its first
+    goal step, where the engine stops): ``(cell index, run, step, state, value, (lo, hi))`` per escape."""
+    from percver.sets import Box
+
+    loop = with_reward(loop)
+    rng = np.random.default_rng(seed)
+    owners = rng.integers(0, len(result.cells), samples)
+    escapes = []
+    for k in np.unique(owners):
+        cell = result.cells[k]
+        if not cell.boxes:
+            continue
+        x0 = Box.coerce(cell.box, loop.states).sample(int(np.sum(owners == k)), seed=seed + int(k))
+        traj, first = runs(loop, x0, len(cell.boxes) - 1)
+        boxes = np.asarray(cell.boxes)
+        last = np.where(first >= 0, first, len(boxes) - 1)
+        checked = np.arange(len(boxes))[None, :] <= last[:, None]
+        out = ((traj < boxes[None, :, :, 0]) | (traj > boxes[None, :, :, 1])) & checked[:, :, None]
+        for i, t, j in np.argwhere(out):
+            escapes.append((int(k), int(i), int(t), loop.states[j], float(traj[i, t, j]), tuple(boxes[t, j])))
+    return escapes
+
+
+def plot_coverage(result, path) -> Path:
+    """Verified / unknown / falsified cells over p0 x each noise parameter (one panel per parameter),
+    with the unknown cells' reasons in the title."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    from matplotlib.patches import Rectangle
+
+    noise = [n for n in result.states if n in KEYWORDS]
+    colours = {"verified": "tab:green", "unknown": "tab:orange", "falsified": "tab:red"}
+    fig, axes = plt.subplots(1, max(1, len(noise)), figsize=(7 * max(1, len(noise)), 4), squeeze=False)
+    for ax, name in zip(axes[0], noise or [None]):
+        for verdict in ("verified", "unknown", "falsified"):  # problems drawn last, on top
+            for cell in (c for c in result.cells if c.verdict == verdict):
+                (x0, x1), (y0, y1) = cell.box["p"], cell.box[name] if name else (0.0, 1.0)
+                ax.add_patch(Rectangle((x0, y0), x1 - x0, y1 - y0, facecolor=colours[verdict], edgecolor="k", linewidth=0.2,
+                                       alpha=0.8 if verdict != "verified" else 0.5))
+        ax.set_xlim(*result.init["p"])
+        ax.set_ylim(*(result.init[name] if name else (0.0, 1.0)))
+        ax.set_xlabel("p0")
+        ax.set_ylabel(KEYWORDS.get(name, ""))
+        ax.legend(handles=[Rectangle((0, 0), 1, 1, color=c, label=v) for v, c in colours.items()], loc="upper right", fontsize=7)
+    why = "; ".join(f"{n} unknown: '{v}' blew up at steps {lo}-{hi}" for v, lo, hi, n in reasons(result)[:3])
+    fig.suptitle(f"coverage {100 * result.coverage:.2f}% of {len(result.cells)} cells" + (f"\n{why}" if why else ""), fontsize=9)
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+    return Path(path)
+
+
+def plot_tube(result, path, loop, samples: int = 40, seed: int = 0) -> Path:
+    """The reach tube of p (per-step boxes of each cell) over simulated runs from the initial set, each
+    run drawn until its first step at the goal; the right panel zooms in on the arrival."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from percver.sets import Box
+
+    loop = with_reward(loop)
+    j = result.states.index("p")
+    colours = {"verified": "tab:green", "unknown": "tab:orange", "falsified": "tab:red"}
+    traj, first = runs(loop, Box.coerce(result.init, loop.states).sample(samples, seed=seed))
+    ends = np.where(first >= 0, first, traj.shape[1] - 1)
+    fig, axes = plt.subplots(1, 2, figsize=(11, 4.5), gridspec_kw={"width_ratios": [2, 1]})
+    for ax in axes:
+        for cell in result.cells:
+            if cell.boxes:
+                b = np.asarray(cell.boxes)[:, j]
+                ax.fill_between(np.arange(len(b)), b[:, 0], b[:, 1], step="mid", color=colours[cell.verdict], alpha=0.35, linewidth=0)
+        for run, end in zip(traj[:, :, j], ends):
+            ax.plot(np.arange(end + 1), run[: end + 1], color="k", linewidth=0.4)
+        ax.axhline(dynamics.GOAL, color="tab:blue", linestyle="--", linewidth=0.8, label="goal p = 0.45")
+        ax.set_xlabel("step")
+    last = max((len(c.boxes) for c in result.cells), default=1) - 1
+    axes[1].set_xlim(max(0, int(ends.min()) - 8), max(last, int(ends.max())) + 1)
+    axes[1].set_ylim(0.2, 0.65)
+    axes[1].set_title("arrival: per-step boxes and runs", fontsize=9)
+    axes[0].set_ylabel("p")
+    axes[0].legend(loc="lower right", fontsize=8)
+    axes[0].set_title(f"reach tube of p ({result.verdict}, coverage {100 * result.coverage:.1f}% of {len(result.cells)} cells) "
+                      f"over {samples} simulated runs", fontsize=9)
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+    return Path(path)
+
+
+def save(result, out, loop=None, *, shared=None, samples: int = 40) -> dict:
+    """Write ``result.json``, ``row.json`` (the table row next to the paper's), ``coverage.png`` and
+    ``tube.png`` under ``out``; returns the row record with the paths. ``loop`` (for the simulated
+    runs of the tube) defaults to the row's loop rebuilt from ``result.settings["case"]``."""
+    import json
+
+    case = result.settings.get("case")
+    if case is None:
+        raise InputError("save() needs a result of mountain_car.verify (its settings carry the row and networks)")
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    if loop is None:
+        loop = closed_loop(case["noise"], case["networks"], shared=shared)
+    record = {"noise": case["noise"], "networks": case["networks"], "init": case["init"], "row": table_row(result),
+              "paper": published(case["noise"], shared=shared), "reasons": reasons(result),
+              "files": {"result": str(out / "result.json"), "coverage": str(out / "coverage.png"), "tube": str(out / "tube.png")}}
+    result.to_json(str(out / "result.json"))
+    plot_coverage(result, out / "coverage.png")
+    plot_tube(result, out / "tube.png", loop, samples=samples)
+    (out / "row.json").write_text(json.dumps(record, indent=1))
+    return record

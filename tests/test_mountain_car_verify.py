@@ -1,0 +1,94 @@
+"""Mountain Car verification (Table 1 rows): the loop matches the networks' own chain, a verified slice
+contains 1,000 sampled runs, a slice left of the verified range is falsified by a replayable run."""
+
+import json
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+import percver as pv
+from percver.cases import mountain_car as mc
+from percver.cases.mountain_car import verification
+from percver.errors import InputError
+
+from closed_loops import DATA
+
+
+@pytest.fixture(scope="module")
+def paper():
+    return mc.load("paper", shared=DATA)
+
+
+def test_loop_is_the_networks_chain(paper):
+    """One step of the composite loop equals generator -> contrast -> blur -> estimator -> controller -> plant."""
+    loop = verification.closed_loop("composite", paper)
+    assert loop.states == ["p", "v", "dc", "db"]
+    rng = np.random.default_rng(0)
+    x = np.column_stack([rng.uniform(-0.6, -0.4, 50), rng.uniform(-0.07, 0.07, 50), rng.uniform(0.5, 2, 50), rng.uniform(0, 0.15, 50)])
+    u = paper.control(paper.estimate(paper.images(x[:, 0], delta_c=x[:, 2], delta_b=x[:, 3])), x[:, 1])
+    p_next, v_next = mc.step(x[:, 0], x[:, 1], u)
+    np.testing.assert_allclose(loop.step_float(x), np.column_stack([p_next, v_next, x[:, 2], x[:, 3]]), rtol=0, atol=1e-12)
+
+
+def test_slice_verified_and_contains_sampled_runs(paper):
+    result = mc.verify("contrast", p0=(-0.5, -0.4995), networks=paper, delta_c=(1.6, 2.0), split={}, progress=False)
+    assert result.verdict == "verified" and result.coverage == 1.0
+    assert result.states == ["p", "v", "dc", "r"] and result.init["v"] == (0.0, 0.0)
+    loop = verification.closed_loop("contrast", paper)
+    assert verification.outside_boxes(result, loop, samples=1000, seed=3) == []
+    # The sampled runs satisfy the property, and the boxes are not trivially wide: the goal step's p box is narrow.
+    x0 = pv.Box.coerce(result.init, result.states).sample(300, seed=4)
+    traj, first = verification.runs(loop, x0)
+    assert (first > 0).all() and (traj[np.arange(300), first, 3] > -10).all()
+    boxes = np.asarray(result.cells[0].boxes)
+    assert first.max() <= len(boxes) - 1 <= first.max() + 2 and boxes[first.min(), 0, 1] - boxes[first.min(), 0, 0] < 0.01
+    row = verification.table_row(result)
+    assert row["intervals"] == 1 and row["verified"] == 1 and row["avg_seconds"] > 0
+
+
+def test_left_of_the_verified_range_is_falsified_and_replays(paper):
+    # From p0 < -0.6 the authors' controller does not reach the goal within 150 steps.
+    result = mc.verify("contrast", p0=(-0.61, -0.605), networks=paper, delta_c=(1.0, 1.2), split={}, progress=False)
+    assert result.verdict == "falsified"
+    cex = result.counterexample
+    assert cex is not None and -0.61 <= cex.initial["p"] <= -0.605 and 1.0 <= cex.initial["dc"] <= 1.2
+    loop = verification.closed_loop("contrast", paper)
+    traj, first = verification.runs(loop, [[cex.initial[n] for n in ("p", "v", "dc", "r")]])
+    np.testing.assert_allclose(traj[0, : len(cex.trajectory)], cex.trajectory, rtol=0, atol=1e-12)
+    reached = first[0] >= 0 and traj[0, first[0], 3] > -10
+    assert not reached, "the counterexample's run reaches the goal with reward > 90"
+
+
+def test_row_defaults_and_bad_input():
+    assert verification.initial_set("composite") == {"p": (-0.55, -0.4), "v": (0.0, 0.0), "dc": (0.5, 2.0), "db": (0.0, 0.15)}
+    assert verification.initial_set("blur", (-0.5, -0.49), delta_b=(0, 0.1))["db"] == (0.0, 0.1)
+    with pytest.raises(InputError, match="delta_b"):
+        verification.initial_set("contrast", delta_b=(0, 0.1))
+    with pytest.raises(InputError, match="unknown Mountain Car noise"):
+        verification.closed_loop("fog")
+    with pytest.raises(InputError, match="lo <= hi"):
+        verification.initial_set("contrast", (-0.4, -0.5))
+    with pytest.raises(InputError, match="fixed by the Mountain Car property"):
+        mc.verify("contrast", steps=10)
+
+
+def test_published_logs_are_summarised():
+    log = verification.published("blur", shared=DATA)["log"]
+    lines = (DATA / "mountain_car" / "published_results" / "BLUR_RESULTS_SUMMARY.txt").read_text().splitlines()
+    assert log["safe"] == sum(", SAFE," in line for line in lines)
+    assert log["p0"][0] == -0.59 and 30000 < log["avg_seconds"] < 70000
+
+
+def test_cli_writes_row_result_and_plots(tmp_path):
+    base = [sys.executable, "-m", "percver.cli", "cases", "mountain-car", "verify", "--networks", "ours", "--p0", "-0.5", "-0.4995",
+            "--delta-c", "1.5", "1.55", "--out", str(tmp_path), "--no-progress"]
+    r = subprocess.run(base + ["--json"], capture_output=True, text=True, timeout=300)
+    assert r.returncode == 0, r.stderr
+    record = json.loads(r.stdout)
+    assert record["row"]["verified"] == record["row"]["intervals"] == 1 and record["paper"]["table"]["avg_seconds"] > 0
+    assert pv.Result.from_json(str(tmp_path / "result.json")).verdict == "verified"
+    assert (tmp_path / "coverage.png").stat().st_size > 5000 and (tmp_path / "tube.png").stat().st_size > 5000
+    bad = subprocess.run(base + ["--split", "p=wide"], capture_output=True, text=True, timeout=300)
+    assert bad.returncode == 1 and bad.stderr.strip().count("\n") == 0 and "NAME=WIDTH" in bad.stderr
