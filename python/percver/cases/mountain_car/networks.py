@@ -9,6 +9,7 @@ command and seed in ``networks.json`` there); ``load(DIR)`` reads a directory wr
 from __future__ import annotations
 
 import json
+import os
 from dataclasses import dataclass, replace
 from pathlib import Path
 
@@ -36,7 +37,15 @@ SHAPES = {"generator": (1, PIXELS), "contrast": (PIXELS + 1, PIXELS), "blur": (P
 
 
 def default_shared() -> Path:
-    """``../shared/data`` next to the repository this package is installed from (editable installs)."""
+    """The shared data: ``$PERCVER_SHARED``, else the first ``shared/data`` beside the working
+    directory or one of its parents (a checkout next to ``../shared``), else beside the
+    repository this package was installed from (editable installs)."""
+    if os.environ.get("PERCVER_SHARED"):
+        return Path(os.environ["PERCVER_SHARED"])
+    for folder in (Path.cwd(), *Path.cwd().parents):
+        for candidate in (folder / "shared" / "data", folder.parent / "shared" / "data"):
+            if (candidate / "mountain_car" / "networks" / PAPER_FILES["generator"]).is_file():
+                return candidate
     return Path(__file__).resolve().parents[4].parent / "shared" / "data"
 
 
