@@ -26,18 +26,21 @@ RESULTS = ROOT / "results"
 
 
 def _journal_cells(path: Path) -> list:
-    """Every cell the journal holds, refined (bisected) ones included."""
-    if not path.exists():
-        return []
-    return [Cell.from_dict(json.loads(line)) for line in path.read_text().splitlines()[1:] if line.strip()]
+    """Every cell the journal (or the journals of its bands, ``run.band0.jsonl`` ...) holds, refined (bisected) ones included."""
+    return [Cell.from_dict(json.loads(line)) for p in _journals(path) for line in p.read_text().splitlines()[1:] if line.strip()]
+
+
+def _journals(path: Path) -> list:
+    return sorted(p for p in [path, *path.parent.glob(f"{path.stem}.band*{path.suffix}")] if p.exists())
 
 
 def _sessions(path: Path, journal: Path) -> list:
     """Earlier sessions of this run; one cut short (killed) ends at the journal's last write."""
     sessions = json.loads(path.read_text()) if path.exists() else []
+    last = max((p.stat().st_mtime for p in _journals(journal)), default=0.0)
     for s in sessions:
         if s.get("end") is None:
-            s["end"], s["interrupted"] = (journal.stat().st_mtime if journal.exists() else s["start"]), True
+            s["end"], s["interrupted"] = max(s["start"], last), True
     return sessions
 
 

@@ -48,6 +48,20 @@ def test_slice_verified_and_contains_sampled_runs(paper):
     assert row["intervals"] == 1 and row["verified"] == 1 and row["avg_seconds"] > 0
 
 
+def test_slice_where_some_runs_hit_the_left_wall(paper):
+    """About a quarter of the runs from this slice hit p = -1.2 near step 50 (the step stage's
+    undecided ``where`` forks): verified, and every sampled run stays inside its per-step boxes."""
+    p0, dc = (-0.412, -0.4115), (1.0, 1.2)
+    loop = verification.closed_loop("contrast", paper)
+    x0 = np.column_stack([np.linspace(*p0, 200), np.zeros(200), np.full(200, 1.1)])
+    traj, _ = verification.runs(loop, x0)
+    hit = (traj[:, :, 0] <= -1.2).any(axis=1)
+    assert 0 < hit.mean() < 1, "the slice must straddle the wall for this test to mean anything"
+    result = mc.verify("contrast", p0=p0, networks=paper, delta_c=dc, split={}, progress=False)
+    assert result.verdict == "verified" and result.cells[0].branches > 0
+    assert verification.outside_boxes(result, loop, samples=1000, seed=5) == []
+
+
 def test_left_of_the_verified_range_is_falsified_and_replays(paper):
     # From p0 < -0.6 the authors' controller does not reach the goal within 150 steps.
     result = mc.verify("contrast", p0=(-0.61, -0.605), networks=paper, delta_c=(1.0, 1.2), split={}, progress=False)

@@ -15,7 +15,6 @@ import time
 # A slice the shipped networks verify in about a minute on 2 cores (bench/README.md, "Mountain Car").
 P0 = (-0.5, -0.498)
 DELTA_C = (0.5, 2.0)
-SPLIT = {"p": 0.001, "dc": 0.05}
 
 
 def register(sub) -> None:
@@ -36,7 +35,7 @@ def run(args) -> int:
     from percver.cases.mountain_car import verification
 
     started = time.time()
-    result = verification.verify("contrast", args.p0, "ours", delta_c=args.delta_c, split=SPLIT, workers=args.workers,
+    result = verification.verify("contrast", args.p0, "ours", delta_c=args.delta_c, workers=args.workers,
                                  progress=not args.no_progress and not args.json)
     row = verification.table_row(result)
     verification.plot_tube(result, args.out, verification.closed_loop("contrast", "ours"))

@@ -2,8 +2,8 @@
 
 The loop has states ``p``, ``v`` and the noise parameters of the row as constant states (``dc`` for
 contrast, ``db`` for blur, both for the composite); each step runs generator(p) -> image ->
-contrast(image, dc) and/or blur(image, db) -> estimator -> controller(p_hat, v) -> u, then the
-plant of :func:`dynamics.equations`. The property is Verisig's (``SingleNoiseModel.yml``): from
+contrast(image, dc) and/or blur(image, db) -> estimator -> controller(p_hat, v) -> u -> the step
+of :func:`dynamics.equations`, which the plant takes over. The property is Verisig's (``SingleNoiseModel.yml``): from
 v0 = 0 reach p >= 0.45 within 150 steps with reward > 90, the reward being -0.1 u^2 per step and
 +100 at the goal (so the running sum ``r`` must stay above -10 when the car arrives).
 """
@@ -22,13 +22,27 @@ from percver.errors import InputError, MissingFileError
 # The noise states of each row and the keyword that overrides each one's range.
 NOISE_STATES = {"canonical": (), "contrast": ("dc",), "blur": ("db",), "composite": ("dc", "db")}
 KEYWORDS = {"dc": "delta_c", "db": "delta_b"}
-# Cells the rows start from, and how far unknown cells are bisected (``refine=True``). The widths are
-# measured (bench/mountain_car.py): a wide noise range costs more per cell than a finer p0 split.
-SPLIT = {
-    "canonical": {"p": 0.005},
-    "contrast": {"p": 0.005, "dc": 0.1},
-    "blur": {"p": 0.005, "db": 0.05},
-    "composite": {"p": 0.005, "dc": 0.25, "db": 0.05},
+# The cells each row starts from, as bands of p0 (upper end, cell widths, in-cell splits), for the
+# authors' chain ("paper") and for ours (any other set). Runs from p0 above about -0.415 touch the
+# left wall (p = -1.2) near step 50; where a cell's runs hit it at different steps (or some not at
+# all), each case is a branch of its own, so those cells are narrow in p0 and may branch more.
+# Our chain needs narrow cells everywhere: its controller coasts as soon as the estimated energy
+# suffices, so the car arrives with little margin and when it coasts depends on the estimate.
+# Measured in bench/mountain_car.py (bench/README.md, "Mountain Car").
+WALL = -0.415
+LAYOUT = {
+    "paper": {
+        "canonical": [(WALL, {"p": 0.005}, 16), (math.inf, {"p": 0.001}, 64)],
+        "contrast": [(WALL, {"p": 0.005, "dc": 0.1}, 16), (math.inf, {"p": 0.001, "dc": 0.2}, 64)],
+        "blur": [(WALL, {"p": 0.005, "db": 0.05}, 16), (math.inf, {"p": 0.001, "db": 0.1}, 64)],
+        "composite": [(WALL, {"p": 0.005, "dc": 0.25, "db": 0.05}, 16), (math.inf, {"p": 0.001, "dc": 0.25, "db": 0.05}, 64)],
+    },
+    "ours": {
+        "canonical": [(math.inf, {"p": 0.001}, 16)],
+        "contrast": [(math.inf, {"p": 0.001, "dc": 0.05}, 16)],
+        "blur": [(math.inf, {"p": 0.001, "db": 0.05}, 16)],
+        "composite": [(math.inf, {"p": 0.001, "dc": 0.05, "db": 0.05}, 16)],
+    },
 }
 MIN_WIDTH = {"p": 0.0003, "dc": 0.0125, "db": 0.004}
 
@@ -53,22 +67,27 @@ def closed_loop(noise: str = "contrast", networks="paper", *, shared=None):
     """The closed loop of one row (``pv.ClosedLoop``; states ``p``, ``v`` and the row's noise states).
 
     ``networks`` is "paper", "ours", a directory (see :func:`networks.load`) or a loaded :class:`Networks`.
-    Each network is its own stage; ``pv.verify`` fuses the chain into one network.
+    Each network is its own stage; ``pv.verify`` fuses the chain into one network. The step of
+    :func:`dynamics.equations` is the last stage (``next``), which the plant copies: where a set of
+    runs partly hits the left wall, the engine forks a stage's undecided condition into both cases
+    (the runs that hit become one exact point), while a plant's undecided ``where`` would take the
+    hull of both and lose the dependency on the initial state.
     """
     import percver as pv
 
     states = _noise(noise)
     nets = networks if isinstance(networks, Networks) else load(networks, shared=shared)
-    p, v, u = pv.variables("p v u")
+    p, v, u, p_next, v_next = pv.variables("p v u next_0 next_1")
     noise_vars = {name: pv.variables(name) for name in states}
     step = dynamics.equations()
-    plant = pv.Discrete({p: step["p"], v: step["v"], **{d: d for d in noise_vars.values()}}, inputs=[u])
+    plant = pv.Discrete({p: p_next, v: v_next, **{d: d for d in noise_vars.values()}}, inputs=["next"])
     stages = [pv.Stage(nets.generator, inputs=[p], output="image")]
     for name, network in (("dc", nets.contrast), ("db", nets.blur)):
         if name in noise_vars:
             stages.append(pv.Stage(network, inputs=[stages[-1].output, noise_vars[name]], output=f"image_{name}"))
     stages += [pv.Stage(nets.estimator, inputs=[stages[-1].output], output="p_hat"),
-               pv.Stage(nets.controller, inputs=["p_hat", v], output="u")]
+               pv.Stage(nets.controller, inputs=["p_hat", v], output="u"),
+               pv.Stage([step["p"], step["v"]], inputs=[p, v, u], output="next")]
     return pv.ClosedLoop(plant, stages)
 
 
@@ -110,10 +129,11 @@ def verify(noise: str = "contrast", p0=None, networks="paper", *, delta_c=None, 
     """Verify one row of Table 1 (or a slice of it) and return the ``pv.Result``.
 
     ``p0``, ``delta_c``, ``delta_b`` default to the row's ranges (:data:`dynamics.ROWS`). The
-    remaining keywords go to ``pv.verify``; by default cells of :data:`SPLIT` are run with up to 16
-    in-cell splits, and unknown ones (or ones still running after 60 s) bisected down to
-    :data:`MIN_WIDTH` (``refine=True``): a hard cell costs less as two halves than split inside. The
-    result's ``settings["case"]`` records the row, the networks and the initial set.
+    remaining keywords go to ``pv.verify``. By default each band of p0 in :data:`LAYOUT` is split
+    into its cells with its in-cell splits (``split=``, ``max_splits=`` give one grid instead), and
+    unknown cells (or ones still running after 60 s) are bisected down to :data:`MIN_WIDTH`
+    (``refine=True``): a hard cell costs less as two halves than split many times inside. The
+    result's ``settings["case"]`` records the row, the networks, the initial set and the bands.
     """
     import percver as pv
 
@@ -122,13 +142,42 @@ def verify(noise: str = "contrast", p0=None, networks="paper", *, delta_c=None, 
     overlap = set(verify_kwargs) & set(specification())
     if overlap:
         raise InputError(f"{sorted(overlap)} are fixed by the Mountain Car property; use pv.verify(closed_loop(...)) to change them")
-    options = {"split": SPLIT[noise], "refine": True, "min_width": MIN_WIDTH, "max_splits": 16, "timeout_per_cell": 60.0,
-               **verify_kwargs}
-    result = pv.verify(loop, init, **specification(), **options)
     name = networks.name if isinstance(networks, Networks) else str(networks)
+    options = {"refine": True, "min_width": MIN_WIDTH, "timeout_per_cell": 60.0, **verify_kwargs}
+    bands = _bands(init, LAYOUT["paper" if name == "paper" else "ours"][noise])
+    if "split" in options or "max_splits" in options:
+        bands = [(init, options.pop("split", bands[0][1]), options.pop("max_splits", bands[0][2]))]
+    journal = options.pop("journal", None)
+    results = [pv.verify(loop, box, split=split, max_splits=splits, journal=_band_journal(journal, k, len(bands)),
+                         **specification(), **options) for k, (box, split, splits) in enumerate(bands)]
+    result = results[0]
+    if len(results) > 1:
+        result = pv.Result(result.states, {**result.init, "p": init["p"]}, [c for r in results for c in r.cells],
+                           sum(r.seconds for r in results), result.settings)
     result.settings["case"] = {"case": "mountain_car", "noise": noise, "networks": name, "init": init,
-                               "split": options["split"], "min_width": options["min_width"]}
+                               "bands": [{"p0": box["p"], "split": split, "max_splits": splits} for box, split, splits in bands],
+                               "min_width": options["min_width"]}
     return result
+
+
+def _band_journal(journal, k: int, count: int):
+    """The journal of band ``k``: ``run.jsonl`` -> ``run.band0.jsonl`` when there are several bands
+    (a journal holds one problem, and the bands' in-cell splits differ)."""
+    if journal is None or count == 1:
+        return journal
+    path = Path(journal)
+    return str(path.with_name(f"{path.stem}.band{k}{path.suffix}"))
+
+
+def _bands(init: dict, layout: list) -> list:
+    """``(initial box, split, max_splits)`` per band of ``layout`` (upper end of p0, split, max_splits) that meets ``init``."""
+    (lo, hi), out, start = init["p"], [], -math.inf
+    for end, split, splits in layout:
+        a, b = max(lo, start), min(hi, end)
+        if a < b or (a == b == lo and not out):
+            out.append(({**init, "p": (a, b)}, split, splits))
+        start = end
+    return out
 
 
 def reasons(result) -> list:
@@ -211,16 +260,17 @@ def read_published(name: str, *, shared=None) -> dict:
 
 
 def format_row(noise: str, row: dict, paper: dict | None = None) -> str:
-    """The row as text, the paper's numbers beneath when given."""
+    """The row as text, the paper's numbers beneath when given. ``cpu s/0.00025``: engine seconds per
+    0.00025 of p0 (the paper's interval, over the whole noise range), comparable with its avg time."""
     head = (f"{'':10} {'intervals':>9} {'verified':>8} {'unknown':>7} {'falsified':>9} {'avg s':>9} {'avg NN s':>9} "
-            f"{'avg br':>6} {'coverage':>8} {'wall s':>8} {'s/0.00025':>10}")
+            f"{'avg br':>6} {'coverage':>8} {'wall s':>8} {'cpu s/0.00025':>13}")
     lines = [head, f"{'percver':10} {row['intervals']:>9} {row['verified']:>8} {row['unknown']:>7} {row['falsified']:>9} "
                    f"{row['avg_seconds']:>9.2f} {row['avg_nn_seconds']:>9.2f} {row['avg_branches']:>6.2f} "
-                   f"{100 * row['coverage']:>7.2f}% {row['wall_seconds']:>8.1f} {row['wall_seconds_per_paper_interval']:>10.2f}"]
+                   f"{100 * row['coverage']:>7.2f}% {row['wall_seconds']:>8.1f} {row['engine_seconds_per_paper_interval']:>13.2f}"]
     table = (paper or {}).get("table")
     if table:
         lines.append(f"{'paper':10} {table['intervals']:>9} {'':>8} {'':>7} {'':>9} {table['avg_seconds']:>9.0f} "
-                     f"{table['avg_nn_seconds']:>9.0f} {table['avg_branches']:>6.2f} {'100.00%':>8} {'':>8} {table['avg_seconds']:>10.0f}")
+                     f"{table['avg_nn_seconds']:>9.0f} {table['avg_branches']:>6.2f} {'100.00%':>8} {'':>8} {table['avg_seconds']:>13.0f}")
     return f"Mountain Car, {noise}\n" + "\n".join(lines)
 
 
