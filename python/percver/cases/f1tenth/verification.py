@@ -195,8 +195,6 @@ def verify(y1=INIT["y1"], networks="paper", *, noise_model: bool = True, control
     if not cell > 0:
         raise InputError(f"cell width must be positive, got {cell}")
     if noise_model:
-        import percver as pv
-
         control, classifier, denoiser = load_networks(networks, controller, data)
         loop = pv.ClosedLoop(plant(), stages(control, classifier, denoiser))
         if mode == "stepwise":

@@ -35,7 +35,7 @@ LAYOUT = {
         "canonical": [(WALL, {"p": 0.005}, 16), (math.inf, {"p": 0.001}, 64)],
         "contrast": [(WALL, {"p": 0.005, "dc": 0.1}, 16), (math.inf, {"p": 0.001, "dc": 0.2}, 64)],
         "blur": [(WALL, {"p": 0.005, "db": 0.05}, 16), (math.inf, {"p": 0.001, "db": 0.1}, 64)],
-        "composite": [(WALL, {"p": 0.005, "dc": 0.25, "db": 0.05}, 16), (math.inf, {"p": 0.001, "dc": 0.25, "db": 0.05}, 64)],
+        "composite": [(WALL, {"p": 0.005, "dc": 0.1, "db": 0.05}, 16), (math.inf, {"p": 0.001, "dc": 0.2, "db": 0.05}, 64)],
     },
     "ours": {
         "canonical": [(math.inf, {"p": 0.001}, 16)],
