@@ -289,7 +289,13 @@ fn run(lp: &ClosedLoop, cell: &[Interval], settings: &CellSettings, out: &mut Ce
     if cell.len() != n {
         return Err(NetworkError::input(format!("cell has {} intervals for {n} state variables", cell.len())));
     }
-    let space = Space::get(n, settings.order, 0)?;
+    // Domain variables only for the cell's non-degenerate intervals (v0 = 0, a reward sum r = 0
+    // and the like take none): the cost of every operation grows with the number of monomials,
+    // C(vars + order, order), so Mountain Car's contrast cells (p, dc of p, v, dc, r) need 21
+    // coefficients instead of 126. `rebox` restarts from a box of every state, so it keeps one
+    // variable per state.
+    let nvars = if settings.rebox { n } else { cell.iter().filter(|iv| iv.lo() < iv.hi()).count().max(1) };
+    let space = Space::get(nvars, settings.order, 0)?;
     let ctx = Ctx::new(space.clone(), settings.order, settings.cutoff);
     let state = box_models(cell, &ctx);
     let mut boxes: Vec<Option<Vec<Interval>>> = vec![None; lp.steps + 1];
@@ -362,18 +368,18 @@ fn run(lp: &ClosedLoop, cell: &[Interval], settings: &CellSettings, out: &mut Ce
     Ok(())
 }
 
-/// The box as Taylor models: state i = centre + radius x_i over the normalised domain.
+/// The box as Taylor models: the k-th non-degenerate interval is centre + radius x_k over the
+/// normalised domain, a point is a constant.
 fn box_models(cell: &[Interval], ctx: &Ctx) -> Vec<TaylorModel> {
+    let mut next_var = 0;
     cell.iter()
-        .enumerate()
-        .map(|(v, iv)| {
+        .map(|iv| {
             let m = iv.mid();
-            let r = (iv.hi() - m).max(m - iv.lo()).next_up();
-            if r == 0.0 {
-                TaylorModel::constant(m)
-            } else {
-                TaylorModel::affine(ctx, m, v, r)
+            if iv.lo() == iv.hi() {
+                return TaylorModel::constant(m);
             }
+            next_var += 1;
+            TaylorModel::affine(ctx, m, next_var - 1, (iv.hi() - m).max(m - iv.lo()).next_up())
         })
         .collect()
 }
