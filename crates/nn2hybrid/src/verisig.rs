@@ -2,156 +2,182 @@
 //!   sigmoid: dz/dt = a z (1 - z), z(0) = 1/2;   tanh: dz/dt = a (1 - z^2), z(0) = 0,
 //! with a the neuron's pre-activation held constant (a' = 0). Verisig makes each layer one
 //! hybrid-automaton mode over all its neurons, with the affine maps as resets between modes;
-//! here the resets are the same exact matrix products as in [`crate::propagate`], and the mode
-//! is integrated neuron by neuron (each neuron's ODE depends only on its own a, so this is the
-//! same flow, and the neurons run in parallel).
+//! here the resets are the same exact matrix products as in [`crate::propagate`], and each mode
+//! is integrated by the `taylor` flowpipe engine ([`taylor::flowpipe::reach_from_naive_box`]) as
+//! one small ODE per neuron, states (z, a), the neurons in parallel (rayon). Each neuron's ODE
+//! depends only on its own a, so this is the same flow as the layer's ODE over all (z_i, a_i);
+//! one ODE of the whole layer would need 2 x width state variables (up to 1,200 for a 600-wide
+//! layer, where a Taylor-model space holds 32 variables) and would precondition and compose
+//! every neuron in all the others' variables at every step.
 //!
-//! Integration is a Taylor-model Picard loop over the input variables plus a normalised time
-//! variable s in [0, 1] per step of length h: the polynomial part comes from k Picard
-//! iterations p <- z0 + h int_0^s f(a, p), and its remainder is verified by Schauder's theorem
-//! (the Picard operator maps p + I into p + J with J inside I), a's own remainder included, so
-//! the flow is enclosed for every value of a. The state at s = 1 starts the next step. The
-//! initial state is exact and a is time-invariant, so no preconditioning is needed: the models
-//! stay functions of the network inputs throughout, as in Verisig's Flow* runs with parameters.
-//! The integration works at twice the network's order: in (x, s) the time variable uses up
-//! degrees (sigmoid(a t) has terms (a t)^j of degree 2j), and truncating at the network's order
-//! would throw the x^j s terms of every step into the remainder; z(1) is truncated back at the end.
+//! The flowpipe starts from Taylor models over the network's inputs (a from the affine reset,
+//! its error symbols folded into the remainder; z(0) the constant), in a space of its own with
+//! time as variable 0 and the inputs shifted up by one, and returns z(1) as a Taylor model over
+//! the same inputs (Flow*'s preconditioning and composition per step, its symbolic remainders
+//! carrying each step's remainder through the flow's linear part at the set's centre). The
+//! models' time variable is not used; their other [0, 1] variables (a closed loop's time) range over [-1, 1] in the
+//! flow space: the enclosure then holds on a larger domain, which is sound.
+//! Steps are powers of two, so every time reached is exact and z is read at t = 1, not near
+//! it; the step is the largest power of two with h |a| (2 h |a| for tanh, whose Taylor radius in
+//! t is half of sigmoid's) below `RATE_STEP`. The integration works at twice the network's
+//! order: in (x, t) the solution's terms (a t)^j have degree 2j, and truncating at the network's
+//! order would throw them into the remainder at every step; z(1) is truncated back at the end.
+//! A neuron whose flowpipe fails or diverges is redone once with half the step and the order
+//! raised by `RAISE` (where the flow space stays small); then the error names the layer,
+//! neuron and pre-activation range. Wide pre-activations are where this method ends: sigmoid(a)
+//! has poles at a = +-i pi (tanh at +-i pi / 2), so over a = c + r x its Taylor series in x
+//! converges only for |x| < |c + i pi| / r (|c + i pi / 2| / r), and once that is below 1 no
+//! polynomial in x follows the neuron (a in [-8, 8] fails as one piece, works in 16).
 //! ReLU neurons (for which Verisig switches modes) use the direct method's relaxation.
 use crate::activation::Smooth;
 use crate::error::{NetworkError, Result};
 use crate::network::{Layer, Network};
 use crate::propagate::{activate_with, bounds_with, propagate_with, Models, NeuronOut, Settings};
-use taylor::{Ctx, Interval, TaylorModel};
+use std::sync::Arc;
+use taylor::flowpipe::{reach_from_naive_box, Ode, OrderPolicy, Settings as FlowSettings, StepSize};
+use taylor::parser::parse_expr;
+use taylor::{Ctx, Interval, Precondition, Space, TaylorModel};
 
-/// Steps per unit of |a| (the local rate): the solution's Taylor radius in t is pi / |a| for
-/// sigmoid and pi / (2 |a|) for tanh; steps of a tenth of that keep the truncation tiny.
+/// Largest h |a| per step: the solution's Taylor radius in t is pi / |a| (sigmoid).
 const RATE_STEP: f64 = 0.3;
-/// Halvings of a step before the neuron is given up.
-const MAX_HALVINGS: usize = 12;
-/// Most steps per neuron.
-const MAX_STEPS: usize = 100_000;
+/// Order added for a neuron's second attempt (half the step, this much higher order): wide
+/// pre-activations lose the flow to truncation, which a smaller step alone does not cure.
+const RAISE: usize = 4;
+/// Largest flow space (monomials) the raised order may use; beyond, the retry keeps the order.
+const MAX_TERMS: usize = 4000;
 
-fn rhs(f: Smooth, a: &TaylorModel, z: &TaylorModel, ctx: &Ctx) -> TaylorModel {
-    match f {
-        Smooth::Sigmoid => a.mul(&z.mul(&TaylorModel::constant(1.0).sub(z), ctx), ctx),
-        Smooth::Tanh => a.mul(&TaylorModel::constant(1.0).sub(&z.square(ctx)), ctx),
-    }
+/// One layer's neuron modes: the two ODEs and the flow space the neurons' models move to.
+struct Mode {
+    sigmoid: Ode,
+    tanh: Ode,
+    /// Time is variable 0; models variable v is flow variable v + 1.
+    flow: Arc<Space>,
+    /// The network's order, the integration's (twice it) and the retry's.
+    order: usize,
+    flow_order: usize,
+    retry_order: usize,
+    cutoff: f64,
+    /// Flow index of each monomial of the models' polynomials (None: it uses the time variable).
+    to_flow: Vec<Option<usize>>,
+    /// Models index of each flow monomial of degree <= the network's order without time.
+    from_flow: Vec<Option<usize>>,
 }
 
-/// One step of length h from z0; the enclosure of z over the step, as a model in (x, s).
-fn step(f: Smooth, a: &TaylorModel, z0: &TaylorModel, h: f64, t: usize, ctx: &Ctx) -> Option<TaylorModel> {
-    let poly = |m: &TaylorModel| TaylorModel { coef: m.coef.clone(), rem: Interval::ZERO };
-    let (a_poly, z0_poly) = (poly(a), poly(z0));
-    let mut p = z0_poly.clone();
-    for _ in 0..ctx.order {
-        p = poly(&z0_poly.add(&rhs(f, &a_poly, &p, ctx).integrate(t, ctx).scale(h)));
-    }
-    // The Picard operator on p + I, with a's and z0's remainders: its image is p + J.
-    let apply = |rem: Interval| -> Interval {
-        let z = TaylorModel { coef: p.coef.clone(), rem };
-        let image = z0.add(&rhs(f, a, &z, ctx).integrate(t, ctx).scale(h));
-        image.rem + poly(&image).sub(&p).bound(&ctx.space)
-    };
-    let mut guess = Interval::symmetric(1e-12 + z0.rem.mag());
-    for _ in 0..8 {
-        let image = apply(guess);
-        if !image.is_bounded() {
-            return None;
+/// Number of monomials of degree <= order in n variables.
+fn terms(n: usize, order: usize) -> usize {
+    (1..=n).fold(1, |acc, i| acc * (order + i) / i)
+}
+
+impl Mode {
+    fn new(models: &Models, cutoff: f64) -> Result<Mode> {
+        let t = models.time_var().ok_or_else(|| NetworkError::input("Verisig propagation needs models with a time variable; build them with Models::with_time_var"))?;
+        let space = models.space();
+        if t + 1 != space.nvars {
+            return Err(NetworkError::input("the Verisig time variable must be the models' last variable"));
         }
-        if guess.contains_interval(&image) {
-            // Every re-application of the operator is again an enclosure: refine once.
-            let refined = apply(image).intersect(&image);
-            let rem = if refined.is_empty() { image } else { refined };
-            return Some(TaylorModel { coef: p.coef, rem });
+        // reach_from needs more variables than the ODE's 2 states (their normalised copies).
+        let nvars = (t + 1).max(3);
+        // The models' own order (inputs from another propagation may have a higher one).
+        let order = models.ctx.order;
+        let flow_order = 2 * order;
+        let raised = (flow_order + RAISE).min(taylor::space::MAX_ORDER);
+        let retry_order = if terms(nvars, raised) <= MAX_TERMS { raised } else { flow_order };
+        let flow = Space::get(nvars, retry_order, 1)?;
+        let len = space.len_upto(order);
+        // Monomial i = monomial j times x_v: its index follows from its parent's.
+        let mut to_flow: Vec<Option<usize>> = vec![Some(0)];
+        for i in 1..len {
+            let (j, v) = space.parent(i);
+            to_flow.push(if v == t { None } else { to_flow[j].and_then(|k| flow.times_var(k, v + 1)) });
         }
-        let hull = guess.hull(&image);
-        guess = hull.inflate(0.5 * hull.width());
+        let mut from_flow: Vec<Option<usize>> = vec![Some(0)];
+        for i in 1..flow.len_upto(order) {
+            let (j, v) = flow.parent(i);
+            from_flow.push(if v == 0 { None } else { from_flow[j].and_then(|k| space.times_var(k, v - 1)) });
+        }
+        let ode = |rhs: &str| Ode::new(vec!["z".into(), "a".into()], vec![parse_expr(rhs)?, parse_expr("0")?]);
+        Ok(Mode {
+            sigmoid: ode("a*z*(1 - z)")?,
+            tanh: ode("a*(1 - z^2)")?,
+            flow,
+            order,
+            flow_order,
+            retry_order,
+            cutoff,
+            to_flow,
+            from_flow,
+        })
     }
-    None
-}
 
-/// d f / d z over a range of z and a: a (1 - 2z) for sigmoid, -2 a z for tanh.
-fn slope(f: Smooth, a: Interval, z: Interval) -> Interval {
-    match f {
-        Smooth::Sigmoid => a * (Interval::ONE - Interval::point(2.0) * z),
-        Smooth::Tanh => Interval::point(-2.0) * a * z,
-    }
-}
-
-/// One verified step of length h from z0, or None. The step starts from z0's polynomial only;
-/// z0's remainder R is carried by the mean value theorem: the flow maps z0 + d to
-/// z(h; z0) + d exp(int_0^h df/dz), and the exponent is bounded over an enclosure of every
-/// trajectory from z0 + hull(R, 0). Pushing R through the Picard operator instead would inflate
-/// it by (1 + h |a|) per step even where the flow contracts (by e^20 over [0, 1] for a = -20).
-fn carry(f: Smooth, a: &TaylorModel, z0: &TaylorModel, h: f64, t: usize, ctx: &Ctx) -> Option<TaylorModel> {
-    let poly = TaylorModel { coef: z0.coef.clone(), rem: Interval::ZERO };
-    let mut left = step(f, a, &poly, h, t, ctx)?;
-    if z0.rem != Interval::ZERO {
-        let all = TaylorModel { coef: z0.coef.clone(), rem: z0.rem.hull(&Interval::ZERO) };
-        let range = step(f, a, &all, h, t, ctx)?.bound(&ctx.space);
-        let gain = (Interval::point(h) * slope(f, a.bound(&ctx.space), range)).exp();
-        left.rem = left.rem + z0.rem * gain;
-    }
-    Some(left)
-}
-
-/// z(1) for one neuron with pre-activation a (a model over the inputs, remainder included).
-fn integrate(f: Smooth, a: &TaylorModel, ctx: &Ctx, t: usize) -> std::result::Result<TaylorModel, String> {
-    let rate = a.bound(&ctx.space).mag() * if f == Smooth::Tanh { 2.0 } else { 1.0 };
-    // Powers of two as steps: every time reached is a dyadic rational, so the steps add up to
-    // exactly 1 in floating point and z is read at t = 1, not near it.
-    let mut h = if rate > RATE_STEP { 0.5f64.powi((rate / RATE_STEP).log2().ceil() as i32) } else { 1.0 };
-    let mut z = TaylorModel::constant(if f == Smooth::Sigmoid { 0.5 } else { 0.0 });
-    let mut time = 0.0;
-    let mut steps = 0;
-    while time < 1.0 {
-        let h_try = h.min(1.0 - time);
-        let mut halvings = 0;
-        let mut trial = h_try;
-        let left = loop {
-            if let Some(left) = carry(f, a, &z, trial, t, ctx) {
-                break left;
-            }
-            halvings += 1;
-            if halvings > MAX_HALVINGS {
-                return Err(format!("no step from t = {time} could be verified (pre-activation range {})", a.bound(&ctx.space)));
-            }
-            trial *= 0.5;
+    /// z(1) for one neuron with pre-activation a (a model over the inputs, remainder included),
+    /// as a model in the models' space at the network's order.
+    fn integrate(&self, f: Smooth, a: &TaylorModel) -> std::result::Result<TaylorModel, String> {
+        let mut coef = vec![0.0; self.flow.len_upto(self.order)];
+        for (i, &c) in a.coef.iter().enumerate().filter(|(_, &c)| c != 0.0) {
+            let k = self.to_flow.get(i).copied().flatten().ok_or("a pre-activation depends on the time variable or exceeds the order")?;
+            coef[k] = c;
+        }
+        let a_flow = TaylorModel { coef, rem: a.rem };
+        let range = a_flow.bound(&self.flow);
+        let rate = range.mag() * if f == Smooth::Tanh { 2.0 } else { 1.0 };
+        let h = if rate > RATE_STEP { 0.5f64.powi((rate / RATE_STEP).log2().ceil() as i32) } else { 1.0 };
+        let (ode, z0) = match f {
+            Smooth::Sigmoid => (&self.sigmoid, 0.5),
+            Smooth::Tanh => (&self.tanh, 0.0),
         };
-        z = left.substitute(t, Interval::ONE, ctx);
-        // The true z stays in (0, 1) or (-1, 1): a remainder as wide as that has lost the flow,
-        // and it only grows from there (outside the range the ODEs are unstable).
-        if z.rem.width() > 1.0 {
-            return Err(format!("the enclosure of z diverged (remainder {}) at t = {}", z.rem, time + trial));
+        let mut reason = String::new();
+        for (h, order) in [(h, self.flow_order), (0.5 * h, self.retry_order)] {
+            let settings = FlowSettings {
+                step: StepSize::Fixed(h),
+                order: OrderPolicy::Fixed(order),
+                t_end: 1.0,
+                cutoff: self.cutoff,
+                remainder_estimate: vec![1e-12; 2],
+                precondition: Precondition::Identity,
+                refinements: 4,
+                symbolic_queue: 128,
+            };
+            let state = vec![TaylorModel::constant(z0), a_flow.clone()];
+            let fp = reach_from_naive_box(ode, state, &self.flow, &settings, &mut |_| true).map_err(|e| e.to_string())?;
+            let mut z = fp.final_state.into_iter().next().expect("two states");
+            // The true z stays in (0, 1) or (-1, 1): a remainder as wide as that has lost the
+            // flow (and outside that range the ODEs are unstable).
+            reason = if z.rem.width() > 1.0 {
+                format!("the enclosure of z diverged (remainder {} at t = {})", z.rem, fp.time_reached)
+            } else if let Some(failure) = fp.failure {
+                failure.to_string()
+            } else {
+                z.sweep(&Ctx::new(self.flow.clone(), self.order, self.cutoff));
+                return self.to_models(&z);
+            };
+            reason = format!("{reason} (pre-activation range {range}, steps of {h}, order {order})");
         }
-        // TwoSum: the new time must be the exact sum, else z would be read off t = 1.
-        let next = time + trial;
-        let back = next - time;
-        if (time - (next - back)) + (trial - back) != 0.0 {
-            return Err(format!("the time steps no longer add up exactly at t = {time} (steps of {trial})"));
-        }
-        time = next;
-        if halvings > 0 {
-            // Next steps: the largest power of two not above the verified step.
-            h = h.min(2f64.powi(trial.log2().floor() as i32));
-        }
-        steps += 1;
-        if steps > MAX_STEPS {
-            return Err(format!("more than {MAX_STEPS} steps needed"));
-        }
+        Err(reason)
     }
-    Ok(z)
+
+    /// A flow model without time, of degree <= the network's order, in the models' space.
+    fn to_models(&self, z: &TaylorModel) -> std::result::Result<TaylorModel, String> {
+        let mut out = TaylorModel { coef: vec![], rem: z.rem };
+        for (i, &c) in z.coef.iter().enumerate().filter(|(_, &c)| c != 0.0) {
+            let k = self.from_flow[i].ok_or("z(1) depends on the flow's time variable")?;
+            if out.coef.len() <= k {
+                out.coef.resize(k + 1, 0.0);
+            }
+            out.coef[k] = c;
+        }
+        Ok(out)
+    }
 }
 
 /// The Verisig activation of one layer: every sigmoid/tanh neuron through its ODE.
 fn activate(models: &Models, layer: &Layer, index: usize, settings: &Settings) -> Result<Models> {
-    let t = models.time_var().ok_or_else(|| NetworkError::input("Verisig propagation needs models with a time variable; build them with Models::with_time_var"))?;
-    let ctx = &models.ctx;
-    let wide = ctx.with_order(2 * ctx.order);
+    if layer.is_affine() {
+        return Ok(models.clone());
+    }
+    let mode = Mode::new(models, settings.cutoff)?;
     activate_with(models, layer, settings, &|f, m: &Models, i| {
         let a = TaylorModel { coef: m.poly(i).to_vec(), rem: m.rem[i].inflate(m.sym_mag(i)) };
-        let mut z = integrate(f, &a, &wide, t).map_err(|reason| NetworkError::Integration { layer: index, neuron: i + 1, reason })?;
-        z.sweep(ctx);
+        let mut z = mode.integrate(f, &a).map_err(|reason| NetworkError::Integration { layer: index, neuron: i + 1, reason })?;
         let error = z.rem;
         z.rem = Interval::ZERO;
         // The ODE's enclosure already holds every symbol's effect: the old symbols are dropped.
@@ -182,27 +208,49 @@ pub fn propagate(net: &Network, input: &Models, settings: &Settings) -> Result<M
 #[cfg(test)]
 mod tests {
     use super::*;
-    use taylor::Space;
+
+    fn activation(f: Smooth, y: f64) -> f64 {
+        if f == Smooth::Sigmoid { 1.0 / (1.0 + (-y).exp()) } else { y.tanh() }
+    }
+
+    /// The neuron's enclosure for a = c + r x over x in [-1, 1] (one input and the time variable),
+    /// checked at 401 points; returns its remainder's width.
+    fn check(mode: &Mode, space: &Space, ctx: &Ctx, f: Smooth, c: f64, r: f64) -> std::result::Result<f64, String> {
+        let z = mode.integrate(f, &TaylorModel::affine(ctx, c, 0, r))?;
+        for i in 0..=400 {
+            let x = -1.0 + i as f64 / 200.0;
+            let truth = activation(f, c + r * x);
+            let e = z.eval_interval(space, &[Interval::point(x), Interval::ONE]);
+            assert!(e.contains(truth), "{f:?} a = {c} +- {r} at x = {x}: {e} misses {truth}");
+        }
+        Ok(z.rem.width())
+    }
 
     #[test]
     fn neuron_odes_enclose_the_activation() {
-        let space = Space::get(2, 10, 0b10).unwrap();
-        let ctx = Ctx::new(space.clone(), 10, 1e-15);
+        let settings = Settings { order: 5, ..Settings::default() };
+        let models = Models::from_box(&[Interval::new(-1.0, 1.0).unwrap()], &settings, true).unwrap();
+        let mode = Mode::new(&models, settings.cutoff).unwrap();
+        let space = models.space().clone();
+        let ctx = Ctx::new(space.clone(), settings.order, settings.cutoff);
         for f in [Smooth::Sigmoid, Smooth::Tanh] {
-            for (c, r) in [(0.0, 1.0), (3.0, 0.5), (-20.0, 0.3), (20.0, 0.3), (7.0, 2.0)] {
-                let a = TaylorModel::affine(&ctx, c, 0, r);
-                let z = integrate(f, &a, &ctx, 1).unwrap_or_else(|e| panic!("{f:?} a = {c} +- {r}: {e}"));
-                for i in 0..=200 {
-                    let x = -1.0 + i as f64 / 100.0;
-                    let y = c + r * x;
-                    let truth = if f == Smooth::Sigmoid { 1.0 / (1.0 + (-y).exp()) } else { y.tanh() };
-                    let e = z.eval_interval(&space, &[Interval::point(x), Interval::ONE]);
-                    assert!(e.contains(truth), "{f:?} at a = {y}: {e} misses {truth}");
-                }
-                // Truncation in x is Taylor-like (no Chebyshev economization): tight on narrow a.
-                if r <= 0.5 {
-                    assert!(z.rem.width() < 1e-4, "{f:?} a = {c} +- {r}: remainder {}", z.rem);
-                }
+            // Narrow pre-activations: tight (Taylor-like truncation in x).
+            for (c, r) in [(0.5, 1e-6), (2.0, 0.05), (3.0, 0.5), (-20.0, 0.3), (20.0, 0.3)] {
+                let width = check(&mode, &space, &ctx, f, c, r).unwrap_or_else(|e| panic!("{f:?} a = {c} +- {r}: {e}"));
+                assert!(width < 1e-4, "{f:?} a = {c} +- {r}: remainder width {width}");
+            }
+            // Wide ones: [-1, 1], [5, 9] and [2.7, 17.1] (an output neuron of a Mountain Car
+            // controller, which needs the retry at a higher order).
+            for (c, r) in [(0.0, 1.0), (7.0, 2.0), (9.93, 7.19)] {
+                check(&mode, &space, &ctx, f, c, r).unwrap_or_else(|e| panic!("{f:?} a = {c} +- {r}: {e}"));
+            }
+            // a = 8 x over [-1, 1]: f(8 x) has poles at |x| = pi / 8 (pi / 16 for tanh), so no
+            // polynomial in x follows it; the method says so, and [-8, 8] in 16 pieces works.
+            let e = mode.integrate(f, &TaylorModel::affine(&ctx, 0.0, 0, 8.0)).unwrap_err();
+            assert!(e.contains("diverged") || e.contains("could not be enclosed"), "{e}");
+            for piece in 0..16 {
+                let c = -8.0 + 0.5 + piece as f64;
+                check(&mode, &space, &ctx, f, c, 0.5).unwrap_or_else(|e| panic!("{f:?} a = {c} +- 0.5: {e}"));
             }
         }
     }

@@ -188,7 +188,26 @@ pub fn reach(ode: &Ode, init: &[Interval], settings: &Settings, observer: &mut d
 /// (variable 0 must be a unit variable, free for time; `space.nvars` must exceed both m and
 /// the ODE's dimension). This is how a closed loop integrates its plant from a state that
 /// depends on the cell's variables.
-pub fn reach_from(ode: &Ode, mut state: Vec<TaylorModel>, space: &Arc<Space>, settings: &Settings, observer: &mut dyn FnMut(f64) -> bool) -> Result<Flowpipe> {
+pub fn reach_from(ode: &Ode, state: Vec<TaylorModel>, space: &Arc<Space>, settings: &Settings, observer: &mut dyn FnMut(f64) -> bool) -> Result<Flowpipe> {
+    flow_from(ode, state, space, settings, observer, crate::bound::range)
+}
+
+/// [`reach_from`] with `final_box` the naive bound of each final model (monomial by monomial,
+/// plus remainder) instead of the linear dominated bound: for callers that read only
+/// `final_state`, such as the Verisig translation, which runs one short flowpipe per neuron
+/// (the dominated bounder took more time than the integration there).
+pub fn reach_from_naive_box(ode: &Ode, state: Vec<TaylorModel>, space: &Arc<Space>, settings: &Settings, observer: &mut dyn FnMut(f64) -> bool) -> Result<Flowpipe> {
+    flow_from(ode, state, space, settings, observer, TaylorModel::bound)
+}
+
+fn flow_from(
+    ode: &Ode,
+    mut state: Vec<TaylorModel>,
+    space: &Arc<Space>,
+    settings: &Settings,
+    observer: &mut dyn FnMut(f64) -> bool,
+    bounder: fn(&TaylorModel, &Space) -> Interval,
+) -> Result<Flowpipe> {
     let n = ode.dim();
     settings.validate(n)?;
     if state.len() != n || !space.is_unit(0) || space.nvars <= n || space.order < settings.max_order() {
@@ -295,7 +314,7 @@ pub fn reach_from(ode: &Ode, mut state: Vec<TaylorModel>, space: &Arc<Space>, se
     for (m, r) in state.iter_mut().zip(&r_box) {
         m.rem = m.rem + *r;
     }
-    let final_box = state.iter().map(|m| crate::bound::range(m, &space)).collect();
+    let final_box = state.iter().map(|m| bounder(m, &space)).collect();
     stats.seconds = started.elapsed().as_secs_f64();
     Ok(Flowpipe { names: ode.names.clone(), segments, final_state: state, final_box, time_reached: t, failure, stats })
 }
@@ -496,6 +515,21 @@ mod tests {
                 let last = traj.last().unwrap();
                 assert!(fp.final_box[0].inflate(1e-9).contains(last[0]) && fp.final_box[1].inflate(1e-9).contains(last[1]));
             }
+        }
+    }
+
+    #[test]
+    fn naive_final_box_keeps_the_state_and_contains_the_dominated_one() {
+        let o = ode(&["x", "y"], &["y", "(1 - x^2)*y - x"]);
+        let space = Space::get(3, 5, 1).unwrap();
+        let ctx = Ctx::new(space.clone(), 5, 0.0);
+        let init = vec![TaylorModel::affine(&ctx, 1.4, 1, 0.15), TaylorModel::affine(&ctx, 2.3, 2, 0.02)];
+        let s = settings(2, 0.02, 5, 0.5);
+        let dominated = reach_from(&o, init.clone(), &space, &s, &mut |_| true).unwrap();
+        let naive = reach_from_naive_box(&o, init, &space, &s, &mut |_| true).unwrap();
+        assert_eq!(dominated.final_state, naive.final_state);
+        for (d, n) in dominated.final_box.iter().zip(&naive.final_box) {
+            assert!(n.contains_interval(d), "{n} vs {d}");
         }
     }
 
