@@ -88,6 +88,20 @@ def test_row_defaults_and_bad_input():
         mc.verify("contrast", steps=10)
 
 
+def test_split_options_replace_only_what_they_name():
+    init = verification.initial_set("contrast")
+    layout = verification.LAYOUT["paper"]["contrast"]
+    default = verification._grid(init, layout, {})
+    assert [box["p"][1] for box, _, _ in default] == [verification.WALL, -0.4]
+    options = {"max_splits": 3, "refine": False}
+    bands = verification._grid(init, layout, options)
+    assert [(box, split) for box, split, _ in bands] == [(box, split) for box, split, _ in default]
+    assert [splits for _, _, splits in bands] == [3, 3] and options == {"refine": False}
+    (one,) = verification._grid(init, layout, {"split": {"p": 0.01}})
+    assert one == (init, {"p": 0.01}, layout[0][2])
+    assert verification._grid(init, layout, {"split": {}, "max_splits": 0}) == [(init, {}, 0)]
+
+
 def test_published_logs_are_summarised():
     log = verification.published("blur", shared=DATA)["log"]
     lines = (DATA / "mountain_car" / "published_results" / "BLUR_RESULTS_SUMMARY.txt").read_text().splitlines()

@@ -145,11 +145,7 @@ impl ClosedLoop {
                 Component::Expr(p) => p.inputs.len(),
             };
             if want != stage.inputs.len() {
-                return Err(NetworkError::input(format!(
-                    "stage {}: the component takes {want} inputs but {} are wired to it",
-                    k + 1,
-                    stage.inputs.len()
-                )));
+                return Err(NetworkError::input(format!("stage {}: the component takes {want} inputs but {} are wired to it", k + 1, stage.inputs.len())));
             }
             env += stage.n_out();
         }
@@ -203,8 +199,7 @@ fn apply_network(net: &Network, inputs: &[TaylorModel], ctx: &Ctx, settings: &Ce
     }
     let t = out.time_var().ok_or_else(|| NetworkError::input("Verisig output has an unexpected variable layout"))?;
     let big = Ctx::new(space.clone(), ctx.order, ctx.cutoff);
-    let index: std::collections::HashMap<&[u8], usize> =
-        (0..ctx.space.len_upto(ctx.order)).map(|k| (ctx.space.exponents(k), k)).collect();
+    let index: std::collections::HashMap<&[u8], usize> = (0..ctx.space.len_upto(ctx.order)).map(|k| (ctx.space.exponents(k), k)).collect();
     Ok(out
         .to_taylor_models()
         .iter()
@@ -227,15 +222,7 @@ fn apply_network(net: &Network, inputs: &[TaylorModel], ctx: &Ctx, settings: &Ce
 /// Runs one cell: the initial box `cell` (one interval per state variable).
 pub fn verify_cell(lp: &ClosedLoop, cell: &[Interval], settings: &CellSettings) -> CellOutcome {
     let started = Instant::now();
-    let mut out = CellOutcome {
-        verdict: Verdict::Unknown,
-        reason: None,
-        steps_done: 0,
-        boxes: Vec::new(),
-        seconds: 0.0,
-        nn_seconds: 0.0,
-        branches: 0,
-    };
+    let mut out = CellOutcome { verdict: Verdict::Unknown, reason: None, steps_done: 0, boxes: Vec::new(), seconds: 0.0, nn_seconds: 0.0, branches: 0 };
     if let Err(e) = run(lp, cell, settings, &mut out, started) {
         out.verdict = Verdict::Unknown;
         out.reason = Some(e.to_string());
@@ -256,10 +243,21 @@ struct Piece {
     /// Where the goal first held on part of the piece: if the piece is lost later, it is split
     /// there so that the arrived part stops.
     arrival: Option<Arrival>,
+    /// The goal's margin at every step since then at which it held on part of the piece. A
+    /// point of the domain whose margin is positive at one of them has reached the goal; when
+    /// that covers the domain the piece is done without a split ([`arrived`]).
+    margins: Vec<(usize, TaylorModel)>,
 }
 
-/// Steps a piece may straddle the goal before it is split where it first did: parts that
-/// arrived would otherwise be carried past the goal (where models may not hold) for long.
+impl Piece {
+    fn new(step: usize, state: Vec<TaylorModel>, history: Vec<(usize, Vec<TaylorModel>)>, margins: Vec<(usize, TaylorModel)>) -> Piece {
+        Piece { step, state, history, arrival: None, margins }
+    }
+}
+
+/// Steps a piece may straddle the goal without more of its runs arriving before it is split
+/// where it first straddled: parts that arrived would otherwise be carried past the goal (where
+/// models may not hold) for long.
 const ARRIVAL_PATIENCE: usize = 3;
 
 #[derive(Clone)]
@@ -268,6 +266,10 @@ struct Arrival {
     state: Vec<TaylorModel>,
     /// The goal's margin over the piece at that step.
     margin: TaylorModel,
+    /// The last step at which the fraction of the piece's runs known to have arrived grew, and
+    /// that fraction (see [`arrived`]).
+    progress: usize,
+    fraction: f64,
 }
 
 /// How one piece ended.
@@ -300,7 +302,7 @@ fn run(lp: &ClosedLoop, cell: &[Interval], settings: &CellSettings, out: &mut Ce
     let state = box_models(cell, &ctx);
     let mut boxes: Vec<Option<Vec<Interval>>> = vec![None; lp.steps + 1];
     boxes[0] = Some(cell.to_vec());
-    let mut work = vec![Piece { step: 0, state, history: Vec::new(), arrival: None }];
+    let mut work = vec![Piece::new(0, state, Vec::new(), Vec::new())];
     let mut splits = 0;
     let mut hulls = 0;
     let mut verified = true;
@@ -341,10 +343,18 @@ fn run(lp: &ClosedLoop, cell: &[Interval], settings: &CellSettings, out: &mut Ce
                 let v = split_variable(focus.as_ref().map_or(&last[..], std::slice::from_ref), &ctx);
                 match v.filter(|_| splits < settings.max_splits) {
                     Some(v) => {
+                        let from = history.last().expect("non-empty").0;
                         for half in [-0.5, 0.5] {
                             let history: Vec<_> = history.iter().map(|(k, s)| (*k, restrict_half(s, v, half, &ctx))).collect();
-                            let (from, state) = history.last().cloned().expect("non-empty");
-                            work.push(Piece { step: from, state, history, arrival: None });
+                            // Margins from `from` on are computed again by the halves.
+                            let margins = piece
+                                .margins
+                                .iter()
+                                .filter(|(k, _)| *k < from)
+                                .map(|(k, m)| (*k, restrict_half(std::slice::from_ref(m), v, half, &ctx).remove(0)))
+                                .collect();
+                            let state = history.last().expect("non-empty").1.clone();
+                            work.push(Piece::new(from, state, history, margins));
                         }
                         splits += 1;
                     }
@@ -419,16 +429,33 @@ fn advance(
                 let margin = g.margin.eval(&TaylorModels { ctx }, &piece.state)?.remove(0);
                 match g.cmp.decide(taylor::bound::range(&margin, space)) {
                     Some(true) => return Ok(End::Done),
-                    // Part of the set has arrived; the whole set often arrives a step later.
-                    None if lp.goal_within && step < lp.steps => match &piece.arrival {
-                        None => piece.arrival = Some(Arrival { step, state: piece.state.clone(), margin }),
-                        Some(a) if step >= a.step + ARRIVAL_PATIENCE => {
-                            let reason = format!("step {step}: goal '{}' holds on part of the set only since step {}", g.label, a.step);
-                            return Ok(End::Lost { step, reason });
+                    // Part of the set has arrived; the whole set often arrives a step later, or
+                    // its parts arrive at different steps.
+                    None if lp.goal_within => {
+                        piece.margins.push((step, margin.clone()));
+                        let fraction = arrived(&piece.margins, &g.cmp, ctx);
+                        if fraction >= 1.0 {
+                            return Ok(End::Done);
                         }
-                        Some(_) => {}
-                    },
-                    Some(false) if step == lp.steps => {
+                        // Patience counts from the last step at which more runs were seen to arrive.
+                        if let Some(a) = piece.arrival.as_mut().filter(|a| fraction > a.fraction) {
+                            (a.progress, a.fraction) = (step, fraction);
+                        }
+                        match &piece.arrival {
+                            _ if step == lp.steps => {
+                                let reason = format!("step {step}: goal '{}' could not be decided (reach box {})", g.label, here(boxes));
+                                return Ok(End::Lost { step, reason });
+                            }
+                            None => piece.arrival = Some(Arrival { step, state: piece.state.clone(), margin, progress: step, fraction }),
+                            Some(a) if step >= a.progress + ARRIVAL_PATIENCE => {
+                                let reason = format!("step {step}: goal '{}' holds on part of the set only since step {}", g.label, a.step);
+                                return Ok(End::Lost { step, reason });
+                            }
+                            Some(_) => {}
+                        }
+                    }
+                    // Parts that arrived earlier may have left the goal again: not a violation.
+                    Some(false) if step == lp.steps && piece.margins.is_empty() => {
                         return Ok(End::Violated(format!("step {step}: goal '{}' fails on the whole set", g.label)))
                     }
                     _ if step == lp.steps => {
@@ -471,7 +498,7 @@ fn advance(
         if states.len() > 1 {
             let forked = states
                 .into_iter()
-                .map(|state| Piece { step: step + 1, state, history: piece.history.clone(), arrival: piece.arrival.clone() })
+                .map(|state| Piece { step: step + 1, state, history: piece.history.clone(), arrival: piece.arrival.clone(), margins: piece.margins.clone() })
                 .collect();
             return Ok(End::Forked(forked));
         }
@@ -590,12 +617,68 @@ fn split_variable(state: &[TaylorModel], ctx: &Ctx) -> Option<usize> {
     score.iter().enumerate().filter(|(_, &s)| s > 0.0).max_by(|a, b| a.1.total_cmp(b.1)).map(|(v, _)| v)
 }
 
+/// Sub-boxes of the domain [`arrived`] may examine per call: each costs one re-expansion of
+/// every margin (tens of microseconds for Mountain Car's 3-variable models).
+const COVER_BUDGET: usize = 256;
+
+/// The fraction of the normalised domain (by volume) whose points have a margin in `margins`
+/// that satisfies `cmp`, i.e. whose runs reached the goal at one of those steps; 1 when every
+/// run did. Bisects the domain; on each sub-box every margin is re-expanded (a rigorous
+/// composition) and bounded. Sub-boxes that fail every margin, and those beyond
+/// [`COVER_BUDGET`], count as not arrived.
+fn arrived(margins: &[(usize, TaylorModel)], cmp: &Cmp, ctx: &Ctx) -> f64 {
+    let space = &ctx.space;
+    let mut stack: Vec<(Vec<(f64, f64)>, f64)> = vec![(vec![(0.0, 1.0); space.nvars], 1.0)];
+    let (mut visited, mut covered) = (0, 0.0);
+    while let Some((sub, volume)) = stack.pop() {
+        visited += 1;
+        if visited > COVER_BUDGET {
+            break;
+        }
+        let args: Vec<TaylorModel> = sub.iter().enumerate().map(|(v, &(c, r))| TaylorModel::affine(ctx, c, v, r)).collect();
+        // The most promising undecided margin on this sub-box steers the bisection.
+        let mut best: Option<(f64, TaylorModel)> = None;
+        let mut done = false;
+        for (_, m) in margins {
+            let q = m.compose(&args, ctx);
+            let range = taylor::bound::range(&q, space);
+            match cmp.decide(range) {
+                Some(true) => {
+                    done = true;
+                    break;
+                }
+                Some(false) => {}
+                None => {
+                    let promise = if matches!(cmp, Cmp::Gt | Cmp::Ge) { range.hi() } else { -range.lo() };
+                    if best.as_ref().is_none_or(|(p, _)| promise > *p) {
+                        best = Some((promise, q));
+                    }
+                }
+            }
+        }
+        if done {
+            covered += volume;
+            continue;
+        }
+        // Either every margin fails on the whole sub-box (some of its runs have not arrived), or
+        // halves may tell the arrived runs apart.
+        let Some(v) = best.and_then(|(_, q)| split_variable(std::slice::from_ref(&q), ctx)) else {
+            continue;
+        };
+        let (c, r) = sub[v];
+        for side in [-0.5, 0.5] {
+            let mut half = sub.clone();
+            half[v] = (c + side * r, 0.5 * r);
+            stack.push((half, 0.5 * volume));
+        }
+    }
+    covered
+}
+
 /// The models restricted to the half x_v in [half - 1/2, half + 1/2] of the domain, written
 /// over a fresh [-1, 1] variable: x_v = half + x_v / 2 (a rigorous composition).
 fn restrict_half(state: &[TaylorModel], v: usize, half: f64, ctx: &Ctx) -> Vec<TaylorModel> {
-    let args: Vec<TaylorModel> = (0..ctx.space.nvars)
-        .map(|w| if w == v { TaylorModel::affine(ctx, half, v, 0.5) } else { TaylorModel::var(ctx, w) })
-        .collect();
+    let args: Vec<TaylorModel> = (0..ctx.space.nvars).map(|w| if w == v { TaylorModel::affine(ctx, half, v, 0.5) } else { TaylorModel::var(ctx, w) }).collect();
     state.iter().map(|m| m.compose(&args, ctx)).collect()
 }
 
@@ -732,12 +815,9 @@ mod tests {
     /// x+ = x + 0.1 v, v+ = v + 0.1 u, u = tanh(-x - v): boxes contain simulated states.
     #[test]
     fn discrete_loop_encloses_simulations() {
-        let net = Network::new(
-            vec![LayerArrays { n_out: 1, n_in: 2, weight: vec![-1.0, -1.0], bias: vec![0.0], activations: vec![Activation::Tanh] }],
-            None,
-            None,
-        )
-        .unwrap();
+        let net =
+            Network::new(vec![LayerArrays { n_out: 1, n_in: 2, weight: vec![-1.0, -1.0], bias: vec![0.0], activations: vec![Activation::Tanh] }], None, None)
+                .unwrap();
         let names: Vec<String> = ["x", "v", "u"].iter().map(|s| s.to_string()).collect();
         let plant = Program::compile(&[parse_expr("x + 0.1*v").unwrap(), parse_expr("v + 0.1*u").unwrap()], &names).unwrap();
         let safe = Program::compile(&[parse_expr("x - 2").unwrap()], &names[..2]).unwrap();
@@ -751,7 +831,16 @@ mod tests {
             steps: 40,
         };
         lp.validate().unwrap();
-        let settings = CellSettings { order: 4, cutoff: 1e-12, method: Method::Taylor, nn: NnSettings { order: 4, ..NnSettings::default() }, timeout: None, blow_up_width: 1e6, max_splits: 0, rebox: false };
+        let settings = CellSettings {
+            order: 4,
+            cutoff: 1e-12,
+            method: Method::Taylor,
+            nn: NnSettings { order: 4, ..NnSettings::default() },
+            timeout: None,
+            blow_up_width: 1e6,
+            max_splits: 0,
+            rebox: false,
+        };
         let cell = [Interval::new(0.5, 0.7).unwrap(), Interval::new(-0.1, 0.1).unwrap()];
         let out = verify_cell(&lp, &cell, &settings);
         assert_eq!(out.verdict, Verdict::Verified, "{:?}", out.reason);
@@ -766,5 +855,64 @@ mod tests {
                 }
             }
         }
+    }
+
+    /// A one-state loop without stages, x+ = `update`, goal x >= 1 at some step up to `steps`.
+    fn reach_loop(update: &str, steps: usize) -> ClosedLoop {
+        let names = vec!["x".to_string()];
+        ClosedLoop {
+            state_names: names.clone(),
+            stages: vec![],
+            plant: Plant::Discrete(Arc::new(Program::compile(&[parse_expr(update).unwrap()], &names).unwrap())),
+            safe: vec![],
+            goal: Some(Condition {
+                margin: Arc::new(Program::compile(&[parse_expr("x - 1").unwrap()], &names).unwrap()),
+                cmp: Cmp::Ge,
+                label: "x >= 1".into(),
+            }),
+            goal_within: true,
+            steps,
+        }
+    }
+
+    fn reach_verdict(update: &str, x0: (f64, f64), steps: usize) -> CellOutcome {
+        let settings = CellSettings {
+            order: 3,
+            cutoff: 1e-12,
+            method: Method::Taylor,
+            nn: NnSettings::default(),
+            timeout: None,
+            blow_up_width: 1e6,
+            max_splits: 0,
+            rebox: false,
+        };
+        verify_cell(&reach_loop(update, steps), &[Interval::new(x0.0, x0.1).unwrap()], &settings)
+    }
+
+    #[test]
+    fn parts_arriving_at_different_steps_verify_without_splits() {
+        // x+ = 2.2 - x: x0 >= 1 is in the goal at step 0, x0 < 1 at step 1; neither step holds
+        // the whole set, and the set never arrives at once (without splits, this cell was lost).
+        let out = reach_verdict("2.2 - x", (0.5, 1.5), 4);
+        assert_eq!(out.verdict, Verdict::Verified, "{:?}", out.reason);
+        // x+ = x: the part below 1 never arrives, so no cover may be claimed.
+        let out = reach_verdict("x", (0.5, 1.5), 4);
+        assert_eq!(out.verdict, Verdict::Unknown, "{:?}", out.reason);
+        // x+ = 0.9 x + 0.2, x_k = 2 - 0.9^k (2 - x0): the runs from 0.5 arrive at step 4, those
+        // from 0.95 at step 1, the others in between.
+        let out = reach_verdict("0.9*x + 0.2", (0.5, 1.5), 10);
+        assert_eq!(out.verdict, Verdict::Verified, "{:?}", out.reason);
+        let out = reach_verdict("0.9*x + 0.2", (0.5, 1.5), 3);
+        assert_ne!(out.verdict, Verdict::Verified, "runs from 0.5 are at 0.907 after 3 steps");
+    }
+
+    #[test]
+    fn a_set_that_left_the_goal_is_not_a_violation() {
+        // x+ = 0: the runs from x0 >= 1 reached the goal at step 0, so failing at the horizon is
+        // not a violation of the whole set; from [0.2, 0.5] it is.
+        let out = reach_verdict("0*x", (0.5, 1.5), 2);
+        assert_eq!(out.verdict, Verdict::Unknown, "{:?}", out.reason);
+        let out = reach_verdict("0*x", (0.2, 0.5), 2);
+        assert_eq!(out.verdict, Verdict::Violated, "{:?}", out.reason);
     }
 }

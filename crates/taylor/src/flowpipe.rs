@@ -36,11 +36,7 @@ impl Ode {
             return Err(TaylorError::input("an ODE needs at least one state variable"));
         }
         if names.len() != rhs.len() {
-            return Err(TaylorError::input(format!(
-                "{} state variables but {} right-hand sides; give one equation per variable",
-                names.len(),
-                rhs.len()
-            )));
+            return Err(TaylorError::input(format!("{} state variables but {} right-hand sides; give one equation per variable", names.len(), rhs.len())));
         }
         let mut seen = std::collections::HashSet::new();
         for n in &names {
@@ -196,7 +192,13 @@ pub fn reach_from(ode: &Ode, state: Vec<TaylorModel>, space: &Arc<Space>, settin
 /// plus remainder) instead of the linear dominated bound: for callers that read only
 /// `final_state`, such as the Verisig translation, which runs one short flowpipe per neuron
 /// (the dominated bounder took more time than the integration there).
-pub fn reach_from_naive_box(ode: &Ode, state: Vec<TaylorModel>, space: &Arc<Space>, settings: &Settings, observer: &mut dyn FnMut(f64) -> bool) -> Result<Flowpipe> {
+pub fn reach_from_naive_box(
+    ode: &Ode,
+    state: Vec<TaylorModel>,
+    space: &Arc<Space>,
+    settings: &Settings,
+    observer: &mut dyn FnMut(f64) -> bool,
+) -> Result<Flowpipe> {
     flow_from(ode, state, space, settings, observer, TaylorModel::bound)
 }
 
@@ -230,6 +232,10 @@ fn flow_from(
     };
     let mut k = k_min;
     let mut t = 0.0;
+    // The exact time integrated so far: the sum of the steps, rounded outward. Steps such as
+    // 0.1 are not dyadic, so the float sum may miss t_end by an ulp; the last step is then
+    // taken a little long and its end evaluated over an interval of s that holds t_end.
+    let mut t_sum = Interval::ZERO;
     let mut segments = Vec::new();
     let mut failure = None;
     let mut symbolic = SymbolicRemainder::new(n, settings.symbolic_queue);
@@ -238,7 +244,10 @@ fn flow_from(
         let r_box = symbolic.enclosure();
         let extra: Vec<f64> = r_box.iter().map(|r| r.mag()).collect();
         let pre = precondition(&state, &extra, settings.precondition, &ctx);
-        let mut h_try = h.min(settings.t_end - t);
+        let remaining = Interval::point(settings.t_end) - t_sum;
+        // A step shorter than remaining.lo keeps the exact time below t_end; a longer one is the
+        // last, stretched to remaining.hi so that it surely reaches t_end.
+        let mut h_try = if h >= remaining.lo() * (1.0 - 1e-12) { remaining.hi() } else { h };
         // The remainder estimate is a tolerance while the step or order can still adapt (as
         // in Flow*); only when neither can is the estimate enlarged before giving up.
         let mut enlarge = false;
@@ -272,16 +281,20 @@ fn flow_from(
         segments.push(Segment {
             t0: t,
             t1: t + h_try,
-            bounds: left
-                .iter()
-                .map(|m| m.bound(&space) + Interval::symmetric(gradient_dot(m, &space, &shift, 1)))
-                .collect(),
+            bounds: left.iter().map(|m| m.bound(&space) + Interval::symmetric(gradient_dot(m, &space, &shift, 1))).collect(),
             order: k,
         });
         let mut args = vec![TaylorModel::zero()];
         args.extend(pre.right.iter().cloned());
         args.resize(space.nvars, TaylorModel::zero());
-        let ends: Vec<TaylorModel> = left.iter().map(|m| m.substitute(0, Interval::ONE, &ctx)).collect();
+        let last = h_try >= remaining.hi();
+        // On the last step t_end is at s = remaining / h_try, in [s_lo, 1].
+        let s_end = if last && remaining.lo() < h_try {
+            Interval::new((remaining.lo() / h_try).next_down().max(0.0), 1.0).expect("0 <= s_lo <= 1")
+        } else {
+            Interval::ONE
+        };
+        let ends: Vec<TaylorModel> = left.iter().map(|m| m.substitute(0, s_end, &ctx)).collect();
         // Step map on the symbolic part: its linear part A T exactly, the rest bounded.
         let a: Vec<Interval> = (0..n * n).map(|ij| Interval::point(ends[ij / n].linear_coefficient(&space, ij % n + 1))).collect();
         symbolic.transform(&mat_mul(&a, &pre.to_normalised, n));
@@ -298,7 +311,13 @@ fn flow_from(
         symbolic.push(entering);
         stats.composition_seconds += composing.elapsed().as_secs_f64();
         stats.steps += 1;
-        t = if settings.t_end - (t + h_try) < 1e-12 * settings.t_end.max(1.0) { settings.t_end } else { t + h_try };
+        if last {
+            t_sum = Interval::point(settings.t_end);
+            t = settings.t_end;
+        } else {
+            t_sum = t_sum + Interval::point(h_try);
+            t = t_sum.hi();
+        }
         if let StepSize::Adaptive { max, .. } = settings.step {
             h = (h_try * 1.1).min(max);
         }
@@ -339,7 +358,15 @@ fn gradient_dot(m: &TaylorModel, space: &Space, shift: &[f64], min_degree: u8) -
 }
 
 /// One Picard step of length h from x0(x̂); returns the left models p(s, x̂) + J.
-fn picard_step(ode: &Ode, x0: &[TaylorModel], h: f64, ctx: &Ctx, settings: &Settings, enlarge: bool, stats: &mut Stats) -> std::result::Result<Vec<TaylorModel>, String> {
+fn picard_step(
+    ode: &Ode,
+    x0: &[TaylorModel],
+    h: f64,
+    ctx: &Ctx,
+    settings: &Settings,
+    enlarge: bool,
+    stats: &mut Stats,
+) -> std::result::Result<Vec<TaylorModel>, String> {
     let k = ctx.order;
     let space = &ctx.space;
     let started = Instant::now();
@@ -388,10 +415,14 @@ fn picard_step(ode: &Ode, x0: &[TaylorModel], h: f64, ctx: &Ctx, settings: &Sett
             break;
         }
         // Enlarge the guess towards what the operator produced, then try again.
-        guess = guess.iter().zip(&image).map(|(i, j)| {
-            let h = i.hull(j);
-            h.inflate(0.5 * h.width())
-        }).collect();
+        guess = guess
+            .iter()
+            .zip(&image)
+            .map(|(i, j)| {
+                let h = i.hull(j);
+                h.inflate(0.5 * h.width())
+            })
+            .collect();
         if guess.iter().any(|g| !g.is_bounded()) {
             break;
         }
@@ -404,12 +435,7 @@ fn picard_step(ode: &Ode, x0: &[TaylorModel], h: f64, ctx: &Ctx, settings: &Sett
         let next = apply(&rem)?;
         let shrunk: Vec<Interval> = next.iter().zip(&rem).map(|(a, b)| a.intersect(b)).collect();
         // Stop when no component shrinks by 1% any more (components already at 0 do not count).
-        let gain = shrunk
-            .iter()
-            .zip(&rem)
-            .filter(|(_, b)| b.width() > 0.0)
-            .map(|(a, b)| a.width() / b.width())
-            .fold(1.0, f64::min);
+        let gain = shrunk.iter().zip(&rem).filter(|(_, b)| b.width() > 0.0).map(|(a, b)| a.width() / b.width()).fold(1.0, f64::min);
         if shrunk.iter().any(|s| s.is_empty()) {
             break;
         }
@@ -530,6 +556,24 @@ mod tests {
         assert_eq!(dominated.final_state, naive.final_state);
         for (d, n) in dominated.final_box.iter().zip(&naive.final_box) {
             assert!(n.contains_interval(d), "{n} vs {d}");
+        }
+    }
+
+    #[test]
+    fn non_dyadic_horizons_end_exactly_at_t_end() {
+        // x' = 1: x(t_end) = t_end. Ten float steps of 0.1 sum to 1 + 5.6e-17 in exact
+        // arithmetic; the final model must still hold the state at t = 1 exactly, and a
+        // horizon that is not a multiple of the step must end on it too.
+        let o = ode(&["x"], &["1"]);
+        let init = [Interval::new(0.0, 0.0).unwrap()];
+        for (h, t_end) in [(0.1, 1.0), (0.1, 0.3), (0.07, 0.25), (0.3, 0.1)] {
+            let fp = reach(&o, &init, &settings(1, h, 3, t_end), &mut |_| true).unwrap();
+            assert!(fp.failure.is_none());
+            assert_eq!(fp.time_reached, t_end);
+            let x = fp.final_box[0];
+            assert!(x.contains(t_end) && x.width() < 1e-12, "h {h}, t_end {t_end}: {x}");
+            let last = fp.segments.last().unwrap();
+            assert!(last.t1 >= t_end && last.bounds[0].contains(t_end));
         }
     }
 

@@ -130,7 +130,8 @@ def verify(noise: str = "contrast", p0=None, networks="paper", *, delta_c=None, 
 
     ``p0``, ``delta_c``, ``delta_b`` default to the row's ranges (:data:`dynamics.ROWS`). The
     remaining keywords go to ``pv.verify``. By default each band of p0 in :data:`LAYOUT` is split
-    into its cells with its in-cell splits (``split=``, ``max_splits=`` give one grid instead), and
+    into its cells with its in-cell splits (``split=`` gives one grid instead; ``max_splits=`` alone
+    overrides only the bands' in-cell splits), and
     unknown cells (or ones still running after 60 s) are bisected down to :data:`MIN_WIDTH`
     (``refine=True``): a hard cell costs less as two halves than split many times inside. The
     result's ``settings["case"]`` records the row, the networks, the initial set and the bands.
@@ -144,9 +145,7 @@ def verify(noise: str = "contrast", p0=None, networks="paper", *, delta_c=None, 
         raise InputError(f"{sorted(overlap)} are fixed by the Mountain Car property; use pv.verify(closed_loop(...)) to change them")
     name = networks.name if isinstance(networks, Networks) else str(networks)
     options = {"refine": True, "min_width": MIN_WIDTH, "timeout_per_cell": 60.0, **verify_kwargs}
-    bands = _bands(init, LAYOUT["paper" if name == "paper" else "ours"][noise])
-    if "split" in options or "max_splits" in options:
-        bands = [(init, options.pop("split", bands[0][1]), options.pop("max_splits", bands[0][2]))]
+    bands = _grid(init, LAYOUT["paper" if name == "paper" else "ours"][noise], options)
     journal = options.pop("journal", None)
     results = [pv.verify(loop, box, split=split, max_splits=splits, journal=_band_journal(journal, k, len(bands)),
                          **specification(), **options) for k, (box, split, splits) in enumerate(bands)]
@@ -167,6 +166,19 @@ def _band_journal(journal, k: int, count: int):
         return journal
     path = Path(journal)
     return str(path.with_name(f"{path.stem}.band{k}{path.suffix}"))
+
+
+def _grid(init: dict, layout: list, options: dict) -> list:
+    """The bands to verify, taking ``split`` and ``max_splits`` out of ``options``: ``split=``
+    makes one grid over ``init``; ``max_splits=`` alone keeps the bands and replaces their
+    in-cell splits."""
+    bands = _bands(init, layout)
+    if "split" in options:
+        return [(init, options.pop("split"), options.pop("max_splits", bands[0][2]))]
+    if "max_splits" in options:
+        splits = options.pop("max_splits")
+        return [(box, split, splits) for box, split, _ in bands]
+    return bands
 
 
 def _bands(init: dict, layout: list) -> list:
