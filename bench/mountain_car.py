@@ -10,6 +10,7 @@ machine), why cells stayed unknown, and the paper's published numbers, in
 plus a coverage map per entry (``bench/results/mountain_car_<row>_<networks>.png``).
 
     python bench/mountain_car.py --rows contrast --networks paper [--p0 -0.5 -0.45] [--workers 2]
+    python bench/mountain_car.py --rows composite --combine   # join the --p0 slices run so far into one row
 """
 
 import argparse
@@ -75,6 +76,41 @@ def run(noise: str, networks: str, p0, workers: int, journal_dir: Path, options:
     }
 
 
+def combine(doc: dict, noise: str, networks: str) -> dict:
+    """One row from runs of p0 slices (``--p0``) that tile it: their cells as one result, the wall
+    time the sum of the slices' (they ran one after another), the gaps listed if any."""
+    import percver as pv
+
+    prefix = f"{noise}/{networks}/"
+    slices = sorted((e for k, e in doc.items() if k.startswith(prefix) and k != prefix + "slices"), key=lambda e: e["init"]["p"][0])
+    if not slices:
+        raise SystemExit(f"no slices of {noise}/{networks} in the results to combine")
+    init = {n: tuple(b) for n, b in slices[0]["init"].items()}
+    init["p"] = tuple(verification.initial_set(noise)["p"])
+    cells, edge, gaps = [], init["p"][0], []
+    for e in slices:
+        lo, hi = e["init"]["p"]
+        if lo > edge + 1e-12:
+            gaps.append((edge, lo))
+        edge = max(edge, hi)
+        columns = e["cell_columns"]
+        for row in e["cells"]:
+            value = dict(zip(columns, row))
+            box = {**init, "p": (value["p_lo"], value["p_hi"])}
+            box.update({n: (value[f"{n}_lo"], value[f"{n}_hi"]) for n in verification.NOISE_STATES[noise]})
+            cells.append(Cell(box, value["verdict"], value["seconds"], value["nn_seconds"], value["branches"], reason=value["reason"]))
+    if edge < init["p"][1] - 1e-12:
+        gaps.append((edge, init["p"][1]))
+    wall = sum(e["row"]["wall_seconds"] for e in slices)
+    row = verification.table_row(pv.Result(slices[0]["settings"].get("states", list(init)), init, cells, wall))
+    row["engine_seconds_all_attempts"] = sum(e["row"]["engine_seconds_all_attempts"] for e in slices)
+    return {
+        "noise": noise, "networks": networks, "init": init, "row": row, "gaps": gaps, "paper": slices[0]["paper"],
+        "slices": [{"p0": e["init"]["p"], "cells": e["row"]["intervals"], "coverage": e["row"]["coverage"],
+                    "wall_seconds": e["row"]["wall_seconds"], "loadavg": [s.get("loadavg_start") for s in e["sessions"]]} for e in slices],
+    }
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--rows", default="contrast,blur,composite")
@@ -84,11 +120,21 @@ def main() -> None:
     parser.add_argument("--journal-dir", default="/tmp/percver-bench-mountain-car", help="journals (large; not in the repository)")
     parser.add_argument("--timeout-per-cell", type=float, help="override the case's default")
     parser.add_argument("--out", default=str(RESULTS / "mountain_car.json"))
+    parser.add_argument("--combine", action="store_true", help="no run: join the rows' --p0 slices in --out into one row each")
     args = parser.parse_args()
+    out = Path(args.out)
+    if args.combine:
+        doc = json.loads(out.read_text())
+        for networks in args.networks.split(","):
+            for noise in args.rows.split(","):
+                entry = combine(doc, noise, networks)
+                doc[f"{noise}/{networks}/slices"] = entry
+                out.write_text(json.dumps(doc, indent=1))
+                print(verification.format_row(noise, entry["row"], entry["paper"]), "gaps:", entry["gaps"], flush=True)
+        return
     journal_dir = Path(args.journal_dir)
     journal_dir.mkdir(parents=True, exist_ok=True)
     options = {} if args.timeout_per_cell is None else {"timeout_per_cell": args.timeout_per_cell}
-    out = Path(args.out)
     for networks in args.networks.split(","):
         for noise in args.rows.split(","):
             entry = run(noise, networks, args.p0, args.workers, journal_dir, options)

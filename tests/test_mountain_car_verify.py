@@ -102,6 +102,21 @@ def test_split_options_replace_only_what_they_name():
     assert verification._grid(init, layout, {"split": {}, "max_splits": 0}) == [(init, {}, 0)]
 
 
+def test_bands_partition_the_initial_set():
+    layout = verification.LAYOUT["paper"]["composite"]
+    bands = verification._bands(verification.initial_set("composite"), layout)
+    assert [(box["p"], box["dc"]) for box, _, _ in bands] == [
+        ((-0.55, verification.WALL), (0.5, verification.LOW_CONTRAST)),
+        ((-0.55, verification.WALL), (verification.LOW_CONTRAST, 2.0)),
+        ((verification.WALL, -0.4), (0.5, 2.0)),
+    ]
+    # A slice inside one region meets only that band; a point on a boundary goes to the upper band.
+    inside = verification._bands(verification.initial_set("composite", (-0.5, -0.49), delta_c=(1.0, 1.2)), layout)
+    assert [split for _, split, _ in inside] == [layout[1][1]]
+    point = verification._bands(verification.initial_set("composite", (-0.5, -0.5), delta_c=(0.8, 0.8)), layout)
+    assert [box["dc"] for box, _, _ in point] == [(0.8, 0.8)] and point[0][1] == layout[1][1]
+
+
 def test_published_logs_are_summarised():
     log = verification.published("blur", shared=DATA)["log"]
     lines = (DATA / "mountain_car" / "published_results" / "BLUR_RESULTS_SUMMARY.txt").read_text().splitlines()

@@ -22,26 +22,35 @@ from percver.errors import InputError, MissingFileError
 # The noise states of each row and the keyword that overrides each one's range.
 NOISE_STATES = {"canonical": (), "contrast": ("dc",), "blur": ("db",), "composite": ("dc", "db")}
 KEYWORDS = {"dc": "delta_c", "db": "delta_b"}
-# The cells each row starts from, as bands of p0 (upper end, cell widths, in-cell splits), for the
-# authors' chain ("paper") and for ours (any other set). Runs from p0 above about -0.415 touch the
-# left wall (p = -1.2) near step 50; where a cell's runs hit it at different steps (or some not at
-# all), each case is a branch of its own, so those cells are narrow in p0 and may branch more.
-# Our chain needs narrow cells everywhere: its controller coasts as soon as the estimated energy
-# suffices, so the car arrives with little margin and when it coasts depends on the estimate.
+# The cells each row starts from, as bands (a region of the initial set, cell widths, in-cell
+# splits), for the authors' chain ("paper") and for ours (any other set). Runs from p0 above about
+# -0.415 touch the left wall (p = -1.2) near step 50; where a cell's runs hit it at different
+# steps (or some not at all), each case is a branch of its own, so those cells are narrow in p0
+# and may branch more. In the composite row, low contrast (dc < 0.8) makes the estimate at the
+# left turning point depend so nonlinearly on dc and db that cells of p0 0.005 x dc 0.1 x db 0.05
+# spend their 16 in-cell splits and stay unknown, while cells of a quarter of that size in each
+# noise direction and half in p0 verify without a split. Our chain needs narrow cells everywhere:
+# its controller coasts as soon as the estimated energy suffices, so the car arrives with little
+# margin and when it coasts depends on the estimate.
 # Measured in bench/mountain_car.py (bench/README.md, "Mountain Car").
 WALL = -0.415
+LOW_CONTRAST = 0.8
 LAYOUT = {
     "paper": {
-        "canonical": [(WALL, {"p": 0.005}, 16), (math.inf, {"p": 0.001}, 64)],
-        "contrast": [(WALL, {"p": 0.005, "dc": 0.1}, 16), (math.inf, {"p": 0.001, "dc": 0.2}, 64)],
-        "blur": [(WALL, {"p": 0.005, "db": 0.05}, 16), (math.inf, {"p": 0.001, "db": 0.1}, 64)],
-        "composite": [(WALL, {"p": 0.005, "dc": 0.1, "db": 0.05}, 16), (math.inf, {"p": 0.001, "dc": 0.2, "db": 0.05}, 64)],
+        "canonical": [({"p": (-math.inf, WALL)}, {"p": 0.005}, 16), ({"p": (WALL, math.inf)}, {"p": 0.001}, 64)],
+        "contrast": [({"p": (-math.inf, WALL)}, {"p": 0.005, "dc": 0.1}, 16), ({"p": (WALL, math.inf)}, {"p": 0.001, "dc": 0.2}, 64)],
+        "blur": [({"p": (-math.inf, WALL)}, {"p": 0.005, "db": 0.05}, 16), ({"p": (WALL, math.inf)}, {"p": 0.001, "db": 0.1}, 64)],
+        "composite": [
+            ({"p": (-math.inf, WALL), "dc": (-math.inf, LOW_CONTRAST)}, {"p": 0.0025, "dc": 0.05, "db": 0.025}, 16),
+            ({"p": (-math.inf, WALL), "dc": (LOW_CONTRAST, math.inf)}, {"p": 0.005, "dc": 0.1, "db": 0.05}, 16),
+            ({"p": (WALL, math.inf)}, {"p": 0.001, "dc": 0.2, "db": 0.05}, 64),
+        ],
     },
     "ours": {
-        "canonical": [(math.inf, {"p": 0.001}, 16)],
-        "contrast": [(math.inf, {"p": 0.001, "dc": 0.05}, 16)],
-        "blur": [(math.inf, {"p": 0.001, "db": 0.05}, 16)],
-        "composite": [(math.inf, {"p": 0.001, "dc": 0.05, "db": 0.05}, 16)],
+        "canonical": [({}, {"p": 0.001}, 16)],
+        "contrast": [({}, {"p": 0.001, "dc": 0.05}, 16)],
+        "blur": [({}, {"p": 0.001, "db": 0.05}, 16)],
+        "composite": [({}, {"p": 0.001, "dc": 0.05, "db": 0.05}, 16)],
     },
 }
 MIN_WIDTH = {"p": 0.0003, "dc": 0.0125, "db": 0.004}
@@ -129,9 +138,9 @@ def verify(noise: str = "contrast", p0=None, networks="paper", *, delta_c=None, 
     """Verify one row of Table 1 (or a slice of it) and return the ``pv.Result``.
 
     ``p0``, ``delta_c``, ``delta_b`` default to the row's ranges (:data:`dynamics.ROWS`). The
-    remaining keywords go to ``pv.verify``. By default each band of p0 in :data:`LAYOUT` is split
-    into its cells with its in-cell splits (``split=`` gives one grid instead; ``max_splits=`` alone
-    overrides only the bands' in-cell splits), and
+    remaining keywords go to ``pv.verify``. By default each band of :data:`LAYOUT` (a region of p0,
+    and of dc in the composite row) is split into its cells with its in-cell splits (``split=``
+    gives one grid instead; ``max_splits=`` alone overrides only the bands' in-cell splits), and
     unknown cells (or ones still running after 60 s) are bisected down to :data:`MIN_WIDTH`
     (``refine=True``): a hard cell costs less as two halves than split many times inside. The
     result's ``settings["case"]`` records the row, the networks, the initial set and the bands.
@@ -151,10 +160,10 @@ def verify(noise: str = "contrast", p0=None, networks="paper", *, delta_c=None, 
                          **specification(), **options) for k, (box, split, splits) in enumerate(bands)]
     result = results[0]
     if len(results) > 1:
-        result = pv.Result(result.states, {**result.init, "p": init["p"]}, [c for r in results for c in r.cells],
+        result = pv.Result(result.states, {**result.init, **{k: init[k] for k in result.init if k in init}}, [c for r in results for c in r.cells],
                            sum(r.seconds for r in results), result.settings)
     result.settings["case"] = {"case": "mountain_car", "noise": noise, "networks": name, "init": init,
-                               "bands": [{"p0": box["p"], "split": split, "max_splits": splits} for box, split, splits in bands],
+                               "bands": [{"box": box, "split": split, "max_splits": splits} for box, split, splits in bands],
                                "min_width": options["min_width"]}
     return result
 
@@ -182,13 +191,19 @@ def _grid(init: dict, layout: list, options: dict) -> list:
 
 
 def _bands(init: dict, layout: list) -> list:
-    """``(initial box, split, max_splits)`` per band of ``layout`` (upper end of p0, split, max_splits) that meets ``init``."""
-    (lo, hi), out, start = init["p"], [], -math.inf
-    for end, split, splits in layout:
-        a, b = max(lo, start), min(hi, end)
-        if a < b or (a == b == lo and not out):
-            out.append(({**init, "p": (a, b)}, split, splits))
-        start = end
+    """``(initial box, split, max_splits)`` per band of ``layout`` whose region meets ``init``. Regions
+    are half-open, [lo, hi), so a point of ``init`` on a boundary belongs to the upper band."""
+    out = []
+    for region, split, splits in layout:
+        box = dict(init)
+        for name, (r_lo, r_hi) in region.items():
+            lo, hi = init[name]
+            a, b = max(lo, r_lo), min(hi, r_hi)
+            box[name] = (a, b)
+            if not (a < b or (lo == hi and r_lo <= lo < r_hi)):
+                break
+        else:
+            out.append((box, split, splits))
     return out
 
 
