@@ -92,6 +92,8 @@ def combine(doc: dict, noise: str, networks: str) -> dict:
         lo, hi = e["init"]["p"]
         if lo > edge + 1e-12:
             gaps.append((edge, lo))
+        elif lo < edge - 1e-12:
+            raise SystemExit(f"slices of {noise}/{networks} overlap at p0 {lo:g} (remove the older entry from the results)")
         edge = max(edge, hi)
         columns = e["cell_columns"]
         for row in e["cells"]:
@@ -104,6 +106,10 @@ def combine(doc: dict, noise: str, networks: str) -> dict:
     wall = sum(e["row"]["wall_seconds"] for e in slices)
     row = verification.table_row(pv.Result(slices[0]["settings"].get("states", list(init)), init, cells, wall))
     row["engine_seconds_all_attempts"] = sum(e["row"]["engine_seconds_all_attempts"] for e in slices)
+    # Per paper interval over the part the slices cover (table_row divides by the whole row).
+    covered = sum(e["init"]["p"][1] - e["init"]["p"][0] for e in slices)
+    row["engine_seconds_per_paper_interval"] = row["engine_seconds"] * verification.PAPER_INTERVAL / covered
+    row["wall_seconds_per_paper_interval"] = wall * verification.PAPER_INTERVAL / covered
     return {
         "noise": noise, "networks": networks, "init": init, "row": row, "gaps": gaps, "paper": slices[0]["paper"],
         "slices": [{"p0": e["init"]["p"], "cells": e["row"]["intervals"], "coverage": e["row"]["coverage"],
