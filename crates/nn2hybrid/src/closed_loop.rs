@@ -875,6 +875,19 @@ mod tests {
         }
     }
 
+    /// Every one of 1,001 float runs from `x0` meets x >= 1 at some step up to `steps`: what a
+    /// "verified" from the cover claims.
+    fn all_runs_arrive(update: impl Fn(f64) -> f64, x0: (f64, f64), steps: usize) -> bool {
+        (0..=1000).all(|i| {
+            let mut x = x0.0 + (x0.1 - x0.0) * i as f64 / 1000.0;
+            (0..=steps).any(|_| {
+                let arrived = x >= 1.0;
+                x = update(x);
+                arrived
+            })
+        })
+    }
+
     fn reach_verdict(update: &str, x0: (f64, f64), steps: usize) -> CellOutcome {
         let settings = CellSettings {
             order: 3,
@@ -895,6 +908,7 @@ mod tests {
         // the whole set, and the set never arrives at once (without splits, this cell was lost).
         let out = reach_verdict("2.2 - x", (0.5, 1.5), 4);
         assert_eq!(out.verdict, Verdict::Verified, "{:?}", out.reason);
+        assert!(all_runs_arrive(|x| 2.2 - x, (0.5, 1.5), 4));
         // x+ = x: the part below 1 never arrives, so no cover may be claimed.
         let out = reach_verdict("x", (0.5, 1.5), 4);
         assert_eq!(out.verdict, Verdict::Unknown, "{:?}", out.reason);
@@ -902,8 +916,10 @@ mod tests {
         // from 0.95 at step 1, the others in between.
         let out = reach_verdict("0.9*x + 0.2", (0.5, 1.5), 10);
         assert_eq!(out.verdict, Verdict::Verified, "{:?}", out.reason);
+        assert!(all_runs_arrive(|x| 0.9 * x + 0.2, (0.5, 1.5), 10));
         let out = reach_verdict("0.9*x + 0.2", (0.5, 1.5), 3);
         assert_ne!(out.verdict, Verdict::Verified, "runs from 0.5 are at 0.907 after 3 steps");
+        assert!(!all_runs_arrive(|x| 0.9 * x + 0.2, (0.5, 1.5), 3));
     }
 
     #[test]
