@@ -1,5 +1,6 @@
 """Closed-loop verification: sampling oracle, falsification, journal resume, bad input."""
 
+import importlib
 import json
 import os
 import signal
@@ -13,6 +14,8 @@ import numpy as np
 import pytest
 
 import percver as pv
+
+verify_module = importlib.import_module("percver.verify")  # the module (pv.verify is the function)
 
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
 CONTROLLER = DATA / "mountain_car" / "networks" / "ControllerSigmoid16x16.yml"
@@ -30,14 +33,19 @@ def mountain_car():
     return loop, p, v
 
 
-def assert_contains_simulations(loop, result, n=1000, seed=1):
+def assert_contains_simulations(loop, result, n=1000, seed=1, goal_p=None):
+    """Every simulated state lies in its step's reach box; with a `within` goal p >= goal_p, up to
+    the step at which the run met it (its part of the boxes ends there)."""
     for cell in result.cells:
         if not cell.boxes:
             continue
         boxes = np.asarray(cell.boxes)
         x0 = pv.Box.coerce(cell.box, loop.states).sample(n, seed=seed)
         traj = loop.simulate(x0, len(boxes) - 1)
-        inside = (traj >= boxes[None, :, :, 0]) & (traj <= boxes[None, :, :, 1])
+        inside = ((traj >= boxes[None, :, :, 0]) & (traj <= boxes[None, :, :, 1])).all(axis=2)
+        if goal_p is not None:
+            met = np.cumsum(traj[:, :, loop.states.index("p")] >= goal_p, axis=1) > 0
+            inside |= np.concatenate([np.zeros_like(met[:, :1]), met[:, :-1]], axis=1)
         assert inside.all(), f"cell {cell.box}: {np.count_nonzero(~inside)} simulated states outside the reach boxes"
 
 
@@ -87,6 +95,36 @@ def test_unknown_cells_are_refined(tmp_path):
     again = pv.verify(loop, **kwargs)
     assert sorted(c.box["p"] for c in again.cells) == sorted(c.box["p"] for c in res.cells)
     assert (tmp_path / "refine.jsonl").stat().st_size == size
+
+
+def test_refinement_halves_the_state_the_engine_needed(tmp_path):
+    # A parameter w that the dynamics never read is as wide (relative to the initial set) as p.
+    # Splitting it cannot help: cells are split along p, in the engine and in refinement alike.
+    p, v, w = pv.variables("p v w")
+    u = pv.variables("u")
+    v_next = pv.clip(v + 0.0015 * u - 0.0025 * pv.cos(3 * p), -0.07, 0.07)
+    p_next = p + v_next
+    plant = pv.Discrete({p: pv.where(p_next <= -1.2, -1.2, p_next), v: pv.where(p_next <= -1.2, 0.0, v_next), w: w},
+                        inputs=[u])
+    loop = pv.ClosedLoop(plant, stages=[pv.Stage(pv.load_network(str(CONTROLLER)), inputs=[p, v], output="u")])
+    journal = tmp_path / "hint.jsonl"
+    res = pv.verify(loop, init={"p": (-0.58, -0.42), "v": (0, 0), "w": (0, 1)}, steps=150, goal=p >= 0.45, within=True,
+                    order=2, refine=True, min_width={"p": 0.005}, progress=False, journal=str(journal))
+    assert res.verdict == "verified"
+    assert all(c.box["w"] == (0.0, 1.0) for c in res.cells)
+    parents = [json.loads(line) for line in journal.read_text().splitlines()[1:]]
+    assert [c["split"] for c in parents if c["verdict"] == "unknown"] and all(
+        c["split"] == "p" for c in parents if c["verdict"] == "unknown")
+    assert_contains_simulations(loop, res, n=200, goal_p=0.45)
+
+
+def test_bisection_hint_yields_to_min_width():
+    init = pv.Box.coerce({"p": (0.0, 1.0), "w": (0.0, 1.0)}, ["p", "w"])
+    cell = pv.Box.coerce({"p": (0.0, 0.01), "w": (0.0, 0.5)}, ["p", "w"])
+    halves = verify_module._bisect(cell, init, {"p": 0.005}, hint="p")
+    assert [h.bounds for h in halves] == [((0.0, 0.01), (0.0, 0.25)), ((0.0, 0.01), (0.25, 0.5))]
+    halves = verify_module._bisect(cell, init, {"p": 0.001}, hint="p")
+    assert [h.bounds for h in halves] == [((0.0, 0.005), (0.0, 0.5)), ((0.005, 0.01), (0.0, 0.5))]
 
 
 def test_verisig_method_agrees_on_a_short_horizon():

@@ -60,6 +60,8 @@ class Cell:
     # Peak resident memory (MB) of the process that ran the cell, from the start of the cell's
     # batch to its end: an upper bound shared by the cells that ran beside it.
     peak_rss_mb: Optional[float] = None
+    # The state the engine would have split next when it gave up: refinement halves it.
+    split: Optional[str] = None
 
     def to_dict(self) -> dict:
         # Shallow (asdict would deep-copy the reach boxes of every journaled cell).
@@ -339,10 +341,17 @@ def _key(box: dict) -> str:
     return json.dumps({k: [float(v[0]), float(v[1])] for k, v in sorted(box.items())})
 
 
-def _bisect(box: Box, init: Box) -> list:
-    """Halves the cell along its widest dimension relative to the initial set."""
-    rel = [(hi - lo) / (ihi - ilo) if ihi > ilo else 0.0 for (lo, hi), (ilo, ihi) in zip(box.bounds, init.bounds)]
-    j = int(np.argmax(rel))
+def _bisect(box: Box, init: Box, min_width: dict, hint: Optional[str] = None) -> list:
+    """Halves the cell along ``hint`` (the state the engine wanted to split) while it is above
+    its min_width, else along the widest dimension relative to the initial set among those
+    above theirs."""
+    above = [hi - lo > 2 * _limit(name, ilo, ihi, min_width) and ihi > ilo
+             for name, (lo, hi), (ilo, ihi) in zip(box.names, box.bounds, init.bounds)]
+    if hint in box.names and above[box.names.index(hint)]:
+        j = box.names.index(hint)
+    else:
+        rel = [(hi - lo) / (ihi - ilo) if ok else -1.0 for ok, (lo, hi), (ilo, ihi) in zip(above, box.bounds, init.bounds)]
+        j = int(np.argmax(rel))
     lo, hi = box.bounds[j]
     mid = 0.5 * (lo + hi)
     left = list(box.bounds)
@@ -522,7 +531,8 @@ class _Campaign:
             # rather than claim a counterexample we do not have.
             verdict = "unknown"
         c = Cell(cell.to_dict(), verdict, outcome["seconds"], outcome["nn_seconds"], outcome["branches"],
-                 outcome["steps_done"], outcome["reason"], None, outcome["boxes"], outcome.get("peak_rss_mb"))
+                 outcome["steps_done"], outcome["reason"], None, outcome["boxes"], outcome.get("peak_rss_mb"),
+                 None if outcome.get("split") is None else self.init.names[outcome["split"]])
         self.cell_seconds[0] += c.seconds
         self.cell_seconds[1] += 1
         if self._timed_out(c) and not self._splits(cell, c):
@@ -543,7 +553,7 @@ class _Campaign:
     def _settle(self, cell: Box, c: Cell):
         """A finished cell (fresh or from the journal) is a result, or replaced by its halves."""
         if self._splits(cell, c):
-            self.queue += _bisect(cell, self.init)
+            self.queue += _bisect(cell, self.init, self.min_width, c.split)
             if self.bar is not None:
                 self.bar.total += 2
         else:
@@ -601,12 +611,13 @@ def _run_local(campaign: _Campaign, problem, options: dict, workers: Optional[in
         _run_cells(problem, [c.bounds for c in cells], lambda i, o: campaign.record(cells[i], o), options, workers)
 
 
+def _limit(name: str, ilo: float, ihi: float, min_width: dict) -> float:
+    return min_width.get(name, (ihi - ilo) / 64)
+
+
 def _splittable(cell: Box, init: Box, min_width: dict) -> bool:
-    for name, (lo, hi), (ilo, ihi) in zip(cell.names, cell.bounds, init.bounds):
-        limit = min_width.get(name, (ihi - ilo) / 64)
-        if hi - lo > 2 * limit and ihi > ilo:
-            return True
-    return False
+    return any(hi - lo > 2 * _limit(name, ilo, ihi, min_width) and ihi > ilo
+               for name, (lo, hi), (ilo, ihi) in zip(cell.names, cell.bounds, init.bounds))
 
 
 def _falsify(loop: ClosedLoop, prop: _Property, cells: list, steps: int, samples: int, seed: int) -> list:

@@ -126,6 +126,9 @@ pub struct CellOutcome {
     pub seconds: f64,
     pub nn_seconds: f64,
     pub branches: usize,
+    /// The state the engine would have split next when it gave up (or split most often): a
+    /// caller that bisects the cell halves this one, not merely the widest.
+    pub split: Option<usize>,
 }
 
 impl ClosedLoop {
@@ -222,7 +225,7 @@ fn apply_network(net: &Network, inputs: &[TaylorModel], ctx: &Ctx, settings: &Ce
 /// Runs one cell: the initial box `cell` (one interval per state variable).
 pub fn verify_cell(lp: &ClosedLoop, cell: &[Interval], settings: &CellSettings) -> CellOutcome {
     let started = Instant::now();
-    let mut out = CellOutcome { verdict: Verdict::Unknown, reason: None, steps_done: 0, boxes: Vec::new(), seconds: 0.0, nn_seconds: 0.0, branches: 0 };
+    let mut out = CellOutcome { verdict: Verdict::Unknown, reason: None, steps_done: 0, boxes: Vec::new(), seconds: 0.0, nn_seconds: 0.0, branches: 0, split: None };
     if let Err(e) = run(lp, cell, settings, &mut out, started) {
         out.verdict = Verdict::Unknown;
         out.reason = Some(e.to_string());
@@ -303,6 +306,9 @@ fn run(lp: &ClosedLoop, cell: &[Interval], settings: &CellSettings, out: &mut Ce
     let mut boxes: Vec<Option<Vec<Interval>>> = vec![None; lp.steps + 1];
     boxes[0] = Some(cell.to_vec());
     let mut work = vec![Piece::new(0, state, Vec::new(), Vec::new())];
+    // Domain variable -> state: one per non-degenerate interval (every state with rebox).
+    let state_of: Vec<usize> = (0..n).filter(|&i| settings.rebox || cell[i].lo() < cell[i].hi()).collect();
+    let mut split_count = vec![0usize; space.nvars];
     let mut splits = 0;
     let mut hulls = 0;
     let mut verified = true;
@@ -357,9 +363,11 @@ fn run(lp: &ClosedLoop, cell: &[Interval], settings: &CellSettings, out: &mut Ce
                             work.push(Piece::new(from, state, history, margins));
                         }
                         splits += 1;
+                        split_count[v] += 1;
                     }
                     None => {
                         verified = false;
+                        out.split = v.and_then(|v| state_of.get(v).copied());
                         out.steps_done = step;
                         out.reason = Some(if splits == 0 { reason } else { format!("{reason} (after {splits} splits)") });
                         break;
@@ -369,6 +377,10 @@ fn run(lp: &ClosedLoop, cell: &[Interval], settings: &CellSettings, out: &mut Ce
         }
     }
     out.branches = splits + hulls;
+    if !verified && out.split.is_none() {
+        let most = split_count.iter().enumerate().filter(|(_, &c)| c > 0).max_by_key(|(_, &c)| c).map(|(v, _)| v);
+        out.split = most.and_then(|v| state_of.get(v).copied());
+    }
     out.boxes = boxes.into_iter().take_while(|b| b.is_some()).map(|b| b.unwrap()).collect();
     if verified {
         out.steps_done = out.boxes.len() - 1;
@@ -599,11 +611,15 @@ fn branches(program: &Program, inputs: &[TaylorModel], ctx: &Ctx, most: usize) -
 
 /// The domain variable whose halving shrinks the state's polynomial part most: the largest
 /// sum over states of |d state / d x_v| (bounded by sum of k |c_k| over monomials with x_v^k),
-/// relative to the state's width. None when no variable is left to split.
+/// relative to the state's width. None when no variable is left to split. States that are
+/// still one variable of the cell (parameters such as a noise level, carried unchanged) are left
+/// out: halving one only halves itself, and its fixed share would outvote the states whose
+/// dependence on the cell was lost. Their influence counts through the states that use them.
 fn split_variable(state: &[TaylorModel], ctx: &Ctx) -> Option<usize> {
     let space = &ctx.space;
     let mut score = vec![0.0f64; space.nvars];
-    for m in state {
+    let moved: Vec<&TaylorModel> = state.iter().filter(|m| !own_variable(m, space)).collect();
+    for m in if moved.is_empty() { state.iter().collect() } else { moved } {
         let width = m.bound(space).width();
         if !(width > 0.0) || !width.is_finite() {
             continue;
@@ -615,6 +631,16 @@ fn split_variable(state: &[TaylorModel], ctx: &Ctx) -> Option<usize> {
         }
     }
     score.iter().enumerate().filter(|(_, &s)| s > 0.0).max_by(|a, b| a.1.total_cmp(b.1)).map(|(v, _)| v)
+}
+
+/// `c + a x_v` with no other monomial and a remainder that is only rounding (restricting a
+/// piece to a half rounds outward): a state that is one cell variable.
+fn own_variable(m: &TaylorModel, space: &Space) -> bool {
+    let mut terms = m.coef.iter().enumerate().filter(|(k, &c)| c != 0.0 && space.exponents(*k).iter().any(|&e| e > 0));
+    match (terms.next(), terms.next()) {
+        (Some((k, &a)), None) => space.exponents(k).iter().sum::<u8>() == 1 && m.rem.width() <= 1e-9 * a.abs(),
+        _ => false,
+    }
 }
 
 /// Sub-boxes of the domain [`arrived`] may examine per call: each costs one re-expansion of

@@ -122,6 +122,7 @@ fn outcome_dict<'py>(py: Python<'py>, o: &CellOutcome) -> PyResult<Bound<'py, Py
     d.set_item("seconds", o.seconds)?;
     d.set_item("nn_seconds", o.nn_seconds)?;
     d.set_item("branches", o.branches)?;
+    d.set_item("split", o.split)?;
     Ok(d)
 }
 
