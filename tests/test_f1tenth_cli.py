@@ -30,6 +30,7 @@ def test_pipeline_end_to_end(tmp_path, capsys):
     assert data.state_names == ("x", "y", "theta") and data.measurements.shape[1] == 21
     labelled = run(capsys, "label", "--training", str(training), "--out", str(labels), "--plot", str(tmp_path / "curve.png"))
     assert 0.0 < labelled["t_delta"] < 5.0 and (tmp_path / "curve.png").is_file()
+    assert 0.0 < labelled["label_ceiling"]["ceiling"] <= 1.0
     trained = run(capsys, "train", "--training", str(training), "--labels", str(labels), "--out", str(models), "--sizes", "3x100",
                   "--epochs", "2", "--denoiser-epochs", "2", "--threads", "2", "--data", str(DATA))
     assert set(trained["classifiers"]) == {"3x100"}

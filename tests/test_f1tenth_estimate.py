@@ -76,3 +76,31 @@ def test_calibration_report(runs):
     assert 0.85 < report["within_5cm"] <= 1.0
     assert set(runs.safe_share()) == {"TD3_L21_64x64_C1", "DDPG_L21_64x64_C1"}
     assert ctl.short_name("TD3_L21_128x128_C3") == "TD3_128_3"
+
+
+def test_label_ceiling_is_what_the_likelier_label_scores_on_fresh_scans(runs):
+    poses = runs.states[::3, :3]
+    quiet = simulate.RealWorld(panels=(), gloss_deg=89.0, softness_deg=0.01, sigma=0.0, sigma_per_m=0.0,
+                               mixed_pixel_jump=100.0, outlier_rate=0.0, dropout_rate=0.0)
+    exact = simulate.label_ceiling(quiet, poses, 0.5)
+    assert exact["ceiling"] == 1.0 and exact["certain"] == 1.0  # nothing random: every label is a function of the pose
+    real = simulate.RealWorld()
+    found = simulate.label_ceiling(real, poses, 1.1, draws=20, seed=1)
+    assert 0.0 < found["ceiling"] < 1.0 and found["ray_error"] > 0.0
+    # The oracle that knows p_i predicts the likelier label; on scans drawn afresh it scores the ceiling.
+    canonical = world.controller_lidar().scan(world.square(), poses)
+    rng = np.random.default_rng(7)
+    draws = np.stack([np.abs(world.controller_view(real.scan(poses, rng)) - canonical) > 1.1 for _ in range(40)])
+    likelier = draws[:20].mean(axis=0) > 0.5
+    fresh = np.mean([np.all(d == likelier, axis=1).mean() for d in draws[20:]])
+    assert abs(fresh - found["ceiling"]) < 0.08
+    with pytest.raises(InputError, match="2 draws"):
+        simulate.label_ceiling(real, poses, 1.1, draws=1)
+
+
+def test_world_description_round_trip():
+    real = simulate.RealWorld(softness_deg=0.4, gloss_deg=(70.0,) * 8)
+    back = simulate.RealWorld.from_description(real.describe())
+    assert back.describe() == real.describe() and back.panels == real.panels
+    with pytest.raises(InputError, match="world description"):
+        simulate.RealWorld.from_description({"colour": "red"})

@@ -332,6 +332,8 @@ def _f1_label(args) -> int:
     return _f1_report(args, record, [
         f"t_Delta* = {record['t_delta']:.3f} m: mean error {record['error_at_best_m']:.3f} m per ray "
         f"(canonical alone {record['error_without_noise_model_m']:.3f} m); {record['labelled_per_scan']:.2f} rays labelled per scan",
+        *([f"whole-scan accuracy ceiling of these labels (simulator's world, {record['label_ceiling']['poses']} scans): "
+           f"{100 * record['label_ceiling']['ceiling']:.1f}%"] if "label_ceiling" in record else []),
         f"labels -> {record['path']}",
     ])
 

@@ -102,6 +102,19 @@ class RealWorld:
         out["panels"] = [asdict(p) for p in self.panels]
         return out
 
+    @classmethod
+    def from_description(cls, description: dict) -> "RealWorld":
+        """The world of ``describe()`` (as recorded in a runs file's meta) on the square loop."""
+        fields = dict(description)
+        try:
+            fields["panels"] = tuple(Panel(**p) for p in fields.get("panels", ()))
+            if isinstance(fields.get("gloss_deg"), list):
+                fields["gloss_deg"] = tuple(fields["gloss_deg"])
+            return cls(**fields)
+        except TypeError as error:
+            raise InputError(f"not a measurement-simulator world description ({error}): "
+                             "it is the 'world' entry of the meta of runs written by percver cases f1tenth simulate") from None
+
     def scan(self, states, rng, lidar=None) -> np.ndarray:
         """Raw scans (N x 1081, or the rays of ``lidar``) from poses (N x >=3)."""
         lidar = lidar or world.scanner()
@@ -145,6 +158,31 @@ class RealWorld:
         reading = np.where(mirrored, np.where(saturates, lidar.max_range, 0.0), reading)
         reading = np.where(rng.random(true.shape) < self.dropout_rate, 0.0, reading)
         return reading
+
+
+def label_ceiling(real: RealWorld, poses, threshold: float, *, draws: int = 10, seed: int = 0) -> dict:
+    """The whole-scan accuracy that no classifier of the pose can beat on this world's labels.
+
+    A ray's label (|21-ray reading - canonical| > ``threshold``) is random for a given pose:
+    noise, lost echoes, rays flickering at a surface's incidence limit. With ``draws``
+    independent scans per pose, p_i is the share of draws labelling ray i; the best decision
+    per ray is the likelier label, right with probability max(p_i, 1 - p_i), and a whole scan is
+    right with their product. ``ceiling`` is its mean over ``poses`` (N x 3), ``certain`` the
+    share of poses whose 21 labels agree in every draw. Diagnostic: it needs the hidden world.
+    """
+    poses = np.atleast_2d(np.asarray(poses, dtype=float))[:, :3]
+    if draws < 2:
+        raise InputError(f"label_ceiling needs at least 2 draws per pose, got {draws}")
+    canonical = world.controller_lidar().scan(real.track, poses)
+    rng = np.random.default_rng(seed)
+    share = np.zeros(canonical.shape)
+    for _ in range(draws):
+        share += np.abs(world.controller_view(real.scan(poses, rng)) - canonical) > threshold
+    p = share / draws
+    likelier = np.maximum(p, 1.0 - p)
+    return {"threshold": float(threshold), "draws": int(draws), "poses": len(poses),
+            "ceiling": float(np.prod(likelier, axis=1).mean()), "certain": float(np.mean(np.all(likelier == 1.0, axis=1))),
+            "ray_error": float(np.mean(1.0 - likelier))}
 
 
 def paper_run_counts(data=None) -> dict:

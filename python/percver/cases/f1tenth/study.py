@@ -26,6 +26,7 @@ from percver.errors import InputError, MissingFileError
 from percver.measurements import Measurements
 
 LABEL_KEYS = ("labels", "t_delta", "thresholds", "errors", "knocked_share")
+CEILING_POSES = 2000  # scans at which the label ceiling is estimated (10 draws each)
 
 
 def run_simulate(out, *, runs_per_controller="paper", names=None, seed: int = 0, covered: bool = False, data=None) -> dict:
@@ -84,6 +85,11 @@ def run_label(training_path, out, *, plot=None) -> dict:
                         errors=curve.errors, knocked_share=curve.knocked_share)
     record = {"path": str(path), **curve.summary(), "labelled_share": float(labels.mean()),
               "labelled_per_scan": float(labels.sum(axis=1).mean())}
+    if "world" in dataset.meta:
+        # Runs of the measurement simulator: how predictable its labels are at all (diagnostic).
+        rows = np.random.default_rng(0).permutation(len(dataset))[:CEILING_POSES]
+        real = simulate.RealWorld.from_description(dataset.meta["world"])
+        record["label_ceiling"] = simulate.label_ceiling(real, dataset.poses[rows], curve.best)
     if plot:
         record["plot"] = str(plots.threshold_curve(curve, plot))
     return record
