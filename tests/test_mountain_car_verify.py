@@ -108,7 +108,8 @@ def test_bands_partition_the_initial_set():
     assert [(box["p"], box["dc"]) for box, _, _ in bands] == [
         ((-0.55, verification.WALL), (0.5, verification.LOW_CONTRAST)),
         ((-0.55, verification.WALL), (verification.LOW_CONTRAST, 2.0)),
-        ((verification.WALL, -0.4), (0.5, 2.0)),
+        ((verification.WALL, -0.4), (0.5, verification.LOW_CONTRAST)),
+        ((verification.WALL, -0.4), (verification.LOW_CONTRAST, 2.0)),
     ]
     # A slice inside one region meets only that band; a point on a boundary goes to the upper band.
     inside = verification._bands(verification.initial_set("composite", (-0.5, -0.49), delta_c=(1.0, 1.2)), layout)
