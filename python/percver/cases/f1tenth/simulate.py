@@ -318,11 +318,17 @@ def calibration(runs: loop.Runs, poses=None, stats=None, controllers: dict | Non
         if controllers is not None:
             from scipy.stats import wasserstein_distance
 
+            # Yardsticks: noise-free canonical scans at the true poses, and how far the real
+            # outputs' first half of scans lies from their second half.
+            truth = world.controller_lidar().scan(world.square(), runs.states[:, :3])
             outputs = {}
             for row, name in enumerate(ctl.NAMES):
                 if name in controllers:
                     sim, real = controllers[name].raw(view), stats.outputs[row]
+                    half = len(real) // 2
                     outputs[name] = {"sim": _output_summary(sim), "real": _output_summary(real),
-                                     "wasserstein": float(wasserstein_distance(sim, real))}
+                                     "wasserstein": float(wasserstein_distance(sim, real)),
+                                     "wasserstein_canonical": float(wasserstein_distance(controllers[name].raw(truth), real)),
+                                     "wasserstein_real_halves": float(wasserstein_distance(real[:half], real[half:]))}
             out["controller_outputs"] = outputs
     return out
