@@ -118,6 +118,24 @@ def test_refinement_halves_the_state_the_engine_needed(tmp_path):
     assert_contains_simulations(loop, res, n=200, goal_p=0.45)
 
 
+def test_a_wall_hit_at_different_steps_forks_the_plant():
+    # From p0 in [-0.41, -0.40] every run hits the left wall (p = -1.2, v reset to 0), at one of
+    # five steps. The hull of both sides of the wall loses the cell; forking the plant's guard
+    # (one branch per side, both `where`s on it take the same side) keeps every branch precise.
+    loop, p, v = mountain_car()
+    kwargs = dict(init={"p": (-0.41, -0.40), "v": (0, 0)}, steps=150, goal=p >= 0.45, within=True, progress=False)
+    hull = pv.verify(loop, max_splits=0, **kwargs)
+    forked = pv.verify(loop, max_splits=8, **kwargs)
+    assert hull.verdict == "unknown" and forked.verdict == "verified"
+    assert 1 <= forked.cells[0].branches <= 8
+    # Twice as wide it stays unknown with parts still waiting: its boxes stop where they stop
+    # being complete (they held only the parts that had run, up to the step it gave up).
+    wide = pv.verify(loop, max_splits=16, **{**kwargs, "init": {"p": (-0.42, -0.40), "v": (0, 0)}})
+    assert wide.verdict == "unknown" and wide.cells[0].steps_done == len(wide.cells[0].boxes) - 1
+    for res in (hull, forked, wide):
+        assert_contains_simulations(loop, res, n=2000, goal_p=0.45)
+
+
 def test_bisection_hint_yields_to_min_width():
     init = pv.Box.coerce({"p": (0.0, 1.0), "w": (0.0, 1.0)}, ["p", "w"])
     cell = pv.Box.coerce({"p": (0.0, 0.01), "w": (0.0, 0.5)}, ["p", "w"])

@@ -397,8 +397,11 @@ def verify(
     ``min_width`` (default 1/64 of the initial set per dimension), then reported unknown.
 
     Inside a cell, a part whose enclosure degrades (or that reaches a ``within`` goal only in
-    part) is split where its enclosure was last precise and continued from there, up to
-    ``max_splits`` times per cell (0: never); the splits count as branches. ``rebox=True`` restarts
+    part) is split where its enclosure was last precise and continued from there, and a condition
+    (``pv.where``, in a stage or a discrete plant, e.g. a wall that some runs hit at this step) that
+    holds on part of the set forks into one part per side, up to ``max_splits`` splits and forks
+    per cell (0: never; conditions then take the hull of both sides); they count as branches. An
+    unknown cell's reach boxes end at the last step every part reached. ``rebox=True`` restarts
     a part from its box whenever a remainder is most of a state's enclosure (for loops whose
     remainders feed back and grow, such as the F1/10 LiDAR loop; it loses the dependency on the
     initial state, so it can be looser elsewhere).

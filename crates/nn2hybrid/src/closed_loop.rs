@@ -312,6 +312,9 @@ fn run(lp: &ClosedLoop, cell: &[Interval], settings: &CellSettings, out: &mut Ce
     let mut splits = 0;
     let mut hulls = 0;
     let mut verified = true;
+    // Where the boxes stop being complete when the cell stops early: pieces still waiting (and
+    // the one that stopped) have put their states into the boxes only up to their own step.
+    let mut stopped_at = None;
     while let Some(mut piece) = work.pop() {
         let forks = settings.max_splits.saturating_sub(splits);
         match advance(lp, &mut piece, &ctx, settings, forks, out, &mut boxes, &mut hulls, started)? {
@@ -322,12 +325,14 @@ fn run(lp: &ClosedLoop, cell: &[Interval], settings: &CellSettings, out: &mut Ce
             }
             End::Violated(reason) => {
                 verified = false;
+                stopped_at = Some(piece.step);
                 out.verdict = if splits == 0 { Verdict::Violated } else { Verdict::Unknown };
                 out.reason = Some(if splits == 0 { reason } else { format!("{reason} (on part of the cell, after {splits} splits)") });
                 break;
             }
             End::Timeout(reason) => {
                 verified = false;
+                stopped_at = Some(piece.step);
                 out.reason = Some(reason);
                 break;
             }
@@ -367,8 +372,8 @@ fn run(lp: &ClosedLoop, cell: &[Interval], settings: &CellSettings, out: &mut Ce
                     }
                     None => {
                         verified = false;
+                        stopped_at = Some(piece.step);
                         out.split = v.and_then(|v| state_of.get(v).copied());
-                        out.steps_done = step;
                         out.reason = Some(if splits == 0 { reason } else { format!("{reason} (after {splits} splits)") });
                         break;
                     }
@@ -381,9 +386,10 @@ fn run(lp: &ClosedLoop, cell: &[Interval], settings: &CellSettings, out: &mut Ce
         let most = split_count.iter().enumerate().filter(|(_, &c)| c > 0).max_by_key(|(_, &c)| c).map(|(v, _)| v);
         out.split = most.and_then(|v| state_of.get(v).copied());
     }
-    out.boxes = boxes.into_iter().take_while(|b| b.is_some()).map(|b| b.unwrap()).collect();
+    let complete = stopped_at.map(|s| work.iter().map(|p| p.step).fold(s, usize::min));
+    out.boxes = boxes.into_iter().take(complete.map_or(usize::MAX, |s| s + 1)).take_while(|b| b.is_some()).map(|b| b.unwrap()).collect();
+    out.steps_done = out.boxes.len() - 1;
     if verified {
-        out.steps_done = out.boxes.len() - 1;
         out.verdict = Verdict::Verified;
         out.reason = None;
     }
@@ -564,26 +570,34 @@ fn one_step(
         }
         envs = grown;
     }
-    let mut nexts = Vec::with_capacity(envs.len());
-    for env in &envs {
-        let mut next = match &lp.plant {
+    let mut nexts: Vec<Vec<TaylorModel>> = Vec::with_capacity(envs.len());
+    for (k, env) in envs.iter().enumerate() {
+        let successors = match &lp.plant {
+            // A discrete plant's undecided conditions (a wall that some runs hit at this step)
+            // fork like a stage's, within the same budget; beyond it they take the hull.
             Plant::Discrete(plant) => {
-                let values = plant.eval_all(&TaylorModels { ctx }, env)?;
-                *hulls += count_undecided(plant, &values, ctx);
-                plant.outputs_of(&values)
+                let most = (1 + forks).saturating_sub(nexts.len() + envs.len() - k - 1).max(1);
+                let alternatives = branches(plant, env, ctx, most)?;
+                if alternatives.len() == 1 {
+                    let values = plant.eval_all(&TaylorModels { ctx }, env)?;
+                    *hulls += count_undecided(plant, &values, ctx);
+                }
+                alternatives
             }
             Plant::Continuous { ode, inputs, period, flow } => {
                 let held: Vec<TaylorModel> = inputs.iter().map(|&i| env[i].clone()).collect();
                 match integrate_period(lp, ode, state, &held, *period, flow, ctx)? {
-                    Ok(next) => next,
+                    Ok(next) => vec![next],
                     Err(reason) => return Ok(Err(reason)),
                 }
             }
         };
-        for m in next.iter_mut() {
-            m.sweep(ctx);
+        for mut next in successors {
+            for m in next.iter_mut() {
+                m.sweep(ctx);
+            }
+            nexts.push(next);
         }
-        nexts.push(next);
     }
     Ok(Ok(nexts))
 }
@@ -614,12 +628,17 @@ fn branches(program: &Program, inputs: &[TaylorModel], ctx: &Ctx, most: usize) -
 /// relative to the state's width. None when no variable is left to split. States that are
 /// still one variable of the cell (parameters such as a noise level, carried unchanged) are left
 /// out: halving one only halves itself, and its fixed share would outvote the states whose
-/// dependence on the cell was lost. Their influence counts through the states that use them.
+/// dependence on the cell was lost. Their influence counts through the states that use them
+/// (when no other state depends on the cell yet, as at step 0, they count after all).
 fn split_variable(state: &[TaylorModel], ctx: &Ctx) -> Option<usize> {
+    let moved: Vec<&TaylorModel> = state.iter().filter(|m| !own_variable(m, &ctx.space)).collect();
+    best_variable(&moved, ctx).or_else(|| best_variable(&state.iter().collect::<Vec<_>>(), ctx))
+}
+
+fn best_variable(state: &[&TaylorModel], ctx: &Ctx) -> Option<usize> {
     let space = &ctx.space;
     let mut score = vec![0.0f64; space.nvars];
-    let moved: Vec<&TaylorModel> = state.iter().filter(|m| !own_variable(m, space)).collect();
-    for m in if moved.is_empty() { state.iter().collect() } else { moved } {
+    for m in state {
         let width = m.bound(space).width();
         if !(width > 0.0) || !width.is_finite() {
             continue;

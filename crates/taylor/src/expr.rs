@@ -574,16 +574,26 @@ impl Algebra for TaylorModels<'_> {
 /// beyond the plan take the hull. Evaluating every plan a condition tree allows, each branch
 /// assumed on the whole set, covers every point: a point's own path through the conditions is
 /// one of the plans. `beyond` reports whether a condition past the plan was undecided.
+/// A condition met again with the same operands (a plant's `where`s on one guard, say
+/// p' <= -1.2 for both p and v) takes the branch it took before: a point's two answers to one
+/// condition agree, so the plans that mix them cover no point and are not made.
 pub struct Forking<'a> {
     pub tm: TaylorModels<'a>,
     pub plan: &'a [bool],
     seen: std::cell::Cell<usize>,
     beyond: std::cell::Cell<bool>,
+    taken: std::cell::RefCell<Vec<(TaylorModel, Cmp, TaylorModel, bool)>>,
 }
 
 impl<'a> Forking<'a> {
     pub fn new(ctx: &'a crate::tm::Ctx, plan: &'a [bool]) -> Self {
-        Forking { tm: TaylorModels { ctx }, plan, seen: std::cell::Cell::new(0), beyond: std::cell::Cell::new(false) }
+        Forking {
+            tm: TaylorModels { ctx },
+            plan,
+            seen: std::cell::Cell::new(0),
+            beyond: std::cell::Cell::new(false),
+            taken: std::cell::RefCell::new(Vec::new()),
+        }
     }
     /// Whether an undecided condition was met after the plan ran out.
     pub fn beyond(&self) -> bool {
@@ -619,11 +629,15 @@ impl Algebra for Forking<'_> {
         if decided.is_some() {
             return decided;
         }
+        if let Some(&(_, _, _, b)) = self.taken.borrow().iter().find(|(a, c, z, _)| a == l && *c == cmp && z == r) {
+            return Some(b);
+        }
         let k = self.seen.get();
         self.seen.set(k + 1);
         let forced = self.plan.get(k).copied();
-        if forced.is_none() {
-            self.beyond.set(true);
+        match forced {
+            Some(b) => self.taken.borrow_mut().push((l.clone(), cmp, r.clone(), b)),
+            None => self.beyond.set(true),
         }
         forced
     }
@@ -674,6 +688,33 @@ mod tests {
         let e = Expr::binary(BinOp::Mul, &s, &s);
         let p = Program::compile(&[e], &["x".into()]).unwrap();
         assert_eq!(p.ops.len(), 3);
+    }
+
+    #[test]
+    fn forking_takes_one_branch_per_repeated_condition() {
+        // A wall: p' = where(x <= 0, 0, x), v' = where(x <= 0, 1, x) on x in [-1, 1]. Both
+        // `where`s ask one question; each plan answers it once for both, and one fork (two plans)
+        // covers every point: x <= 0 gives (0, 1), x > 0 gives (x, x).
+        let x = Expr::var("x");
+        let zero = Expr::constant(0.0);
+        let p = Expr::select(&x, Cmp::Le, &zero, &zero, &x);
+        let v = Expr::select(&x, Cmp::Le, &zero, &Expr::constant(1.0), &x);
+        let prog = Program::compile(&[p, v], &["x".into()]).unwrap();
+        let ctx = Ctx::new(Space::get(1, 3, 0).unwrap(), 3, 0.0);
+        let input = [TaylorModel::var(&ctx, 0)];
+        let unplanned = Forking::new(&ctx, &[]);
+        prog.eval(&unplanned, &input).unwrap();
+        assert!(unplanned.beyond());
+        for (choice, expect) in [(true, [(0.0, 0.0), (1.0, 1.0)]), (false, [(-1.0, 1.0), (-1.0, 1.0)])] {
+            let plan = [choice];
+            let alg = Forking::new(&ctx, &plan);
+            let out = prog.eval(&alg, &input).unwrap();
+            assert!(!alg.beyond(), "the second where must reuse the first one's branch");
+            for (m, (lo, hi)) in out.iter().zip(expect) {
+                let b = m.bound(&ctx.space);
+                assert!(b.lo() <= lo && b.hi() >= hi && b.width() <= hi - lo + 1e-12, "{b} against [{lo}, {hi}]");
+            }
+        }
     }
 
     #[test]
