@@ -106,11 +106,11 @@ def test_bands_partition_the_initial_set():
     layout = verification.LAYOUT["paper"]["composite"]
     bands = verification._bands(verification.initial_set("composite"), layout)
     assert [(box["p"], box["dc"]) for box, _, _ in bands] == [
-        ((-0.55, verification.WALL), (0.5, verification.LOW_CONTRAST)),
-        ((-0.55, verification.WALL), (verification.LOW_CONTRAST, 2.0)),
-        ((verification.WALL, -0.4), (0.5, verification.LOW_CONTRAST)),
-        ((verification.WALL, -0.4), (verification.LOW_CONTRAST, 2.0)),
+        ((-0.55, -0.4), (0.5, verification.LOW_CONTRAST)),
+        ((-0.55, -0.4), (verification.LOW_CONTRAST, 2.0)),
     ]
+    walls = verification._bands(verification.initial_set("contrast"), verification.LAYOUT["paper"]["contrast"])
+    assert [box["p"] for box, _, _ in walls] == [(-0.59, verification.WALL), (verification.WALL, -0.4)]
     # A slice inside one region meets only that band; a point on a boundary goes to the upper band.
     inside = verification._bands(verification.initial_set("composite", (-0.5, -0.49), delta_c=(1.0, 1.2)), layout)
     assert [split for _, split, _ in inside] == [layout[1][1]]
