@@ -30,9 +30,9 @@ KEYWORDS = {"dc": "delta_c", "db": "delta_b"}
 # left turning point depend so nonlinearly on dc and db that cells of p0 0.005 x dc 0.1 x db 0.05
 # spend their 16 in-cell splits and stay unknown, while cells of a quarter of that size in each
 # noise direction and half in p0 verify without a split. The composite's cells need no wall
-# band: its runs hit the wall at different steps too, but the engine forks the plant's wall
-# condition (one part per side); in p0 [-0.41, -0.405] its 0.005 cells took 44 s where 0.001
-# cells took 136 s. The other rows' bands were measured before the plant forked.
+# band: the engine now forks the wall condition once for p and v (it used to fork each `where`
+# on it, into four parts, two of which mixed the sides); in p0 [-0.41, -0.405] the 0.005 cells
+# took 44 s where 0.001 cells took 136 s. The other rows' bands were measured before that.
 # Our chain needs narrow cells everywhere:
 # its controller coasts as soon as the estimated energy suffices, so the car arrives with little
 # margin and when it coasts depends on the estimate.
@@ -81,9 +81,8 @@ def closed_loop(noise: str = "contrast", networks="paper", *, shared=None):
     ``networks`` is "paper", "ours", a directory (see :func:`networks.load`) or a loaded :class:`Networks`.
     Each network is its own stage; ``pv.verify`` fuses the chain into one network. The step of
     :func:`dynamics.equations` is the last stage (``next``), which the plant copies: where a set of
-    runs partly hits the left wall, the engine forks a stage's undecided condition into both cases
-    (the runs that hit become one exact point), while a plant's undecided ``where`` would take the
-    hull of both and lose the dependency on the initial state.
+    runs partly hits the left wall, the engine forks the undecided condition into both cases (the
+    runs that hit become one exact point; p and v take the same side).
     """
     import percver as pv
 
