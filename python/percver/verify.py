@@ -345,8 +345,7 @@ def _bisect(box: Box, init: Box, min_width: dict, hint: Optional[str] = None) ->
     """Halves the cell along ``hint`` (the state the engine wanted to split) while it is above
     its min_width, else along the widest dimension relative to the initial set among those
     above theirs."""
-    above = [hi - lo > 2 * _limit(name, ilo, ihi, min_width) and ihi > ilo
-             for name, (lo, hi), (ilo, ihi) in zip(box.names, box.bounds, init.bounds)]
+    above = _above_min_width(box, init, min_width)
     if hint in box.names and above[box.names.index(hint)]:
         j = box.names.index(hint)
     else:
@@ -614,13 +613,15 @@ def _run_local(campaign: _Campaign, problem, options: dict, workers: Optional[in
         _run_cells(problem, [c.bounds for c in cells], lambda i, o: campaign.record(cells[i], o), options, workers)
 
 
-def _limit(name: str, ilo: float, ihi: float, min_width: dict) -> float:
-    return min_width.get(name, (ihi - ilo) / 64)
+def _above_min_width(cell: Box, init: Box, min_width: dict) -> list:
+    """Per dimension: whether halving the cell keeps it at least min_width (default 1/64 of the
+    initial set) wide."""
+    return [hi - lo > 2 * min_width.get(name, (ihi - ilo) / 64) and ihi > ilo
+            for name, (lo, hi), (ilo, ihi) in zip(cell.names, cell.bounds, init.bounds)]
 
 
 def _splittable(cell: Box, init: Box, min_width: dict) -> bool:
-    return any(hi - lo > 2 * _limit(name, ilo, ihi, min_width) and ihi > ilo
-               for name, (lo, hi), (ilo, ihi) in zip(cell.names, cell.bounds, init.bounds))
+    return any(_above_min_width(cell, init, min_width))
 
 
 def _falsify(loop: ClosedLoop, prop: _Property, cells: list, steps: int, samples: int, seed: int) -> list:
