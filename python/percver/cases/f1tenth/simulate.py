@@ -141,7 +141,8 @@ class RealWorld:
                     above = np.where(on, np.minimum(above, panel.threshold_deg), above)
                 saturates |= on & (panel.echo == "max")
         soft = self.softness_deg
-        lost_probability = 1.0 / (1.0 + np.exp(-(incidence - above) / soft)) + 1.0 / (1.0 + np.exp((incidence - below) / soft))
+        # Logistic edges as 0.5 (1 + tanh(x / 2)): no overflow far from an edge.
+        lost_probability = 0.5 * (2.0 + np.tanh((incidence - above) / (2 * soft)) - np.tanh((incidence - below) / (2 * soft)))
         mirrored = rng.random(true.shape) < lost_probability
 
         sigma = self.sigma + self.sigma_per_m * np.minimum(true, lidar.max_range)
