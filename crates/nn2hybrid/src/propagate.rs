@@ -213,22 +213,41 @@ impl Models {
         Ok(Models { ctx, m, coef, own: None, rem, variables, time_var: time_var.then_some(nv) })
     }
 
-    /// Models of given Taylor models (all in `ctx`), e.g. a closed loop's state.
+    /// Models of given Taylor models (all in `ctx`), e.g. a closed loop's state. Each input's
+    /// remainder becomes a shared symbol (centre + radius x symbol): the layers then carry it
+    /// linearly into every neuron, instead of adding |w| x remainder per neuron as independent
+    /// intervals. In a closed loop the state's remainders are most of what the networks see of
+    /// the earlier steps' errors, and as intervals a 600-pixel chain amplifies them many times
+    /// over the true gain.
     pub fn from_taylor_models(inputs: &[TaylorModel], ctx: &Ctx) -> Result<Models> {
         if inputs.is_empty() {
             return Err(NetworkError::input("no input Taylor models given"));
         }
-        let m = ctx.space.len_upto(ctx.order);
-        let mut coef = DMatrix::zeros(m, inputs.len());
-        let mut rem = Vec::with_capacity(inputs.len());
+        let mut models = Vec::with_capacity(inputs.len());
         for (i, t) in inputs.iter().enumerate() {
             let mut t = t.clone();
             t.sweep(ctx);
             if t.coef.iter().any(|c| !c.is_finite()) || !t.rem.is_bounded() || t.rem.is_empty() {
                 return Err(NetworkError::input(format!("input Taylor model {i} has a non-finite coefficient or an unbounded remainder")));
             }
+            models.push(t);
+        }
+        let symbolic: Vec<usize> = (0..models.len()).filter(|&i| models[i].rem.radius() > SYMBOL_FLOOR).collect();
+        let m = ctx.space.len_upto(ctx.order);
+        let mut coef = DMatrix::zeros(m + symbolic.len(), inputs.len());
+        let mut rem = Vec::with_capacity(inputs.len());
+        for (i, t) in models.into_iter().enumerate() {
             coef.view_mut((0, i), (t.coef.len(), 1)).copy_from_slice(&t.coef);
-            rem.push(t.rem);
+            match symbolic.iter().position(|&j| j == i) {
+                Some(k) => {
+                    // The centre moves into the constant; its rounding error widens the symbol.
+                    let sum = coef[(0, i)] + t.rem.mid();
+                    coef[(0, i)] = sum;
+                    coef[(m + k, i)] = add_up(t.rem.radius(), mul_up(2.0 * U, sum.abs()));
+                    rem.push(Interval::ZERO);
+                }
+                None => rem.push(t.rem),
+            }
         }
         Ok(Models { ctx: ctx.clone(), m, coef, own: None, rem, variables: vec![], time_var: None })
     }

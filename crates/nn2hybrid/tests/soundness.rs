@@ -197,6 +197,55 @@ fn taylor_model_inputs_compose() {
 }
 
 #[test]
+fn input_remainders_stay_correlated_across_neurons() {
+    // One input seen by two tanh neurons whose difference is the output: the input's remainder
+    // (a closed loop's earlier errors) cancels when it is one symbol, not two intervals.
+    let net = Network::new(
+        vec![
+            LayerArrays { n_out: 2, n_in: 1, weight: vec![3.0, 3.0], bias: vec![0.1, 0.1], activations: vec![TANH] },
+            LayerArrays { n_out: 1, n_in: 2, weight: vec![1.0, -1.0], bias: vec![0.0], activations: vec![IDENTITY] },
+        ],
+        None,
+        None,
+    )
+    .unwrap();
+    let ctx = Ctx::new(Space::get(1, 5, 0).unwrap(), 5, 1e-15);
+    // A narrow polynomial part and a wider remainder, as in a closed loop after many steps.
+    let mut x = TaylorModel::affine(&ctx, 0.2, 0, 0.001);
+    x.rem = Interval::new(-0.01, 0.02).unwrap();
+    let out = propagate::propagate_taylor_models(&net, &[x.clone()], &ctx, &Settings::default()).unwrap();
+    let bound = out[0].bound(&ctx.space);
+    // As two independent intervals: 2 x 3 x tanh' x 0.03 >= 0.08 (tanh' >= 0.48 on [0.6, 0.8]).
+    assert!(bound.width() < 0.008, "{bound}");
+    let mut rng = Rng(11);
+    for _ in 0..2000 {
+        let (a, e) = (rng.range(-1.0, 1.0), rng.range(-0.01, 0.02));
+        let xv = 0.2 + 0.001 * a + e;
+        let truth = net.eval(&[xv]).unwrap()[0];
+        let value = out[0].eval_interval(&ctx.space, &[Interval::point(a)]);
+        assert!(value.contains(truth), "{value} misses {truth}");
+    }
+    // Sampled inputs anywhere in their remainders, through a random sigmoid network.
+    let net = random_network(&mut rng, &[2, 16, 16, 2], &[SIGMOID, TANH], false, 2.0);
+    let ctx = Ctx::new(Space::get(2, 5, 0).unwrap(), 5, 1e-15);
+    let mut x = TaylorModel::affine(&ctx, 0.3, 0, 0.1);
+    x.rem = Interval::new(-0.02, 0.005).unwrap();
+    let mut y = TaylorModel::var(&ctx, 1).scale(0.05).add(&x.square(&ctx).scale(0.5));
+    y.rem = Interval::new(-1e-3, 3e-3).unwrap();
+    let out = propagate::propagate_taylor_models(&net, &[x.clone(), y.clone()], &ctx, &Settings::default()).unwrap();
+    for _ in 0..4000 {
+        let (a, b) = (rng.range(-1.0, 1.0), rng.range(-1.0, 1.0));
+        let (ex, ey) = (rng.range(-0.02, 0.005), rng.range(-1e-3, 3e-3));
+        let xv = 0.3 + 0.1 * a;
+        let truth = net.eval(&[xv + ex, 0.05 * b + 0.5 * xv * xv + ey]).unwrap();
+        for (j, model) in out.iter().enumerate() {
+            let value = model.eval_interval(&ctx.space, &[Interval::point(a), Interval::point(b)]);
+            assert!(value.contains(truth[j]), "output {j}: {value} misses {}", truth[j]);
+        }
+    }
+}
+
+#[test]
 fn verisig_keeps_a_closed_loops_own_time_variable_apart() {
     // Variable 0 ranges over [0, 1] (a closed loop's normalised time): the Verisig ODEs must get
     // a fresh time variable, not integrate over this one.
