@@ -81,8 +81,9 @@ def test_known_unsafe_start_is_falsified_with_a_replaying_counterexample():
 
 def test_unknown_cells_are_refined(tmp_path):
     loop, p, v = mountain_car()
-    # Order 2 loses precision on the wide cell; refinement splits until cells verify.
-    kwargs = dict(init={"p": (-0.53, -0.45), "v": (0, 0)}, steps=150, goal=p >= 0.45, within=True, order=2,
+    # Order 2 loses precision on the wide cell, and no in-cell splits are allowed; refinement
+    # splits until cells verify.
+    kwargs = dict(init={"p": (-0.53, -0.45), "v": (0, 0)}, steps=150, goal=p >= 0.45, within=True, order=2, max_splits=0,
                   refine=True, min_width={"p": 0.005}, progress=False, journal=str(tmp_path / "refine.jsonl"))
     res = pv.verify(loop, **kwargs)
     assert len(res.cells) > 1
