@@ -232,21 +232,22 @@ impl Models {
             }
             models.push(t);
         }
-        let symbolic: Vec<usize> = (0..models.len()).filter(|&i| models[i].rem.radius() > SYMBOL_FLOOR).collect();
+        let symbolic = |t: &TaylorModel| t.rem.radius() > SYMBOL_FLOOR;
         let m = ctx.space.len_upto(ctx.order);
-        let mut coef = DMatrix::zeros(m + symbolic.len(), inputs.len());
+        let mut coef = DMatrix::zeros(m + models.iter().filter(|t| symbolic(t)).count(), inputs.len());
         let mut rem = Vec::with_capacity(inputs.len());
+        let mut k = m;
         for (i, t) in models.into_iter().enumerate() {
             coef.view_mut((0, i), (t.coef.len(), 1)).copy_from_slice(&t.coef);
-            match symbolic.iter().position(|&j| j == i) {
-                Some(k) => {
-                    // The centre moves into the constant; its rounding error widens the symbol.
-                    let sum = coef[(0, i)] + t.rem.mid();
-                    coef[(0, i)] = sum;
-                    coef[(m + k, i)] = add_up(t.rem.radius(), mul_up(2.0 * U, sum.abs()));
-                    rem.push(Interval::ZERO);
-                }
-                None => rem.push(t.rem),
+            if symbolic(&t) {
+                // The centre moves into the constant; its rounding error widens the symbol.
+                let sum = coef[(0, i)] + t.rem.mid();
+                coef[(0, i)] = sum;
+                coef[(k, i)] = add_up(t.rem.radius(), mul_up(2.0 * U, sum.abs()));
+                k += 1;
+                rem.push(Interval::ZERO);
+            } else {
+                rem.push(t.rem);
             }
         }
         Ok(Models { ctx: ctx.clone(), m, coef, own: None, rem, variables: vec![], time_var: None })
