@@ -49,10 +49,11 @@ def assert_contains_simulations(loop, result, n=1000, seed=1, goal_p=None):
         assert inside.all(), f"cell {cell.box}: {np.count_nonzero(~inside)} simulated states outside the reach boxes"
 
 
-def test_mountain_car_verified_and_reach_boxes_contain_simulations():
+@pytest.mark.parametrize("state_symbols", [False, True])
+def test_mountain_car_verified_and_reach_boxes_contain_simulations(state_symbols):
     loop, p, v = mountain_car()
     res = pv.verify(loop, init={"p": (-0.53, -0.50), "v": (0, 0)}, steps=150, goal=p >= 0.45, within=True,
-                    split={"p": 3}, progress=False)
+                    split={"p": 3}, state_symbols=state_symbols, progress=False)
     assert res.verdict == "verified", [c.reason for c in res.cells]
     assert res.coverage == pytest.approx(1.0)
     assert_contains_simulations(loop, res)
@@ -133,7 +134,10 @@ def test_a_wall_hit_at_different_steps_forks_the_plant():
     # being complete (they held only the parts that had run, up to the step it gave up).
     wide = pv.verify(loop, max_splits=16, **{**kwargs, "init": {"p": (-0.42, -0.40), "v": (0, 0)}})
     assert wide.verdict == "unknown" and wide.cells[0].steps_done == len(wide.cells[0].boxes) - 1
-    for res in (hull, forked, wide):
+    # The same with the states' errors as symbols (the wall's exact point has none).
+    symbols = pv.verify(loop, max_splits=8, state_symbols=True, **kwargs)
+    assert symbols.verdict == "verified"
+    for res in (hull, forked, wide, symbols):
         assert_contains_simulations(loop, res, n=2000, goal_p=0.45)
 
 

@@ -377,6 +377,7 @@ def verify(
     order: int = 5,
     max_splits: int = 16,
     rebox: bool = False,
+    state_symbols: bool = False,
     workers: Optional[int] = None,
     executor=None,
     batch: Optional[int] = None,
@@ -403,7 +404,11 @@ def verify(
     unknown cell's reach boxes end at the last step every part reached. ``rebox=True`` restarts
     a part from its box whenever a remainder is most of a state's enclosure (for loops whose
     remainders feed back and grow, such as the F1/10 LiDAR loop; it loses the dependency on the
-    initial state, so it can be looser elsewhere).
+    initial state, so it can be looser elsewhere). ``state_symbols=True`` (Taylor method, discrete
+    plants) keeps the remainders of the states that feed back as error symbols from step to step,
+    so that an error the controller corrects cancels instead of adding its magnitude again (the
+    wrapping effect of a stiff feedback); it pays where the loop's Jacobian varies little over a
+    cell, and is off by default because on Mountain Car's cells it does not (bench/README.md).
     """
     started = time.time()
     if not isinstance(loop, ClosedLoop) and isinstance(getattr(loop, "loop", None), ClosedLoop):
@@ -431,8 +436,11 @@ def verify(
         raise InputError(f"max_splits must be a non-negative integer, got {max_splits!r}")
     settings = {"steps": steps, "method": method, "order": order, "max_splits": max_splits, "rebox": bool(rebox),
                 "timeout_per_cell": timeout_per_cell, "within": within}
+    if state_symbols:  # only when on, so that journals written before the option still resume
+        settings["state_symbols"] = True
     fingerprint = _fingerprint(loop, prop, settings)
-    options = {"order": order, "method": method, "timeout": timeout_per_cell, "max_splits": max_splits, "rebox": bool(rebox)}
+    options = {"order": order, "method": method, "timeout": timeout_per_cell, "max_splits": max_splits, "rebox": bool(rebox),
+               "state_symbols": bool(state_symbols)}
     cells, count = _grid(box, split or {})
     runner = None
     if executor is not None:

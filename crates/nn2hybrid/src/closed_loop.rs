@@ -15,6 +15,10 @@
 //! variable that matters most, at the last step where its polynomial part still dominated,
 //! and both halves continue from there (up to `max_splits` per cell). Restarting halves from
 //! step 0 (the cell-level `refine`) repeats every step before the split; this does not.
+//!
+//! With `state_symbols`, the remainders of the states that feed back are error symbols kept from
+//! step to step ([`taylor::error_symbols`]): the cell's space has those symbols after its domain
+//! variables, networks carry them as pinned shared symbols, and each step ends by renewing them.
 use crate::error::{NetworkError, Result};
 use crate::network::Network;
 use crate::propagate::{self, Models, Settings as NnSettings};
@@ -22,7 +26,8 @@ use crate::verisig;
 use rayon::prelude::*;
 use std::sync::Arc;
 use std::time::Instant;
-use taylor::expr::{Intervals, TaylorModels};
+use taylor::error_symbols::ErrorSymbols;
+use taylor::expr::{Intervals, Op, TaylorModels};
 use taylor::flowpipe::{reach_from, Ode, Settings as FlowSettings};
 use taylor::{Cmp, Ctx, Interval, Program, Space, TaylorModel};
 
@@ -103,6 +108,11 @@ pub struct CellSettings {
     /// dependency on the initial state is lost, but remainders stop feeding back through the
     /// loop (they can grow geometrically when the controller's correction adds to them).
     pub rebox: bool,
+    /// Keep the state's remainders as error symbols from step to step
+    /// ([`taylor::error_symbols`]) instead of intervals (Taylor method, discrete plants, no
+    /// rebox): their correlations survive the loop, so a controller's correction can cancel an
+    /// error instead of adding its magnitude again at every step.
+    pub state_symbols: bool,
 }
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -190,12 +200,12 @@ fn decide(c: &Condition, state: &[TaylorModel], ctx: &Ctx) -> Result<Option<bool
 
 /// Output Taylor models of a network in `ctx`; the Verisig route adds a time variable, which
 /// is evaluated at t = 1 and dropped again.
-fn apply_network(net: &Network, inputs: &[TaylorModel], ctx: &Ctx, settings: &CellSettings) -> Result<Vec<TaylorModel>> {
-    let models = Models::from_taylor_models(inputs, ctx)?;
-    let out = match settings.method {
-        Method::Taylor => propagate::propagate(net, &models, &settings.nn)?,
-        Method::Verisig => verisig::propagate(net, &models, &settings.nn)?,
-    };
+fn apply_network(net: &Network, inputs: &[TaylorModel], symbols: &ErrorSymbols, settings: &CellSettings) -> Result<Vec<TaylorModel>> {
+    if settings.method == Method::Taylor {
+        return Ok(propagate::propagate(net, &Models::from_state(inputs, symbols)?, &settings.nn)?.to_state(symbols));
+    }
+    let ctx = &symbols.ctx;
+    let out = verisig::propagate(net, &Models::from_taylor_models(inputs, ctx)?, &settings.nn)?;
     let space = out.space().clone();
     if space.nvars == ctx.space.nvars {
         return Ok(out.to_taylor_models());
@@ -300,8 +310,9 @@ fn run(lp: &ClosedLoop, cell: &[Interval], settings: &CellSettings, out: &mut Ce
     // coefficients instead of 126. `rebox` restarts from a box of every state, so it keeps one
     // variable per state.
     let nvars = if settings.rebox { n } else { cell.iter().filter(|iv| iv.lo() < iv.hi()).count().max(1) };
-    let space = Space::get(nvars, settings.order, 0)?;
-    let ctx = Ctx::new(space.clone(), settings.order, settings.cutoff);
+    let symbols = ErrorSymbols::new(nvars, symbol_states(lp, settings), settings.order, settings.cutoff)?;
+    let ctx = symbols.ctx.clone();
+    let space = ctx.space.clone();
     let state = box_models(cell, &ctx);
     let mut boxes: Vec<Option<Vec<Interval>>> = vec![None; lp.steps + 1];
     boxes[0] = Some(cell.to_vec());
@@ -317,7 +328,7 @@ fn run(lp: &ClosedLoop, cell: &[Interval], settings: &CellSettings, out: &mut Ce
     let mut stopped_at = None;
     while let Some(mut piece) = work.pop() {
         let forks = settings.max_splits.saturating_sub(splits);
-        match advance(lp, &mut piece, &ctx, settings, forks, out, &mut boxes, &mut hulls, started)? {
+        match advance(lp, &mut piece, &symbols, settings, forks, out, &mut boxes, &mut hulls, started)? {
             End::Done => {}
             End::Forked(pieces) => {
                 splits += pieces.len() - 1;
@@ -340,18 +351,18 @@ fn run(lp: &ClosedLoop, cell: &[Interval], settings: &CellSettings, out: &mut Ce
                 // A piece lost after part of it reached the goal is split where that happened,
                 // along the variable that decides arrival, if its polynomial part still tells the
                 // arrived part apart there; otherwise where the enclosure was last precise.
-                let arrival = piece.arrival.take().filter(|a| precise(std::slice::from_ref(&a.margin), &ctx.space));
+                let arrival = piece.arrival.take().filter(|a| precise(std::slice::from_ref(&a.margin), &symbols.domain.space, &|m| m.rem.width()));
                 let (history, v) = match arrival {
                     Some(arrival) => {
-                        let v = split_variable(&[std::slice::from_ref(&arrival.margin)], &ctx);
+                        let v = split_variable(&[std::slice::from_ref(&arrival.margin)], &symbols.domain.space, symbols.nvars());
                         (vec![(arrival.step, arrival.state)], v)
                     }
                     None => {
                         let before = piece.history.iter().filter(|(s, _)| *s < step.max(1)).count().max(1);
-                        let at = piece.history[..before].iter().rposition(|(_, st)| precise(st, &ctx.space)).unwrap_or(0);
+                        let at = piece.history[..before].iter().rposition(|(_, st)| precise(st, &space, &|m| symbols.error_width(m))).unwrap_or(0);
                         // The split state first; the later ones when it shows no dependence yet.
                         let later: Vec<&[TaylorModel]> = piece.history[at..].iter().map(|(_, st)| &st[..]).chain([&piece.state[..]]).collect();
-                        let v = split_variable(&later, &ctx);
+                        let v = split_variable(&later, &space, symbols.nvars());
                         piece.history.truncate(at + 1);
                         (piece.history, v)
                     }
@@ -366,7 +377,7 @@ fn run(lp: &ClosedLoop, cell: &[Interval], settings: &CellSettings, out: &mut Ce
                                 .margins
                                 .iter()
                                 .filter(|(k, _)| *k < from)
-                                .map(|(k, m)| (*k, restrict_half(std::slice::from_ref(m), v, half, &ctx).remove(0)))
+                                .map(|(k, m)| (*k, restrict_half(std::slice::from_ref(m), v, half, &symbols.domain).remove(0)))
                                 .collect();
                             let state = history.last().expect("non-empty").1.clone();
                             work.push(Piece::new(from, state, history, margins));
@@ -416,12 +427,34 @@ fn box_models(cell: &[Interval], ctx: &Ctx) -> Vec<TaylorModel> {
         .collect()
 }
 
+/// The states whose errors become symbols: with the Taylor method and a discrete plant (no
+/// rebox), every state whose error can feed back, i.e. that a stage or another state's update
+/// reads. Parameters the plant copies (a noise level) stay exact, and a sum that only adds to
+/// itself (a reward) cannot wrap: symbols for them would only enlarge every model.
+fn symbol_states(lp: &ClosedLoop, settings: &CellSettings) -> Vec<usize> {
+    let Plant::Discrete(plant) = &lp.plant else { return vec![] };
+    if !settings.state_symbols || settings.method != Method::Taylor || settings.rebox {
+        return vec![];
+    }
+    let deps = plant.dependencies();
+    let n = lp.state_names.len();
+    (0..n)
+        .filter(|&i| {
+            let copied = matches!(plant.ops[plant.outputs[i]], Op::Input(j) if j == i);
+            let staged = lp.stages.iter().any(|s| s.inputs.contains(&i));
+            // The plant reads the environment: the states, then the stages' outputs.
+            let updates_other = (0..n).any(|j| j != i && deps[j][i]);
+            !copied && (staged || updates_other)
+        })
+        .collect()
+}
+
 /// Steps one piece until it satisfies the property, violates it, or is lost.
 #[allow(clippy::too_many_arguments)]
 fn advance(
     lp: &ClosedLoop,
     piece: &mut Piece,
-    ctx: &Ctx,
+    symbols: &ErrorSymbols,
     settings: &CellSettings,
     forks: usize,
     out: &mut CellOutcome,
@@ -429,6 +462,7 @@ fn advance(
     hulls: &mut usize,
     started: Instant,
 ) -> Result<End> {
+    let ctx = &symbols.ctx;
     let space = &ctx.space;
     loop {
         let step = piece.step;
@@ -449,13 +483,17 @@ fn advance(
         if let Some(g) = &lp.goal {
             if lp.goal_within || step == lp.steps {
                 let margin = g.margin.eval(&TaylorModels { ctx }, &piece.state)?.remove(0);
-                match g.cmp.decide(taylor::bound::range(&margin, space)) {
+                let decided = g.cmp.decide(taylor::bound::range(&margin, space));
+                // A margin kept to say which runs arrived must hold for every value of the step's
+                // error symbols (they are renewed every step).
+                let margin = symbols.domain_part(&margin);
+                match decided {
                     Some(true) => return Ok(End::Done),
                     // Part of the set has arrived; the whole set often arrives a step later, or
                     // its parts arrive at different steps.
                     None if lp.goal_within => {
                         piece.margins.push((step, margin.clone()));
-                        let fraction = arrived(&piece.margins, &g.cmp, ctx);
+                        let fraction = arrived(&piece.margins, &g.cmp, &symbols.domain);
                         if fraction >= 1.0 {
                             return Ok(End::Done);
                         }
@@ -496,14 +534,15 @@ fn advance(
                 return Ok(End::Timeout(format!("timeout after {limit} s at step {step}")));
             }
         }
-        let nexts = match one_step(lp, &piece.state, ctx, settings, forks, out, hulls) {
+        let nexts = match one_step(lp, &piece.state, symbols, settings, forks, out, hulls) {
             Ok(Ok(nexts)) => nexts,
             Err(NetworkError::Input(m)) => return Err(NetworkError::Input(m)),
             Ok(Err(reason)) => return Ok(End::Lost { step: step + 1, reason: format!("step {}: {reason}", step + 1) }),
             Err(e) => return Ok(End::Lost { step: step + 1, reason: format!("step {}: {e}", step + 1) }),
         };
         let mut states = Vec::with_capacity(nexts.len());
-        for next in nexts {
+        for mut next in nexts {
+            symbols.renew(&mut next);
             let b: Vec<Interval> = next.iter().map(|m| m.bound(space)).collect();
             if let Some((i, w)) = b.iter().enumerate().find(|(_, w)| !w.is_bounded() || w.width() > settings.blow_up_width) {
                 let reason = format!("step {}: the enclosure of '{}' blew up ({w}); split the cell or raise the order", step + 1, lp.state_names[i]);
@@ -536,8 +575,10 @@ fn advance(
 /// step with no sign, so a remainder of a quarter of the range at step 70 is the whole range by
 /// step 85 in both halves (measured: 1/4 left 10 of 10 hard composite cells unknown after 16
 /// splits, 1/100 verified 8 of them, and the easy cells ran faster).
-fn precise(models: &[TaylorModel], space: &Space) -> bool {
-    models.iter().all(|m| m.rem.width() <= PRECISE_REMAINDER * m.bound(space).width())
+/// `error` is a model's width beyond its polynomial in the domain variables (its remainder, and
+/// its error symbols' terms).
+fn precise(models: &[TaylorModel], space: &Space, error: &dyn Fn(&TaylorModel) -> f64) -> bool {
+    models.iter().all(|m| error(m) <= PRECISE_REMAINDER * m.bound(space).width())
 }
 
 const PRECISE_REMAINDER: f64 = 0.01;
@@ -550,12 +591,13 @@ const PRECISE_REMAINDER: f64 = 0.01;
 fn one_step(
     lp: &ClosedLoop,
     state: &[TaylorModel],
-    ctx: &Ctx,
+    symbols: &ErrorSymbols,
     settings: &CellSettings,
     forks: usize,
     out: &mut CellOutcome,
     hulls: &mut usize,
 ) -> Result<std::result::Result<Vec<Vec<TaylorModel>>, String>> {
+    let ctx = &symbols.ctx;
     let mut envs = vec![state.to_vec()];
     for stage in &lp.stages {
         let mut grown = Vec::with_capacity(envs.len());
@@ -566,7 +608,7 @@ fn one_step(
             let alternatives = match &stage.component {
                 Component::Network(net) => {
                     let t = Instant::now();
-                    let o = apply_network(net, &inputs, ctx, settings)?;
+                    let o = apply_network(net, &inputs, symbols, settings)?;
                     out.nn_seconds += t.elapsed().as_secs_f64();
                     vec![o]
                 }
@@ -642,27 +684,28 @@ fn branches(program: &Program, inputs: &[TaylorModel], ctx: &Ctx, most: usize) -
 /// (when no state of `states[0]` depends on more than its own variable yet, as at step 0, the
 /// first of the later `states` that does tells which variables the states came to depend on;
 /// failing that, every state of `states[0]` counts).
-fn split_variable(states: &[&[TaylorModel]], ctx: &Ctx) -> Option<usize> {
+/// Only the first `nvars` variables of the models' `space` are candidates (a state's error
+/// symbols come after them).
+fn split_variable(states: &[&[TaylorModel]], space: &Space, nvars: usize) -> Option<usize> {
     states
         .iter()
-        .find_map(|state| best_variable(&moved(state, ctx), ctx))
-        .or_else(|| best_variable(&states[0].iter().collect::<Vec<_>>(), ctx))
+        .find_map(|state| best_variable(&moved(state, space), space, nvars))
+        .or_else(|| best_variable(&states[0].iter().collect::<Vec<_>>(), space, nvars))
 }
 
-fn moved<'a>(state: &'a [TaylorModel], ctx: &Ctx) -> Vec<&'a TaylorModel> {
-    state.iter().filter(|m| !own_variable(m, &ctx.space)).collect()
+fn moved<'a>(state: &'a [TaylorModel], space: &Space) -> Vec<&'a TaylorModel> {
+    state.iter().filter(|m| !own_variable(m, space)).collect()
 }
 
-fn best_variable(state: &[&TaylorModel], ctx: &Ctx) -> Option<usize> {
-    let space = &ctx.space;
-    let mut score = vec![0.0f64; space.nvars];
+fn best_variable(state: &[&TaylorModel], space: &Space, nvars: usize) -> Option<usize> {
+    let mut score = vec![0.0f64; nvars];
     for m in state {
         let width = m.bound(space).width();
         if !(width > 0.0) || !width.is_finite() {
             continue;
         }
         for (k, &c) in m.coef.iter().enumerate() {
-            for (v, &e) in space.exponents(k).iter().enumerate() {
+            for (v, &e) in space.exponents(k).iter().take(nvars).enumerate() {
                 score[v] += e as f64 * c.abs() / width;
             }
         }
@@ -725,7 +768,7 @@ fn arrived(margins: &[(usize, TaylorModel)], cmp: &Cmp, ctx: &Ctx) -> f64 {
         }
         // Either every margin fails on the whole sub-box (some of its runs have not arrived), or
         // halves may tell the arrived runs apart.
-        let Some(v) = best.and_then(|(_, q)| split_variable(&[std::slice::from_ref(&q)], ctx)) else {
+        let Some(v) = best.and_then(|(_, q)| split_variable(&[std::slice::from_ref(&q)], space, space.nvars)) else {
             continue;
         };
         let (c, r) = sub[v];
@@ -814,7 +857,6 @@ fn integrate_period(
 /// Number of `where` conditions and min/max choices (clip) of the plant that are undecided on
 /// the set this step: each is a place where Verisig would branch and we take the hull.
 fn count_undecided(plant: &Program, values: &[TaylorModel], ctx: &Ctx) -> usize {
-    use taylor::expr::Op;
     let undecided = |a: usize, b: usize| values[a].sub(&values[b]).bound(&ctx.space);
     plant
         .ops
@@ -875,12 +917,14 @@ mod tests {
     use crate::network::{Activation, LayerArrays};
     use taylor::parser::parse_expr;
 
-    /// x+ = x + 0.1 v, v+ = v + 0.1 u, u = tanh(-x - v): boxes contain simulated states.
-    #[test]
-    fn discrete_loop_encloses_simulations() {
-        let net =
-            Network::new(vec![LayerArrays { n_out: 1, n_in: 2, weight: vec![-1.0, -1.0], bias: vec![0.0], activations: vec![Activation::Tanh] }], None, None)
-                .unwrap();
+    /// x+ = x + 0.1 v, v+ = v + 0.1 u, u = tanh(-g x - g v) over `steps` steps, safe while x <= 2.
+    fn feedback_loop(gain: f64, steps: usize) -> (ClosedLoop, Network) {
+        let net = Network::new(
+            vec![LayerArrays { n_out: 1, n_in: 2, weight: vec![-gain, -gain], bias: vec![0.0], activations: vec![Activation::Tanh] }],
+            None,
+            None,
+        )
+        .unwrap();
         let names: Vec<String> = ["x", "v", "u"].iter().map(|s| s.to_string()).collect();
         let plant = Program::compile(&[parse_expr("x + 0.1*v").unwrap(), parse_expr("v + 0.1*u").unwrap()], &names).unwrap();
         let safe = Program::compile(&[parse_expr("x - 2").unwrap()], &names[..2]).unwrap();
@@ -891,10 +935,14 @@ mod tests {
             safe: vec![Condition { margin: Arc::new(safe), cmp: Cmp::Le, label: "x <= 2".into() }],
             goal: None,
             goal_within: false,
-            steps: 40,
+            steps,
         };
         lp.validate().unwrap();
-        let settings = CellSettings {
+        (lp, net)
+    }
+
+    fn loop_settings(state_symbols: bool) -> CellSettings {
+        CellSettings {
             order: 4,
             cutoff: 1e-12,
             method: Method::Taylor,
@@ -903,14 +951,17 @@ mod tests {
             blow_up_width: 1e6,
             max_splits: 0,
             rebox: false,
-        };
-        let cell = [Interval::new(0.5, 0.7).unwrap(), Interval::new(-0.1, 0.1).unwrap()];
-        let out = verify_cell(&lp, &cell, &settings);
-        assert_eq!(out.verdict, Verdict::Verified, "{:?}", out.reason);
+            state_symbols,
+        }
+    }
+
+    /// Float runs from a grid of the cell stay in every step's box.
+    fn assert_runs_inside(out: &CellOutcome, net: &Network, cell: &[Interval], steps: usize) {
         for a in 0..=10 {
             for b in 0..=10 {
-                let (mut x, mut v) = (0.5 + 0.02 * a as f64, -0.1 + 0.02 * b as f64);
-                for step in 0..=40 {
+                let at = |iv: Interval, k: usize| (iv.lo() + 0.1 * k as f64 * iv.width()).min(iv.hi());
+                let (mut x, mut v) = (at(cell[0], a), at(cell[1], b));
+                for step in 0..=steps {
                     let bx = &out.boxes[step];
                     assert!(bx[0].contains(x) && bx[1].contains(v), "step {step}: ({x}, {v}) outside {bx:?}");
                     let u = net.eval(&[x, v]).unwrap()[0];
@@ -918,6 +969,33 @@ mod tests {
                 }
             }
         }
+    }
+
+    #[test]
+    fn discrete_loop_encloses_simulations() {
+        let (lp, net) = feedback_loop(1.0, 40);
+        let cell = [Interval::new(0.5, 0.7).unwrap(), Interval::new(-0.1, 0.1).unwrap()];
+        for state_symbols in [false, true] {
+            let out = verify_cell(&lp, &cell, &loop_settings(state_symbols));
+            assert_eq!(out.verdict, Verdict::Verified, "{:?}", out.reason);
+            assert_runs_inside(&out, &net, &cell, 40);
+        }
+    }
+
+    #[test]
+    fn state_symbols_stop_the_wrapping_of_a_stiff_feedback() {
+        // A stiff controller feeds v's error back into v every step: as intervals the error adds
+        // its magnitude each time; as symbols the correction cancels it.
+        let steps = 60;
+        let (lp, net) = feedback_loop(4.0, steps);
+        let cell = [Interval::new(0.5, 0.52).unwrap(), Interval::new(-0.01, 0.01).unwrap()];
+        let width = |state_symbols: bool| {
+            let out = verify_cell(&lp, &cell, &loop_settings(state_symbols));
+            assert_runs_inside(&out, &net, &cell, out.steps_done);
+            out.boxes.last().map(|b| b[1].width()).unwrap_or(f64::INFINITY)
+        };
+        let (intervals, symbols) = (width(false), width(true));
+        assert!(symbols < 0.5 * intervals, "symbols {symbols} against intervals {intervals}");
     }
 
     /// A one-state loop without stages, x+ = `update`, goal x >= 1 at some step up to `steps`.
@@ -961,6 +1039,7 @@ mod tests {
             blow_up_width: 1e6,
             max_splits: 0,
             rebox: false,
+            state_symbols: true,
         };
         verify_cell(&reach_loop(update, steps), &[Interval::new(x0.0, x0.1).unwrap()], &settings)
     }

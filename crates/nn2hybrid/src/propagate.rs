@@ -43,6 +43,7 @@ use rayon::prelude::*;
 use std::sync::Arc;
 use taylor::interval::{add_up, mul_up};
 use taylor::tm::{gamma, U};
+use taylor::error_symbols::ErrorSymbols;
 use taylor::{Ctx, Interval, Space, TaylorModel};
 
 /// Smallest subnormal: the absolute error a product may lose to underflow.
@@ -116,6 +117,9 @@ pub struct Models {
     /// The variable over [0, 1] that the Verisig ODEs integrate over, once added. Kept apart from
     /// the space's other unit variables (a closed loop's own time), which it must not reuse.
     time_var: Option<usize>,
+    /// The first `pinned` shared symbols are a closed loop's state error symbols: never dropped
+    /// or reordered, so that the outputs can be read back over the same symbols.
+    pinned: usize,
 }
 
 fn iv(lo: f64, hi: f64) -> Interval {
@@ -210,7 +214,7 @@ impl Models {
                 rem[i] = Interval::symmetric(r);
             }
         }
-        Ok(Models { ctx, m, coef, own: None, rem, variables, time_var: time_var.then_some(nv) })
+        Ok(Models { ctx, m, coef, own: None, rem, variables, time_var: time_var.then_some(nv), pinned: 0 })
     }
 
     /// Models of given Taylor models (all in `ctx`), e.g. a closed loop's state. Each input's
@@ -220,6 +224,23 @@ impl Models {
     /// the earlier steps' errors, and as intervals a 600-pixel chain amplifies them many times
     /// over the true gain.
     pub fn from_taylor_models(inputs: &[TaylorModel], ctx: &Ctx) -> Result<Models> {
+        Models::from_parts(inputs, ctx, ctx, 0, &|t: TaylorModel| (t, vec![]))
+    }
+
+    /// Models of a state that carries error symbols ([`ErrorSymbols`]): the polynomials are over
+    /// the domain variables alone (the networks' cost grows with the number of monomials), and
+    /// the state's symbols become the first, pinned shared symbols, which [`Models::to_state`]
+    /// reads back as the same symbols.
+    pub fn from_state(inputs: &[TaylorModel], symbols: &ErrorSymbols) -> Result<Models> {
+        Models::from_parts(inputs, &symbols.ctx, &symbols.domain, symbols.count(), &|t: TaylorModel| {
+            let parts = symbols.split(&t);
+            (parts.poly, parts.linear)
+        })
+    }
+
+    /// `split` turns a model of `ctx` into a polynomial of `domain` and `pinned` linear symbol
+    /// coefficients.
+    fn from_parts(inputs: &[TaylorModel], ctx: &Ctx, domain: &Ctx, pinned: usize, split: &dyn Fn(TaylorModel) -> (TaylorModel, Vec<f64>)) -> Result<Models> {
         if inputs.is_empty() {
             return Err(NetworkError::input("no input Taylor models given"));
         }
@@ -230,15 +251,16 @@ impl Models {
             if t.coef.iter().any(|c| !c.is_finite()) || !t.rem.is_bounded() || t.rem.is_empty() {
                 return Err(NetworkError::input(format!("input Taylor model {i} has a non-finite coefficient or an unbounded remainder")));
             }
-            models.push(t);
+            models.push(split(t));
         }
         let symbolic = |t: &TaylorModel| t.rem.radius() > SYMBOL_FLOOR;
-        let m = ctx.space.len_upto(ctx.order);
-        let mut coef = DMatrix::zeros(m + models.iter().filter(|t| symbolic(t)).count(), inputs.len());
+        let m = domain.space.len_upto(domain.order);
+        let mut coef = DMatrix::zeros(m + pinned + models.iter().filter(|(t, _)| symbolic(t)).count(), inputs.len());
         let mut rem = Vec::with_capacity(inputs.len());
-        let mut k = m;
-        for (i, t) in models.into_iter().enumerate() {
+        let mut k = m + pinned;
+        for (i, (t, linear)) in models.into_iter().enumerate() {
             coef.view_mut((0, i), (t.coef.len(), 1)).copy_from_slice(&t.coef);
+            coef.view_mut((m, i), (linear.len(), 1)).copy_from_slice(&linear);
             if symbolic(&t) {
                 // The centre moves into the constant; its rounding error widens the symbol.
                 let sum = coef[(0, i)] + t.rem.mid();
@@ -250,7 +272,22 @@ impl Models {
                 rem.push(t.rem);
             }
         }
-        Ok(Models { ctx: ctx.clone(), m, coef, own: None, rem, variables: vec![], time_var: None })
+        Ok(Models { ctx: domain.clone(), m, coef, own: None, rem, variables: vec![], time_var: None, pinned })
+    }
+
+    /// The outputs as a state with error symbols: the pinned symbols become the symbols'
+    /// variables again, every other symbol goes into the remainder.
+    pub fn to_state(&self, symbols: &ErrorSymbols) -> Vec<TaylorModel> {
+        let p = self.pinned.min(symbols.count());
+        (0..self.n())
+            .map(|i| {
+                let column = self.column(i);
+                let linear = &column[self.m..self.m + p];
+                let others = add_up(abs_sum(&column[self.m + p..]), self.own_mag(i));
+                let poly = TaylorModel { coef: column[..self.m].to_vec(), rem: self.rem[i].inflate(others) };
+                symbols.join(&poly, linear)
+            })
+            .collect()
     }
 
     /// The variable over [0, 1] that the Verisig ODEs integrate over, if one was added.
@@ -283,7 +320,7 @@ impl Models {
             }
         }
         let ctx = Ctx::new(space, self.ctx.order, self.ctx.cutoff);
-        Ok(Models { ctx, m, coef, own: None, rem: self.rem.clone(), variables: self.variables.clone(), time_var: Some(nv) })
+        Ok(Models { ctx, m, coef, own: None, rem: self.rem.clone(), variables: self.variables.clone(), time_var: Some(nv), pinned: self.pinned })
     }
 
     /// Neuron i as a Taylor model: polynomial plus remainder plus the symbols' range.
@@ -358,7 +395,7 @@ impl Models {
                 Interval::symmetric(err)
             })
             .collect();
-        Ok(Models { ctx: self.ctx.clone(), m: self.m, coef: out, own: None, rem, variables: self.variables.clone(), time_var: self.time_var })
+        Ok(Models { ctx: self.ctx.clone(), m: self.m, coef: out, own: None, rem, variables: self.variables.clone(), time_var: self.time_var, pinned: self.pinned })
     }
 
     /// C W^T with the own symbols as rows of their own: the shared part is one dense product,
@@ -509,7 +546,7 @@ fn assemble(models: &Models, outs: Vec<NeuronOut>, settings: &Settings) -> Model
         rem.push(r);
     }
     let own = new_symbol.contains(&true).then_some(own);
-    let mut out = Models { ctx: models.ctx.clone(), m, coef, own, rem, variables: models.variables.clone(), time_var: models.time_var };
+    let mut out = Models { ctx: models.ctx.clone(), m, coef, own, rem, variables: models.variables.clone(), time_var: models.time_var, pinned: models.pinned };
     cap_symbols(&mut out, settings.max_symbols);
     out
 }
@@ -532,12 +569,14 @@ fn cap_symbols(models: &mut Models, max: usize) {
             *w += c.abs();
         }
     }
-    let mut order: Vec<usize> = (0..s).filter(|&k| weight[k] > 0.0).collect();
-    if order.len() == s && s <= max {
+    // Pinned symbols stay, in place; the others by weight.
+    let pinned = models.pinned.min(s);
+    let mut order: Vec<usize> = (pinned..s).filter(|&k| weight[k] > 0.0).collect();
+    if order.len() == s - pinned && s <= max.max(pinned) {
         return;
     }
     order.sort_by(|&a, &b| weight[b].total_cmp(&weight[a]));
-    let kept: Vec<usize> = order.iter().copied().take(max).collect();
+    let kept: Vec<usize> = (0..pinned).chain(order.iter().copied().take(max.saturating_sub(pinned))).collect();
     let mut keep_mask = vec![false; s];
     kept.iter().for_each(|&k| keep_mask[k] = true);
     let n = models.n();

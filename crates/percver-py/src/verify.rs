@@ -129,7 +129,7 @@ fn outcome_dict<'py>(py: Python<'py>, o: &CellOutcome) -> PyResult<Bound<'py, Py
 /// Runs `cells` (lists of (lo, hi) per state variable); `done(index, outcome: dict) -> bool`
 /// is called as each cell finishes; returning False (or raising) stops starting new cells.
 #[pyfunction]
-#[pyo3(signature = (problem, cells, done, order=5, cutoff=1e-12, method="taylor", timeout=None, workers=None, nn_order=None, blow_up_width=1e6, max_splits=16, rebox=false))]
+#[pyo3(signature = (problem, cells, done, order=5, cutoff=1e-12, method="taylor", timeout=None, workers=None, nn_order=None, blow_up_width=1e6, max_splits=16, rebox=false, state_symbols=false))]
 #[allow(clippy::too_many_arguments)]
 pub fn verify_cells(
     py: Python<'_>,
@@ -145,6 +145,7 @@ pub fn verify_cells(
     blow_up_width: f64,
     max_splits: usize,
     rebox: bool,
+    state_symbols: bool,
 ) -> PyResult<()> {
     let method = match method {
         "taylor" => Method::Taylor,
@@ -167,7 +168,7 @@ pub fn verify_cells(
         .collect::<PyResult<_>>()?;
     let nn = NnSettings { order: nn_order.unwrap_or(order), cutoff, ..NnSettings::default() };
     nn.validate().py_err()?;
-    let settings = CellSettings { order, cutoff, method, nn, timeout, blow_up_width, max_splits, rebox };
+    let settings = CellSettings { order, cutoff, method, nn, timeout, blow_up_width, max_splits, rebox, state_symbols };
     let failure: Mutex<Option<PyErr>> = Mutex::new(None);
     let callback = |i: usize, o: &CellOutcome| -> bool {
         Python::with_gil(|py| {

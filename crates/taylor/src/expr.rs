@@ -319,6 +319,30 @@ impl Program {
         Ok(self.outputs_of(&values))
     }
 
+    /// Per output, whether it depends on each input (syntactically).
+    pub fn dependencies(&self) -> Vec<Vec<bool>> {
+        let n = self.inputs.len();
+        let mut deps: Vec<Vec<bool>> = Vec::with_capacity(self.ops.len());
+        for op in &self.ops {
+            let mut d = vec![false; n];
+            let operands: Vec<usize> = match *op {
+                Op::Const(_) | Op::Uncertain(_) => vec![],
+                Op::Input(k) => {
+                    d[k] = true;
+                    vec![]
+                }
+                Op::Neg(a) | Op::PowI(a, _) | Op::PowF(a, _) | Op::Func(_, a) => vec![a],
+                Op::Binary(_, a, b) => vec![a, b],
+                Op::Where { lhs, rhs, then, otherwise, .. } => vec![lhs, rhs, then, otherwise],
+            };
+            for a in operands {
+                d.iter_mut().zip(&deps[a]).for_each(|(x, &y)| *x |= y);
+            }
+            deps.push(d);
+        }
+        self.outputs.iter().map(|&s| deps[s].clone()).collect()
+    }
+
     /// The outputs among the values of every slot.
     pub fn outputs_of<T: Clone>(&self, values: &[T]) -> Vec<T> {
         self.outputs.iter().map(|&s| values[s].clone()).collect()

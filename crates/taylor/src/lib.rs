@@ -3,13 +3,16 @@
 //! Layers, each in its own module and usable alone:
 //! intervals ([`interval`]) -> monomial layout ([`space`]) -> Taylor models ([`tm`]) ->
 //! elementary functions ([`functions`]) and range bounding ([`bound`]) -> expressions
-//! ([`expr`], [`parser`]) -> ODE flowpipes ([`flowpipe`], [`precondition`]).
+//! ([`expr`], [`parser`]) -> ODE flowpipes ([`flowpipe`], [`precondition`]);
+//! discrete-time error symbols ([`error_symbols`], [`parallelotope`]).
 pub mod bound;
 pub mod error;
+pub mod error_symbols;
 pub mod expr;
 pub mod flowpipe;
 pub mod functions;
 pub mod interval;
+pub mod parallelotope;
 pub mod parser;
 pub mod precondition;
 pub mod space;
