@@ -97,6 +97,10 @@ impl ErrorSymbols {
     /// `t` (over the full space) as domain polynomial + linear symbol coefficients; the remainder
     /// of `poly` holds `t`'s own and the range of every term that is neither.
     pub fn split(&self, t: &TaylorModel) -> Parts {
+        if self.count() == 0 {
+            // The full space is the domain's: nothing to separate (a network input per step).
+            return Parts { poly: t.clone(), linear: vec![] };
+        }
         let mut poly = vec![0.0; self.domain.space.len()];
         let mut linear = vec![0.0; self.count()];
         let mut other = TaylorModel { coef: vec![0.0; t.coef.len()], rem: Interval::ZERO };
@@ -112,7 +116,7 @@ impl ErrorSymbols {
         }
         let rem = t.rem + other.poly_bound(&self.ctx.space);
         let mut poly = TaylorModel { coef: poly, rem };
-        trim(&mut poly);
+        poly.trim();
         Parts { poly, linear }
     }
 
@@ -127,7 +131,7 @@ impl ErrorSymbols {
             coef[self.ctx.space.var_index(self.nvars() + j)] = c;
         }
         let mut t = TaylorModel { coef, rem: poly.rem };
-        trim(&mut t);
+        t.trim();
         t
     }
 
@@ -183,12 +187,6 @@ impl ErrorSymbols {
             let linear: Vec<f64> = (0..d).map(|j| a[(row, j)]).collect();
             state[i] = self.join(&poly, &linear);
         }
-    }
-}
-
-fn trim(t: &mut TaylorModel) {
-    while t.coef.len() > 1 && t.coef.last() == Some(&0.0) {
-        t.coef.pop();
     }
 }
 

@@ -30,9 +30,8 @@ pub fn reduce(generators: &DMatrix<f64>, carried: bool) -> (DMatrix<f64>, Vec<f6
     let scaled = DMatrix::from_fn(d, generators.ncols(), |i, k| generators[(i, k)] / scale[i]);
     let mut candidates = vec![DMatrix::identity(d, d)];
     if carried && scaled.ncols() >= d {
-        let a = scaled.columns(0, d).into_owned();
-        if a.column_iter().all(|c| c.norm() > 0.0) {
-            let mut b = a.clone();
+        let mut b = scaled.columns(0, d).into_owned();
+        if b.column_iter().all(|c| c.norm() > 0.0) {
             b.column_iter_mut().for_each(|mut c| c /= c.norm());
             candidates.push(b);
         }

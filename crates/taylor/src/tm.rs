@@ -110,7 +110,8 @@ impl TaylorModel {
         self.poly_bound(space) + self.rem
     }
 
-    fn trim(&mut self) {
+    /// Drops trailing zero coefficients (the layout's prefix convention).
+    pub(crate) fn trim(&mut self) {
         while self.coef.len() > 1 && self.coef.last() == Some(&0.0) {
             self.coef.pop();
         }
