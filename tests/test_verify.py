@@ -80,6 +80,35 @@ def test_known_unsafe_start_is_falsified_with_a_replaying_counterexample():
     np.testing.assert_allclose(np.asarray(cex.trajectory), replay[: cex.step + 1])
 
 
+def test_falsification_ends_a_run_at_its_goal_as_the_engine_does():
+    # x climbs by 1 a step from [0, 0.5]: at the goal x >= 3 by step 3, beyond x <= 5 from step 5.
+    # With within=True a run's part ends at its goal, so the later breach is no counterexample
+    # (simulating past the goal once reported one here); with the goal at the last step it is.
+    x = pv.variables("x")
+    loop = pv.ClosedLoop(pv.Discrete({x: x + 1.0}))
+    arrive = pv.verify(loop, init={"x": (0.0, 0.5)}, steps=10, safe=x <= 5, goal=x >= 3, within=True, progress=False)
+    assert arrive.verdict == "verified"
+    end = pv.verify(loop, init={"x": (0.0, 0.5)}, steps=10, safe=x <= 5, goal=x >= 3, within=False, progress=False)
+    assert end.verdict == "falsified"
+    cex = end.counterexample
+    assert cex.step == 5 and cex.trajectory[-1][0] > 5 and "x <= 5" in cex.violated
+
+
+def test_chunks_falsified_beside_the_engine_add_up(tmp_path):
+    # 200 cells in chunks of 32 (one worker): each chunk is falsified while the engine runs the
+    # previous one. Every cell is settled once, in the result and in the journal, with the verdict
+    # its position asks for: falsified exactly where a corner passes 12.02 at step 5.
+    x = pv.variables("x")
+    loop = pv.ClosedLoop(pv.Discrete({x: x + 1.0}))
+    journal = tmp_path / "chunks.jsonl"
+    res = pv.verify(loop, init={"x": (0.0, 10.0)}, split={"x": 200}, steps=5, safe=x <= 12.02, workers=1, progress=False,
+                    journal=str(journal))
+    boxes = sorted(c.box["x"] for c in res.cells)
+    assert len(boxes) == 200 and all(a[1] == pytest.approx(b[0]) for a, b in zip(boxes, boxes[1:]))
+    assert all(c.verdict == ("falsified" if c.box["x"][1] + 5 > 12.02 else "verified") for c in res.cells)
+    assert len(journal.read_text().splitlines()) == 1 + 200
+
+
 def test_unknown_cells_are_refined(tmp_path):
     loop, p, v = mountain_car()
     # Order 2 loses precision on the wide cell, and no in-cell splits are allowed; refinement

@@ -18,6 +18,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+from scipy.special import expit
 
 from percver import _core
 from percver.errors import InputError, MissingFileError, NetworkFormatError
@@ -25,14 +26,10 @@ from percver.errors import InputError, MissingFileError, NetworkFormatError
 ACTIVATIONS = ("sigmoid", "tanh", "relu", "identity")
 
 
-def _sigmoid(z: np.ndarray) -> np.ndarray:
-    # exp of a non-positive argument only: no overflow, and full relative accuracy on both tails
-    e = np.exp(-np.abs(z))
-    return np.where(z >= 0, 1.0, e) / (1.0 + e)
-
-
 ACTIVATION_FUNCTIONS = {
-    "sigmoid": _sigmoid,
+    # scipy's expit: no overflow, full relative accuracy on both tails, and one pass over the
+    # array (falsification spends most of its time in the activations of wide layers)
+    "sigmoid": expit,
     "tanh": np.tanh,
     "relu": lambda z: np.maximum(z, 0.0),
     "identity": lambda z: z,

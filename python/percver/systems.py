@@ -318,21 +318,30 @@ class ClosedLoop:
 
     def _stage_float(self, k: int, env: np.ndarray) -> np.ndarray:
         stage = self.stages[k]
-        x = env[:, self.stage_inputs[k]]
+        idx = self.stage_inputs[k]
+        # A run of consecutive signals (an image) is read as a view, not gathered.
+        contiguous = idx == list(range(idx[0], idx[0] + len(idx))) if idx else False
+        x = env[:, idx[0]: idx[0] + len(idx)] if contiguous else env[:, idx]
         if stage.is_network:
             return np.atleast_2d(stage.component(x)).reshape(len(env), -1)
-        names = [self.env_names[i] for i in self.stage_inputs[k]]
+        names = [self.env_names[i] for i in idx]
         return _core.eval_float(stage.component, names, np.ascontiguousarray(x))
 
     def step_float(self, x: np.ndarray) -> np.ndarray:
         """One step of the loop for a batch of states (N x n)."""
-        env = np.asarray(x, dtype=float)
+        x = np.atleast_2d(np.asarray(x, dtype=float))
+        env = np.empty((len(x), len(self.env_names)))  # every signal's column, filled stage by stage
+        env[:, : x.shape[1]] = x
         for k in range(len(self.stages)):
-            env = np.concatenate([env, self._stage_float(k, env)], axis=1)
+            start = self.signals[self.stages[k].output][0]
+            width = len(self.signals[self.stages[k].output])
+            env[:, start: start + width] = self._stage_float(k, env)
         if isinstance(self.plant, Continuous):
             u = env[:, [self.signals[i][0] for i in self.plant.inputs]]
             return self.plant.advance(env[:, : len(self.states)], u)
-        return _core.eval_float(self.plant.update, self.env_names, np.ascontiguousarray(env))
+        # Only the columns the update reads cross to Rust (the environment holds whole images).
+        reads = sorted({self.env_names.index(n) for e in self.plant.update for n in e.variables()})
+        return _core.eval_float(self.plant.update, [self.env_names[i] for i in reads], np.ascontiguousarray(env[:, reads]))
 
     def simulate(self, x0: np.ndarray, steps: int) -> np.ndarray:
         """Trajectories (N x (steps + 1) x n) from the rows of ``x0``."""

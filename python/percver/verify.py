@@ -13,10 +13,12 @@ import itertools
 import json
 import os
 import sys
+import threading
 import time
 import warnings
 import zlib
 from collections import deque
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Optional, Sequence, Union
@@ -208,25 +210,38 @@ class _Property:
         goal = (self.goal.margin(), self.goal.op, str(self.goal)) if self.goal is not None else None
         return safe, goal
 
-    def violation(self, traj: np.ndarray):
-        """(row, step, label) of the first violation in trajectories (N x T x n), else None."""
-        names = self.states
-        for t in range(traj.shape[1]):
+    def _satisfied(self, condition, x: np.ndarray) -> np.ndarray:
+        margin = _core.eval_float([condition.margin()], self.states, np.ascontiguousarray(x))[:, 0]
+        return _holds(condition.op, margin)
+
+    def monitor(self, loop: ClosedLoop, x0: np.ndarray, steps: int):
+        """Runs from the rows of ``x0`` judged as the engine judges them: the safe conditions at
+        every step and, with ``within``, a run ends at its first step at the goal (after it, its
+        states are NaN and need not be simulated). Returns the trajectories (N x (steps + 1) x n)
+        and per run its first violation ``(step, label)``, or None."""
+        traj = np.full((len(x0), steps + 1, len(self.states)), np.nan)
+        found: list = [None] * len(x0)
+        live, x = np.arange(len(x0)), np.asarray(x0, dtype=float)
+        for t in range(steps + 1):
+            if t:
+                x = loop.step_float(x)
+            traj[live, t] = x
+            going = np.ones(len(live), dtype=bool)
             for c in self.safe:
-                m = _core.eval_float([c.margin()], names, np.ascontiguousarray(traj[:, t]))[:, 0]
-                bad = np.nonzero(~_holds(c.op, m))[0]
-                if len(bad):
-                    return int(bad[0]), t, str(c)
-        if self.goal is not None:
-            steps = range(traj.shape[1]) if self.within else [traj.shape[1] - 1]
-            ok = np.zeros(traj.shape[0], dtype=bool)
-            for t in steps:
-                m = _core.eval_float([self.goal.margin()], names, np.ascontiguousarray(traj[:, t]))[:, 0]
-                ok |= _holds(self.goal.op, m)
-            bad = np.nonzero(~ok)[0]
-            if len(bad):
-                return int(bad[0]), traj.shape[1] - 1, f"goal {self.goal}"
-        return None
+                bad = going & ~self._satisfied(c, x)
+                for i in np.nonzero(bad)[0]:
+                    found[live[i]] = (t, str(c))
+                going &= ~bad
+            if self.goal is not None and (self.within or t == steps):
+                arrived = self._satisfied(self.goal, x)
+                if t == steps:
+                    for i in np.nonzero(going & ~arrived)[0]:
+                        found[live[i]] = (t, f"goal {self.goal}")
+                going &= ~arrived
+            live, x = live[going], x[going]
+            if not len(live):
+                break
+        return traj, found
 
 
 def _expr_hash(e) -> str:
@@ -489,7 +504,10 @@ class _Campaign:
     """The cells of one verify() call as they flow: the lazy grid and sub-cells are looked up in
     the journal, falsified in chunks, and handed to a backend (rayon or an executor) that returns
     outcomes in any order; unknown cells (with refine=True) and timed-out ones (always) are
-    bisected down to min_width and their halves queued. Memory is a chunk plus the results."""
+    bisected down to min_width and their halves queued. Memory is a chunk plus the results.
+
+    Outcomes may be recorded from another thread while cells are falsified (``stock`` runs beside
+    the engine): the state is only touched under ``lock``, which no simulation holds."""
 
     chunk = 128  # cells falsified together at most: one simulation batch, bounded trajectories
 
@@ -502,18 +520,37 @@ class _Campaign:
         self.cells: list = []
         self.counts = dict.fromkeys(("verified", "unknown", "falsified"), 0)
         self.cell_seconds = [0.0, 0]  # engine seconds and cells so far, to size executor batches
+        self.lock = threading.RLock()
 
     def remaining(self) -> int:
         """Cells known to be still to run (sub-cells of running cells may add more)."""
-        return self.left + len(self.queue) + len(self.ready)
+        with self.lock:
+            return self.left + len(self.queue) + len(self.ready)
 
     def take(self, n: int) -> list:
-        """Up to n cells to run; empty when none is left for now."""
-        while len(self.ready) < n and (self.queue or self.left):
-            self._prepare(min(self.chunk, max(n - len(self.ready), 8)))
-        return [self.ready.popleft() for _ in range(min(n, len(self.ready)))]
+        """Up to n cells to run; empty when none is left for now. One thread takes or stocks at a time."""
+        self.stock(n)
+        with self.lock:
+            return [self.ready.popleft() for _ in range(min(n, len(self.ready)))]
 
-    def _prepare(self, want: int):
+    def stock(self, n: int):
+        """Falsifies cells until n are ready to run or none is left for now."""
+        while True:
+            with self.lock:
+                if len(self.ready) >= n or not (self.queue or self.left):
+                    return
+                fresh = self._draw(min(self.chunk, max(n - len(self.ready), 8)))
+            found = _falsify(self.loop, self.prop, fresh, self.prop.steps, self.falsify, self.seed)
+            with self.lock:
+                for cell, cex in zip(fresh, found):
+                    if cex is None:
+                        self.ready.append(cell)
+                    else:
+                        self._finish(cell, Cell(cell.to_dict(), "falsified", counterexample=cex,
+                                                reason=f"simulation violates {cex.violated} at step {cex.step}"))
+
+    def _draw(self, want: int) -> list:
+        """Up to ``want`` cells not in the journal (the journal's are settled on the way)."""
         fresh = []
         while len(fresh) < want and (self.queue or self.left):
             if self.queue:
@@ -526,15 +563,14 @@ class _Campaign:
                 self._settle(cell, known)
             else:
                 fresh.append(cell)
-        for cell, cex in zip(fresh, _falsify(self.loop, self.prop, fresh, self.prop.steps, self.falsify, self.seed)):
-            if cex is None:
-                self.ready.append(cell)
-            else:
-                self._finish(cell, Cell(cell.to_dict(), "falsified", counterexample=cex,
-                                        reason=f"simulation violates {cex.violated} at step {cex.step}"))
+        return fresh
 
     def record(self, cell: Box, outcome: dict):
         """A cell's outcome from the engine (``_run_cells``)."""
+        with self.lock:
+            self._record(cell, outcome)
+
+    def _record(self, cell: Box, outcome: dict):
         verdict = outcome["verdict"]
         if verdict == "violated":
             # The engine says every state violates, yet no simulation did: say unknown
@@ -614,11 +650,15 @@ def _run_cells(problem, cells: list, done, options: dict, workers: Optional[int]
 def _run_local(campaign: _Campaign, problem, options: dict, workers: Optional[int]):
     """All cells on this machine's cores (rayon), a chunk at a time so sub-cells join in."""
     chunk = 32 * (workers or os.cpu_count() or 1)
-    while True:
+    with ThreadPoolExecutor(1, thread_name_prefix="percver-falsify") as ahead:
         cells = campaign.take(chunk)
-        if not cells:
-            return
-        _run_cells(problem, [c.bounds for c in cells], lambda i, o: campaign.record(cells[i], o), options, workers)
+        while cells:
+            # The next chunk is simulated (numpy, mostly without the GIL) while the engine runs this one;
+            # sub-cells the engine adds meanwhile are taken after it.
+            stocked = ahead.submit(campaign.stock, chunk)
+            _run_cells(problem, [c.bounds for c in cells], lambda i, o: campaign.record(cells[i], o), options, workers)
+            stocked.result()
+            cells = campaign.take(chunk)
 
 
 def _above_min_width(cell: Box, init: Box, min_width: dict) -> list:
@@ -652,17 +692,12 @@ def _falsify(loop: ClosedLoop, prop: _Property, cells: list, steps: int, samples
         blocks.append(np.vstack([0.5 * (lo + hi), corners, lo + (hi - lo) * rng.random((samples, len(lo)))]))
     x0 = np.vstack(blocks)
     owner = np.repeat(np.arange(len(cells)), [len(b) for b in blocks])
-    traj = loop.simulate(x0, steps)
+    traj, found = prop.monitor(loop, x0, steps)
     out = [None] * len(cells)
-    remaining = np.ones(len(x0), dtype=bool)
-    while remaining.any():
-        rows = np.nonzero(remaining)[0]
-        hit = prop.violation(traj[rows])
-        if hit is None:
-            break
-        row, step, label = hit
-        r = rows[row]
+    # Per cell, its earliest violation (the first run among equals) is the counterexample.
+    for r in sorted((r for r in range(len(x0)) if found[r] is not None), key=lambda r: (found[r][0], r)):
         k = owner[r]
-        out[k] = Counterexample(dict(zip(loop.states, map(float, x0[r]))), traj[r, : step + 1].tolist(), step, label)
-        remaining &= owner != k
+        if out[k] is None:
+            step, label = found[r]
+            out[k] = Counterexample(dict(zip(loop.states, map(float, x0[r]))), traj[r, : step + 1].tolist(), step, label)
     return out
