@@ -11,6 +11,7 @@ plus a coverage map per entry (``bench/results/mountain_car_<row>_<networks>.png
 
     python bench/mountain_car.py --rows contrast --networks paper [--p0 -0.5 -0.45] [--workers 2]
     python bench/mountain_car.py --rows composite --combine   # join the --p0 slices run so far into one row
+    python bench/mountain_car.py --rows contrast --networks ours --p0 -0.51 -0.4 --survey  # a quick map, not the row
 """
 
 import argparse
@@ -23,6 +24,7 @@ from percver.cases.mountain_car import verification
 from percver.verify import Cell
 
 ROOT = Path(__file__).resolve().parent
+SURVEY_SPLITS = 4  # in-cell splits per cell of a --survey: enough for the easy cells, cheap on the hard ones
 RESULTS = ROOT / "results"
 
 
@@ -45,8 +47,8 @@ def _sessions(path: Path, journal: Path) -> list:
     return sessions
 
 
-def run(noise: str, networks: str, p0, workers: int, journal_dir: Path, options: dict) -> dict:
-    tag = f"{noise}_{networks}" + ("" if p0 is None else f"_{p0[0]:g}_{p0[1]:g}")
+def run(noise: str, networks: str, p0, workers: int, journal_dir: Path, options: dict, survey: bool = False) -> dict:
+    tag = f"{noise}_{networks}" + ("_survey" if survey else "") + ("" if p0 is None else f"_{p0[0]:g}_{p0[1]:g}")
     journal = journal_dir / f"mc_{tag}.jsonl"
     session_file = journal_dir / f"mc_{tag}.sessions.json"
     sessions = _sessions(session_file, journal)
@@ -82,7 +84,8 @@ def combine(doc: dict, noise: str, networks: str) -> dict:
     import percver as pv
 
     prefix = f"{noise}/{networks}/"
-    slices = sorted((e for k, e in doc.items() if k.startswith(prefix) and k != prefix + "slices"), key=lambda e: e["init"]["p"][0])
+    slices = sorted((e for k, e in doc.items() if k.startswith(prefix) and k != prefix + "slices" and not k.startswith(prefix + "survey")),
+                    key=lambda e: e["init"]["p"][0])
     if not slices:
         raise SystemExit(f"no slices of {noise}/{networks} in the results to combine")
     init = {n: tuple(b) for n, b in slices[0]["init"].items()}
@@ -127,6 +130,9 @@ def main() -> None:
     parser.add_argument("--timeout-per-cell", type=float, help="override the case's default")
     parser.add_argument("--out", default=str(RESULTS / "mountain_car.json"))
     parser.add_argument("--combine", action="store_true", help="no run: join the rows' --p0 slices in --out into one row each")
+    parser.add_argument("--survey", action="store_true",
+                        help=f"a map of where the row verifies, not the row: no refinement, at most {SURVEY_SPLITS} in-cell "
+                             "splits; stored as <row>/<networks>/survey/<lo>,<hi> and never combined")
     args = parser.parse_args()
     out = Path(args.out)
     if args.combine:
@@ -141,11 +147,13 @@ def main() -> None:
     journal_dir = Path(args.journal_dir)
     journal_dir.mkdir(parents=True, exist_ok=True)
     options = {} if args.timeout_per_cell is None else {"timeout_per_cell": args.timeout_per_cell}
+    if args.survey:
+        options.update(refine=False, max_splits=SURVEY_SPLITS)
     for networks in args.networks.split(","):
         for noise in args.rows.split(","):
-            entry = run(noise, networks, args.p0, args.workers, journal_dir, options)
+            entry = run(noise, networks, args.p0, args.workers, journal_dir, options, args.survey)
             doc = json.loads(out.read_text()) if out.exists() else {}
-            doc[f"{noise}/{networks}" + ("" if args.p0 is None else f"/{args.p0[0]:g},{args.p0[1]:g}")] = entry
+            doc[f"{noise}/{networks}" + ("/survey" if args.survey else "") + ("" if args.p0 is None else f"/{args.p0[0]:g},{args.p0[1]:g}")] = entry
             out.write_text(json.dumps(doc, indent=1))
             print(verification.format_row(noise, entry["row"], entry["paper"]), flush=True)
 
