@@ -125,6 +125,25 @@ def test_published_logs_are_summarised():
     assert log["p0"][0] == -0.59 and 30000 < log["avg_seconds"] < 70000
 
 
+def test_unknown_cells_are_grouped_by_cause():
+    # The engine's reasons, as it words them (closed_loop.rs), each under its own cause.
+    reasons = {
+        "step 73: the enclosure of 'v' blew up ([-3, 4]); split the cell or raise the order": "'v' blew up",
+        "step 92: goal 'min((p - 0.45), (r - -10.0)) > 0.0' holds on part of the set only since step 89 (after 16 splits)":
+            "goal met by part of the set only",
+        "step 150: goal 'p >= 0.45' could not be decided (reach box p [0.1, 0.5])": "goal undecided",
+        "step 12: 'v <= 0.07' could not be decided (reach box v [0, 0.08])": "a safe condition undecided",
+        "timeout after 60 s at step 40": "timeout",
+    }
+    assert {r: verification.cause(r) for r in reasons} == reasons
+    from percver.verify import Cell
+
+    box = {"p": (-0.5, -0.49), "v": (0.0, 0.0)}
+    cells = [Cell(box, "unknown", reason=r) for r in reasons] + [Cell(box, "unknown", reason="step 80: the enclosure of 'v' blew up")]
+    grouped = verification.reasons(pv.Result(["p", "v"], box, cells, 1.0))
+    assert grouped[0] == ("'v' blew up", 73, 80, 2) and len(grouped) == 5
+
+
 def test_cli_writes_row_result_and_plots(tmp_path):
     base = [sys.executable, "-m", "percver.cli", "cases", "mountain-car", "verify", "--networks", "ours", "--p0", "-0.5", "-0.4995",
             "--delta-c", "1.5", "1.55", "--out", str(tmp_path), "--no-progress"]

@@ -209,18 +209,35 @@ def _bands(init: dict, layout: list) -> list:
     return out
 
 
+def cause(reason: str) -> str:
+    """A short name for why the engine left a cell unknown, from its reason."""
+    import re
+
+    blew = re.search(r"the enclosure of '(\w+)' blew up", reason)
+    if blew:
+        return f"'{blew.group(1)}' blew up"
+    for words, name in (("holds on part of the set only", "goal met by part of the set only"),
+                        ("goal '", "goal undecided"), ("could not be decided", "a safe condition undecided"),
+                        ("timeout", "timeout")):
+        if words in reason:
+            return name
+    return "other"
+
+
 def reasons(result) -> list:
-    """Why cells stayed unknown: ``(variable, first step, last step, cells)`` per variable whose enclosure blew up."""
+    """Why cells stayed unknown: ``(cause, first step, last step, cells)`` per :func:`cause`,
+    most cells first."""
     import re
 
     groups: dict = {}
     for cell in result.cells:
         if cell.verdict != "unknown":
             continue
-        found = re.search(r"step (\d+): .*?'(\w+)'", cell.reason or "")
-        step, variable = (int(found.group(1)), found.group(2)) if found else (cell.steps_done, "?")
-        lo, hi, n = groups.get(variable, (step, step, 0))
-        groups[variable] = (min(lo, step), max(hi, step), n + 1)
+        found = re.search(r"step (\d+)", cell.reason or "")
+        step = int(found.group(1)) if found else cell.steps_done
+        what = cause(cell.reason or "")
+        lo, hi, n = groups.get(what, (step, step, 0))
+        groups[what] = (min(lo, step), max(hi, step), n + 1)
     return sorted(((v, lo, hi, n) for v, (lo, hi, n) in groups.items()), key=lambda g: -g[3])
 
 
@@ -369,7 +386,7 @@ def plot_coverage(result, path) -> Path:
         ax.set_xlabel("p0")
         ax.set_ylabel(KEYWORDS.get(name, ""))
         ax.legend(handles=[Rectangle((0, 0), 1, 1, color=c, label=v) for v, c in colours.items()], loc="upper right", fontsize=7)
-    why = "; ".join(f"{n} unknown: '{v}' blew up at steps {lo}-{hi}" for v, lo, hi, n in reasons(result)[:3])
+    why = "; ".join(f"{n} unknown: {what} at steps {lo}-{hi}" for what, lo, hi, n in reasons(result)[:3])
     fig.suptitle(f"coverage {100 * result.coverage:.2f}% of {len(result.cells)} cells" + (f"\n{why}" if why else ""), fontsize=9)
     fig.tight_layout()
     fig.savefig(path, dpi=120)
