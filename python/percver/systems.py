@@ -210,6 +210,12 @@ class ClosedLoop:
             wide = [u for u in plant.inputs if len(self.signals[u]) != 1]
             if wide:
                 raise InputError(f"continuous plant inputs must be scalar signals; {wide} are vectors")
+        # Column maps of the float simulation, fixed once wired: a stage's consecutive inputs (an
+        # image) are read as a view, not gathered; a discrete plant gets only the columns it reads.
+        self._float_inputs = [slice(i[0], i[0] + len(i)) if i and i == list(range(i[0], i[0] + len(i))) else i
+                              for i in self.stage_inputs]
+        names = {n for e in used for n in e.variables()}
+        self._plant_reads = [i for i, n in enumerate(self.env_names) if n in names]
 
     def _wire(self, k: int, stage: Stage) -> list:
         """Checks stage k against the signals so far, adds its output; returns its input indices."""
@@ -318,13 +324,10 @@ class ClosedLoop:
 
     def _stage_float(self, k: int, env: np.ndarray) -> np.ndarray:
         stage = self.stages[k]
-        idx = self.stage_inputs[k]
-        # A run of consecutive signals (an image) is read as a view, not gathered.
-        contiguous = idx == list(range(idx[0], idx[0] + len(idx))) if idx else False
-        x = env[:, idx[0]: idx[0] + len(idx)] if contiguous else env[:, idx]
+        x = env[:, self._float_inputs[k]]
         if stage.is_network:
             return np.atleast_2d(stage.component(x)).reshape(len(env), -1)
-        names = [self.env_names[i] for i in idx]
+        names = [self.env_names[i] for i in self.stage_inputs[k]]
         return _core.eval_float(stage.component, names, np.ascontiguousarray(x))
 
     def step_float(self, x: np.ndarray) -> np.ndarray:
@@ -339,8 +342,7 @@ class ClosedLoop:
         if isinstance(self.plant, Continuous):
             u = env[:, [self.signals[i][0] for i in self.plant.inputs]]
             return self.plant.advance(env[:, : len(self.states)], u)
-        # Only the columns the update reads cross to Rust (the environment holds whole images).
-        reads = sorted({self.env_names.index(n) for e in self.plant.update for n in e.variables()})
+        reads = self._plant_reads
         return _core.eval_float(self.plant.update, [self.env_names[i] for i in reads], np.ascontiguousarray(env[:, reads]))
 
     def simulate(self, x0: np.ndarray, steps: int) -> np.ndarray:
