@@ -69,13 +69,19 @@ pub struct Settings {
     pub symbol_min: f64,
     /// How many box inputs (the widest) become polynomial variables; the rest become symbols.
     pub max_vars: usize,
+    /// At a narrow layer (at most a quarter as many neurons as shared symbols), the symbols beyond
+    /// the `narrow_symbols` largest (pinned ones aside) are boxed into one new symbol per neuron.
+    /// An image model's 600 pixel errors, mixed into 50 hidden neurons, span at most 50
+    /// directions: the largest carry the cancellations, and the boxed rest keeps its magnitude
+    /// per neuron, while the next (wide) product shrinks from ~1,400 rows to ~170. None: never.
+    pub narrow_symbols: Option<usize>,
     /// (input index, pieces): split that input's interval into equal pieces (bounds only).
     pub splits: Vec<(usize, usize)>,
 }
 
 impl Default for Settings {
     fn default() -> Settings {
-        Settings { order: 5, cutoff: 1e-15, symbolic: true, max_symbols: 4096, symbol_min: 1e-4, max_vars: 4, splits: vec![] }
+        Settings { order: 5, cutoff: 1e-15, symbolic: true, max_symbols: 4096, symbol_min: 1e-4, max_vars: 4, narrow_symbols: Some(64), splits: vec![] }
     }
 }
 
@@ -551,6 +557,49 @@ fn assemble(models: &Models, outs: Vec<NeuronOut>, settings: &Settings) -> Model
     out
 }
 
+/// A layer this many times narrower than its shared symbols is narrow (see
+/// [`Settings::narrow_symbols`]).
+const NARROW: usize = 4;
+
+/// The models with all but the `keep` largest unpinned shared symbols (by total |coefficient|)
+/// boxed into one new own symbol per neuron, when the layer is narrow; None otherwise. Sound:
+/// neuron i's part sum_k g_ik eps_k over the boxed k lies in [-d_i, d_i] with d_i = sum |g_ik|,
+/// which is d_i eps'_i for a new symbol eps'_i in [-1, 1]. Each neuron's magnitude is unchanged
+/// (so is its activation); only correlations through the boxed symbols are lost.
+fn box_minor_symbols(models: &Models, keep: usize) -> Option<Models> {
+    let (m, n) = (models.m, models.n());
+    let s = models.coef.nrows() - m;
+    let pinned = models.pinned.min(s);
+    if models.own.is_some() || s < NARROW * n || s - pinned <= keep + n {
+        return None;
+    }
+    let mut weight = vec![0.0; s];
+    for i in 0..n {
+        for (w, c) in weight.iter_mut().zip(&models.column(i)[m..]) {
+            *w += c.abs();
+        }
+    }
+    let mut order: Vec<usize> = (pinned..s).collect();
+    order.sort_by(|&a, &b| weight[b].total_cmp(&weight[a]));
+    let kept: Vec<usize> = (0..pinned).chain(order.iter().copied().take(keep)).collect();
+    let mut boxed = vec![true; s];
+    kept.iter().for_each(|&k| boxed[k] = false);
+    let mut coef = DMatrix::zeros(m + kept.len(), n);
+    let mut own = vec![0.0; n];
+    for i in 0..n {
+        let src = models.column(i);
+        let mut column = coef.column_mut(i);
+        let dst = column.as_mut_slice();
+        dst[..m].copy_from_slice(&src[..m]);
+        for (slot, &k) in kept.iter().enumerate() {
+            dst[m + slot] = src[m + k];
+        }
+        own[i] = src[m..].iter().zip(&boxed).filter(|(_, &b)| b).fold(0.0, |d, (g, _)| add_up(d, g.abs()));
+    }
+    let (ctx, rem, variables) = (models.ctx.clone(), models.rem.clone(), models.variables.clone());
+    Some(Models { ctx, m, coef, own: Some(own), rem, variables, time_var: models.time_var, pinned: models.pinned })
+}
+
 /// Boxes all but the `max` largest symbols (by total |coefficient|) into the remainders, and
 /// drops symbols no neuron uses any more.
 fn cap_symbols(models: &mut Models, max: usize) {
@@ -671,6 +720,26 @@ fn compose(q: &[f64], centre: f64, scale: f64, p: &[f64], ctx: &Ctx) -> TaylorMo
     out
 }
 
+/// The activation polynomial's top degrees are dropped while their error stays below this share
+/// of what the neuron carries already (|phi'| |delta|, from earlier layers): a 1% wider error
+/// there is invisible, and composing at degree 2-3 instead of the order costs half as much
+/// (most pixels of an image model are nearly saturated and nearly linear in the cell).
+const TRUNCATION_SHARE: f64 = 0.001;
+
+/// The smallest degree d whose dropped terms fit in `budget`, and their bound sum_(k > d) |q_k|
+/// (q in powers of tau with |tau| <= 1 on the range, so it bounds q - q_d there).
+fn truncation(q: &[f64], budget: f64) -> (usize, f64) {
+    let (mut degree, mut tail) = (q.len() - 1, 0.0);
+    while degree > 0 {
+        let more = add_up(tail, q[degree].abs());
+        if more > budget {
+            break;
+        }
+        (degree, tail) = (degree - 1, more);
+    }
+    (degree, tail)
+}
+
 /// One smooth neuron: phi(p + delta) in q(s (p - c)) +- e + phi'(Y) delta.
 fn smooth_neuron(f: Smooth, models: &Models, i: usize) -> NeuronOut {
     let ctx = &models.ctx;
@@ -685,12 +754,13 @@ fn smooth_neuron(f: Smooth, models: &Models, i: usize) -> NeuronOut {
         return constant();
     }
     let enc = enclose(f, range, ctx.order);
+    let (degree, tail) = truncation(&enc.coef, TRUNCATION_SHARE * slope.mag() * delta.mag());
     let mut poly = if enc.scale == 0.0 {
         TaylorModel::constant(enc.coef[0])
     } else {
-        compose(&enc.coef, enc.centre, enc.scale, &p.coef, ctx)
+        compose(&enc.coef[..=degree], enc.centre, enc.scale, &p.coef, ctx)
     };
-    let mut error = Interval::symmetric(enc.err) + poly.rem;
+    let mut error = Interval::symmetric(add_up(enc.err, tail)) + poly.rem;
     poly.rem = Interval::ZERO;
     let mut sym_factor = 0.0;
     if delta != Interval::ZERO {
@@ -744,6 +814,8 @@ pub(crate) fn activate_with(models: &Models, layer: &Layer, settings: &Settings,
     if layer.is_affine() {
         return Ok(models.clone());
     }
+    let reduced = settings.narrow_symbols.and_then(|keep| box_minor_symbols(models, keep));
+    let models = reduced.as_ref().unwrap_or(models);
     let outs: Vec<NeuronOut> = (0..models.n())
         .into_par_iter()
         .map(|i| match layer.activations[i] {
@@ -968,5 +1040,61 @@ mod tests {
         for (a, b) in own.bounds().iter().zip(dense.bounds()) {
             assert!((a.lo() - b.lo()).abs() <= 1e-12 && (a.hi() - b.hi()).abs() <= 1e-12, "{a} vs {b}");
         }
+    }
+
+    /// The support function of neuron combinations w over the symbols: max of sum_i w_i (shared
+    /// and own symbol part of neuron i) over all symbol values in [-1, 1].
+    fn support(models: &Models, w: &[f64]) -> f64 {
+        let m = models.m;
+        let shared: f64 = (m..models.coef.nrows()).map(|k| w.iter().enumerate().map(|(i, wi)| wi * models.column(i)[k]).sum::<f64>().abs()).sum();
+        shared + w.iter().enumerate().map(|(i, wi)| (wi * models.own_mag(i)).abs()).sum::<f64>()
+    }
+
+    #[test]
+    fn narrow_layers_box_minor_symbols_per_neuron() {
+        let mut state = 5;
+        let mut weights = |n_out: usize, n_in: usize| (0..n_out * n_in).map(|_| noise(&mut state)).collect::<Vec<f64>>();
+        let layers = vec![
+            LayerArrays { n_out: 120, n_in: 2, weight: weights(120, 2), bias: vec![0.1; 120], activations: vec![Activation::Sigmoid] },
+            LayerArrays { n_out: 6, n_in: 120, weight: weights(6, 120), bias: vec![0.0; 6], activations: vec![Activation::Tanh] },
+        ];
+        let net = Network::new(layers, None, None).unwrap();
+        let settings = Settings { order: 3, symbol_min: 0.0, ..Settings::default() };
+        let input = [Interval::new(-1.0, 1.0).unwrap(), Interval::new(0.5, 1.5).unwrap()];
+        let first = activate(&Models::from_box(&input, &settings, false).unwrap().affine(&net.layers()[0]).unwrap(), &net.layers()[0], &settings).unwrap();
+        let pre = first.affine(&net.layers()[1]).unwrap();
+        assert_eq!(pre.symbols(), 120);
+        assert!(box_minor_symbols(&pre, 200).is_none(), "nothing to box");
+        let reduced = box_minor_symbols(&pre, 10).expect("6 neurons, 120 symbols: narrow");
+        assert_eq!(reduced.symbols(), 10 + 6);
+        assert_eq!(reduced.poly(3), pre.poly(3));
+        // Each neuron keeps its magnitude (its activation is unchanged) ...
+        for i in 0..6 {
+            let (a, b) = (pre.sym_mag(i), reduced.sym_mag(i));
+            assert!((a - b).abs() <= a * 1e-12, "neuron {i}: {a} -> {b}");
+        }
+        // ... and the reduced zonotope contains the original one: its support function is at
+        // least as large in every direction of the neurons.
+        let mut directions: Vec<Vec<f64>> = (0..6).map(|i| (0..6).map(|j| if i == j { 1.0 } else { 0.0 }).collect()).collect();
+        directions.extend((0..500).map(|_| (0..6).map(|_| noise(&mut state)).collect()));
+        let mut looser = 0;
+        for w in &directions {
+            let (h, g) = (support(&pre, w), support(&reduced, w));
+            assert!(h <= g * (1.0 + 1e-12), "{w:?}: {h} > {g}");
+            looser += (g > h * 1.001) as usize;
+        }
+        assert!(looser > 0, "boxing 110 of 120 symbols must lose some correlation");
+    }
+
+    #[test]
+    fn activation_polynomials_drop_degrees_within_their_budget() {
+        let q = [0.5, 0.2, -0.01, 1e-4, -2e-6, 3e-8];
+        assert_eq!(truncation(&q, 0.0), (5, 0.0));
+        let (d, tail) = truncation(&q, 1e-3);
+        assert_eq!(d, 2);
+        assert!(tail >= 1e-4 + 2e-6 + 3e-8 && tail <= 1e-3);
+        let (d, tail) = truncation(&q, 1.0);
+        assert_eq!(d, 0);
+        assert!(tail >= 0.2 + 0.01 + 1e-4 + 2e-6 + 3e-8);
     }
 }

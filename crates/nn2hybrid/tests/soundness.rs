@@ -153,6 +153,53 @@ fn direct_bounds_are_tight_on_small_boxes() {
 }
 
 #[test]
+fn narrow_layers_and_truncated_activations_stay_sound() {
+    // An image chain's shape: wide layers make a symbol per neuron, narrow ones box all but the
+    // largest (`narrow_symbols`), and the later layers' activations drop degrees against the
+    // errors their inputs carry (inputs with remainders, as in a closed loop).
+    let mut rng = Rng(12);
+    for (shape, acts) in [(&[3usize, 40, 400, 12, 400, 2][..], &[TANH, SIGMOID][..]), (&[2, 300, 8, 300, 8, 1], &[SIGMOID])] {
+        for radius in [1e-3, 0.02, 0.2] {
+            let net = random_network(&mut rng, shape, acts, false, 2.0);
+            let bx = random_box(&mut rng, shape[0], radius);
+            let points = samples(&mut rng, &net, &bx, 3000);
+            let label = format!("{shape:?} radius {radius}");
+            let mut widths = vec![];
+            for keep in [None, Some(64), Some(4), Some(0)] {
+                let s = Settings { order: 4, symbol_min: 0.0, narrow_symbols: keep, ..Settings::default() };
+                let bounds = propagate::bounds(&net, &bx, &s).unwrap();
+                assert_encloses(&format!("{label} keep {keep:?}"), &bounds, &points);
+                widths.push(bounds[0].width());
+            }
+            // Boxing beyond the 64 largest symbols costs little (measured: at most 16% here).
+            assert!(widths[1] <= 1.25 * widths[0], "{label}: widths {widths:?}");
+            // Inputs with remainders: the activations' degrees drop, sampled anywhere inside.
+            let ctx = Ctx::new(Space::get(shape[0], 4, 0).unwrap(), 4, 1e-15);
+            let inputs: Vec<TaylorModel> = bx
+                .iter()
+                .enumerate()
+                .map(|(v, b)| {
+                    let mut x = TaylorModel::affine(&ctx, b.mid(), v, 0.8 * b.radius());
+                    x.rem = Interval::new(-0.2 * b.radius(), 0.2 * b.radius()).unwrap();
+                    x
+                })
+                .collect();
+            let out = propagate::propagate_taylor_models(&net, &inputs, &ctx, &Settings { order: 4, ..Settings::default() }).unwrap();
+            for _ in 0..3000 {
+                let a: Vec<f64> = (0..shape[0]).map(|_| rng.range(-1.0, 1.0)).collect();
+                let x: Vec<f64> = bx.iter().zip(&a).map(|(b, a)| b.mid() + 0.8 * b.radius() * a + rng.range(-0.2, 0.2) * b.radius()).collect();
+                let truth = net.eval(&x).unwrap();
+                let at: Vec<Interval> = a.iter().map(|&a| Interval::point(a)).collect();
+                for (j, model) in out.iter().enumerate() {
+                    let value = model.eval_interval(&ctx.space, &at);
+                    assert!(value.contains(truth[j]), "{label}: output {j}: {value} misses {}", truth[j]);
+                }
+            }
+        }
+    }
+}
+
+#[test]
 fn splitting_stays_sound_and_tightens_wide_boxes() {
     let mut rng = Rng(4);
     let net = random_network(&mut rng, &[2, 30, 30, 1], &[TANH], false, 3.0);
