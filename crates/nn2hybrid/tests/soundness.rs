@@ -165,13 +165,13 @@ fn narrow_layers_and_truncated_activations_stay_sound() {
             let points = samples(&mut rng, &net, &bx, 3000);
             let label = format!("{shape:?} radius {radius}");
             let mut widths = vec![];
-            for keep in [None, Some(64), Some(4), Some(0)] {
+            for keep in [None, Settings::default().narrow_symbols, Some(4), Some(0)] {
                 let s = Settings { order: 4, symbol_min: 0.0, narrow_symbols: keep, ..Settings::default() };
                 let bounds = propagate::bounds(&net, &bx, &s).unwrap();
                 assert_encloses(&format!("{label} keep {keep:?}"), &bounds, &points);
                 widths.push(bounds[0].width());
             }
-            // Boxing beyond the 64 largest symbols costs little (measured: at most 16% here).
+            // Boxing beyond the default's largest symbols costs little (measured: at most 16% here).
             assert!(widths[1] <= 1.25 * widths[0], "{label}: widths {widths:?}");
             // Inputs with remainders: the activations' degrees drop, sampled anywhere inside.
             let ctx = Ctx::new(Space::get(shape[0], 4, 0).unwrap(), 4, 1e-15);
