@@ -569,37 +569,14 @@ const NARROW: usize = 4;
 /// which is d_i eps'_i for a new symbol eps'_i in [-1, 1]. Each neuron's magnitude is unchanged
 /// (so is its activation); only correlations through the boxed symbols are lost.
 fn box_minor_symbols(models: &Models, keep: usize) -> Option<Models> {
-    let (m, n) = (models.m, models.n());
-    let s = models.coef.nrows() - m;
+    let s = models.coef.nrows() - models.m;
     let pinned = models.pinned.min(s);
-    if models.own.is_some() || s < NARROW * n || s - pinned <= keep + n {
+    if models.own.is_some() || s < NARROW * models.n() || s - pinned <= keep + models.n() {
         return None;
     }
-    let mut weight = vec![0.0; s];
-    for i in 0..n {
-        for (w, c) in weight.iter_mut().zip(&models.column(i)[m..]) {
-            *w += c.abs();
-        }
-    }
-    let mut order: Vec<usize> = (pinned..s).collect();
-    order.sort_by(|&a, &b| weight[b].total_cmp(&weight[a]));
-    let kept: Vec<usize> = (0..pinned).chain(order.iter().copied().take(keep)).collect();
-    let mut boxed = vec![true; s];
-    kept.iter().for_each(|&k| boxed[k] = false);
-    let mut coef = DMatrix::zeros(m + kept.len(), n);
-    let mut own = vec![0.0; n];
-    for i in 0..n {
-        let src = models.column(i);
-        let mut column = coef.column_mut(i);
-        let dst = column.as_mut_slice();
-        dst[..m].copy_from_slice(&src[..m]);
-        for (slot, &k) in kept.iter().enumerate() {
-            dst[m + slot] = src[m + k];
-        }
-        own[i] = src[m..].iter().zip(&boxed).filter(|(_, &b)| b).fold(0.0, |d, (g, _)| add_up(d, g.abs()));
-    }
+    let (coef, own) = largest_symbols(models, &symbol_weights(models), keep);
     let (ctx, rem, variables) = (models.ctx.clone(), models.rem.clone(), models.variables.clone());
-    Some(Models { ctx, m, coef, own: Some(own), rem, variables, time_var: models.time_var, pinned: models.pinned })
+    Some(Models { ctx, m: models.m, coef, own: Some(own), rem, variables, time_var: models.time_var, pinned: models.pinned })
 }
 
 /// Boxes all but the `max` largest symbols (by total |coefficient|) into the remainders, and
@@ -613,41 +590,53 @@ fn cap_symbols(models: &mut Models, max: usize) {
     if s == 0 {
         return;
     }
+    let weight = symbol_weights(models);
+    let pinned = models.pinned.min(s);
+    if s <= max.max(pinned) && weight[pinned..].iter().all(|&w| w > 0.0) {
+        return;
+    }
+    let (coef, dropped) = largest_symbols(models, &weight, max.saturating_sub(pinned));
+    for (r, d) in models.rem.iter_mut().zip(dropped) {
+        *r = r.inflate(d);
+    }
+    models.coef = coef;
+}
+
+/// Each shared symbol's total |coefficient| over the neurons.
+fn symbol_weights(models: &Models) -> Vec<f64> {
     let m = models.m;
-    let mut weight = vec![0.0; s];
+    let mut weight = vec![0.0; models.coef.nrows() - m];
     for i in 0..models.n() {
         for (w, c) in weight.iter_mut().zip(&models.column(i)[m..]) {
             *w += c.abs();
         }
     }
-    // Pinned symbols stay, in place; the others by weight.
+    weight
+}
+
+/// The coefficient matrix with the pinned symbols (in place) and the `keep` heaviest others in
+/// use, and per neuron the sum of the |coefficients| left out, rounded up.
+fn largest_symbols(models: &Models, weight: &[f64], keep: usize) -> (DMatrix<f64>, Vec<f64>) {
+    let (m, n, s) = (models.m, models.n(), weight.len());
     let pinned = models.pinned.min(s);
     let mut order: Vec<usize> = (pinned..s).filter(|&k| weight[k] > 0.0).collect();
-    if order.len() == s - pinned && s <= max.max(pinned) {
-        return;
-    }
     order.sort_by(|&a, &b| weight[b].total_cmp(&weight[a]));
-    let kept: Vec<usize> = (0..pinned).chain(order.iter().copied().take(max.saturating_sub(pinned))).collect();
-    let mut keep_mask = vec![false; s];
-    kept.iter().for_each(|&k| keep_mask[k] = true);
-    let n = models.n();
+    let kept: Vec<usize> = (0..pinned).chain(order.into_iter().take(keep)).collect();
+    let mut left_out = vec![true; s];
+    kept.iter().for_each(|&k| left_out[k] = false);
     let mut coef = DMatrix::zeros(m + kept.len(), n);
+    let mut dropped = vec![0.0; n];
     for i in 0..n {
         let src = models.column(i);
-        let mut dst = coef.column_mut(i);
-        dst.as_mut_slice()[..m].copy_from_slice(&src[..m]);
-        let mut dropped = 0.0;
-        for k in 0..s {
-            if !keep_mask[k] {
-                dropped = add_up(dropped, src[m + k].abs());
-            }
-        }
+        let mut column = coef.column_mut(i);
+        let dst = column.as_mut_slice();
+        dst[..m].copy_from_slice(&src[..m]);
         for (slot, &k) in kept.iter().enumerate() {
             dst[m + slot] = src[m + k];
         }
-        models.rem[i] = models.rem[i].inflate(dropped);
+        dropped[i] = src[m..].iter().zip(&left_out).filter(|(_, &out)| out).fold(0.0, |d, (g, _)| add_up(d, g.abs()));
     }
-    models.coef = coef;
+    (coef, dropped)
 }
 
 /// q(tau) for tau = s (p - c) and a polynomial p (no remainder), by Horner's scheme on float
@@ -1021,21 +1010,28 @@ mod tests {
         }
     }
 
-    #[test]
-    fn own_symbols_give_the_bounds_of_their_dense_rows() {
-        // A wide layer creates one symbol per neuron; the next affine map must see them exactly
-        // as if they were rows of the coefficient matrix.
-        let mut state = 3;
+    /// A random 2 -> `wide` (sigmoid) -> `narrow` (tanh) network and the models after its first
+    /// layer on a fixed box: every wide neuron with a symbol of its own.
+    fn wide_then_narrow(seed: u64, wide: usize, narrow: usize) -> (Network, Models) {
+        let mut state = seed;
         let mut weights = |n_out: usize, n_in: usize| (0..n_out * n_in).map(|_| noise(&mut state)).collect::<Vec<f64>>();
         let layers = vec![
-            LayerArrays { n_out: 40, n_in: 2, weight: weights(40, 2), bias: vec![0.1; 40], activations: vec![Activation::Sigmoid] },
-            LayerArrays { n_out: 3, n_in: 40, weight: weights(3, 40), bias: vec![0.0; 3], activations: vec![Activation::Tanh] },
+            LayerArrays { n_out: wide, n_in: 2, weight: weights(wide, 2), bias: vec![0.1; wide], activations: vec![Activation::Sigmoid] },
+            LayerArrays { n_out: narrow, n_in: wide, weight: weights(narrow, wide), bias: vec![0.0; narrow], activations: vec![Activation::Tanh] },
         ];
         let net = Network::new(layers, None, None).unwrap();
         let settings = Settings { order: 3, symbol_min: 0.0, ..Settings::default() };
         let input = [Interval::new(-1.0, 1.0).unwrap(), Interval::new(0.5, 1.5).unwrap()];
         let first = activate(&Models::from_box(&input, &settings, false).unwrap().affine(&net.layers()[0]).unwrap(), &net.layers()[0], &settings).unwrap();
-        assert!(first.own.is_some() && first.symbols() == 40, "every sigmoid neuron has its own symbol");
+        assert!(first.own.is_some() && first.symbols() == wide, "every sigmoid neuron has its own symbol");
+        (net, first)
+    }
+
+    #[test]
+    fn own_symbols_give_the_bounds_of_their_dense_rows() {
+        // A wide layer creates one symbol per neuron; the next affine map must see them exactly
+        // as if they were rows of the coefficient matrix.
+        let (net, first) = wide_then_narrow(3, 40, 3);
         let own = first.affine(&net.layers()[1]).unwrap();
         let dense = first.materialized().affine(&net.layers()[1]).unwrap();
         assert_eq!(own.symbols(), dense.symbols());
@@ -1054,16 +1050,8 @@ mod tests {
 
     #[test]
     fn narrow_layers_box_minor_symbols_per_neuron() {
-        let mut state = 5;
-        let mut weights = |n_out: usize, n_in: usize| (0..n_out * n_in).map(|_| noise(&mut state)).collect::<Vec<f64>>();
-        let layers = vec![
-            LayerArrays { n_out: 120, n_in: 2, weight: weights(120, 2), bias: vec![0.1; 120], activations: vec![Activation::Sigmoid] },
-            LayerArrays { n_out: 6, n_in: 120, weight: weights(6, 120), bias: vec![0.0; 6], activations: vec![Activation::Tanh] },
-        ];
-        let net = Network::new(layers, None, None).unwrap();
-        let settings = Settings { order: 3, symbol_min: 0.0, ..Settings::default() };
-        let input = [Interval::new(-1.0, 1.0).unwrap(), Interval::new(0.5, 1.5).unwrap()];
-        let first = activate(&Models::from_box(&input, &settings, false).unwrap().affine(&net.layers()[0]).unwrap(), &net.layers()[0], &settings).unwrap();
+        let (net, first) = wide_then_narrow(5, 120, 6);
+        let mut state = 6;
         let pre = first.affine(&net.layers()[1]).unwrap();
         assert_eq!(pre.symbols(), 120);
         assert!(box_minor_symbols(&pre, 200).is_none(), "nothing to box");
