@@ -712,9 +712,10 @@ fn compose(q: &[f64], centre: f64, scale: f64, p: &[f64], ctx: &Ctx) -> TaylorMo
 }
 
 /// The activation polynomial's top degrees are dropped while their error stays below this share
-/// of what the neuron carries already (|phi'| |delta|, from earlier layers): a 1% wider error
-/// there is invisible, and composing at degree 2-3 instead of the order costs half as much
-/// (most pixels of an image model are nearly saturated and nearly linear in the cell).
+/// of what the neuron carries already (|phi'| |delta|, from earlier layers): composing at degree
+/// 2-3 instead of the order costs half as much (most pixels of an image model are nearly
+/// saturated and nearly linear in the cell). Measured on hard composite Mountain Car cells: a
+/// share of 1% added domain splits, 0.1% none.
 const TRUNCATION_SHARE: f64 = 0.001;
 
 /// The smallest degree d whose dropped terms fit in `budget`, and their bound sum_(k > d) |q_k|
