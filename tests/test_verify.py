@@ -94,6 +94,32 @@ def test_falsification_ends_a_run_at_its_goal_as_the_engine_does():
     assert cex.step == 5 and cex.trajectory[-1][0] > 5 and "x <= 5" in cex.violated
 
 
+def test_cells_the_engine_cannot_verify_are_sampled_and_verified_ones_are_not(monkeypatch):
+    # Safe unless x is in (0.2, 0.4) at step 0: the centre (0.5) and corners (0, 1) of the cell
+    # [0, 1] pass, the engine cannot verify it, and random runs find the gap. The cells [2, 3] and
+    # [4, 5] verify: they are probed (centre and corners), never sampled at random.
+    x = pv.variables("x")
+    loop = pv.ClosedLoop(pv.Discrete({x: x + 10.0}))
+    sampled = []
+    falsify = verify_module._falsify
+
+    def spy(loop_, prop, cells, steps, samples, seed, probe=True):
+        sampled.extend((c.bounds[0], samples, probe) for c in cells)
+        return falsify(loop_, prop, cells, steps, samples, seed, probe)
+
+    monkeypatch.setattr(verify_module, "_falsify", spy)
+    res = pv.verify(loop, init={"x": (0.0, 5.0)}, split={"x": 5}, steps=3, safe=(x - 0.3) ** 2 >= 0.01, workers=1,
+                    progress=False)
+    verdicts = {c.box["x"]: c.verdict for c in res.cells}
+    assert verdicts[(0.0, 1.0)] == "falsified" and verdicts[(2.0, 3.0)] == verdicts[(4.0, 5.0)] == "verified"
+    first = next(c for c in res.cells if c.box["x"] == (0.0, 1.0))
+    assert 0.2 < first.counterexample.initial["x"] < 0.4 and first.seconds > 0
+    assert "the engine:" in first.reason
+    assert all(probe and samples == 0 for _, samples, probe in sampled[:5])
+    randomly = {bounds for bounds, samples, probe in sampled if not probe}
+    assert (0.0, 1.0) in randomly and not randomly & {(2.0, 3.0), (4.0, 5.0)}
+
+
 def test_chunks_falsified_beside_the_engine_add_up(tmp_path):
     # 200 cells in chunks of 32 (one worker): each chunk is falsified while the engine runs the
     # previous one. Every cell is settled once, in the result and in the journal, with the verdict

@@ -1,5 +1,6 @@
-"""``pv.verify``: split the initial set into cells, falsify first, verify the rest in parallel,
-refine what stays unknown, and journal every finished cell.
+"""``pv.verify``: split the initial set into cells, probe each by simulation (its centre and
+corners), verify the rest in parallel, sample the cells the engine could not verify for a
+counterexample, refine what stays unknown, and journal every finished cell.
 
 Verdicts per cell: "verified" (the engine proved the property for every state of the cell),
 "falsified" (a simulated trajectory from the cell violates it; the counterexample replays),
@@ -411,6 +412,11 @@ def verify(
     after ``timeout_per_cell`` seconds stops at the next step and is bisected down to
     ``min_width`` (default 1/64 of the initial set per dimension), then reported unknown.
 
+    Each cell's centre and corners are simulated before the engine runs it (a violation there
+    saves the engine run); a cell the engine does not verify is simulated from ``falsify`` random
+    points of it before it is reported or bisected, so a falsified cell's counterexample can come
+    from either.
+
     Inside a cell, a part whose enclosure degrades (or that reaches a ``within`` goal only in
     part) is split where its enclosure was last precise and continued from there, and a condition
     (``pv.where``, in a stage or a discrete plant, e.g. a wall that some runs hit at this step) that
@@ -502,9 +508,16 @@ def _grid(box: Box, split: dict):
 
 class _Campaign:
     """The cells of one verify() call as they flow: the lazy grid and sub-cells are looked up in
-    the journal, falsified in chunks, and handed to a backend (rayon or an executor) that returns
-    outcomes in any order; unknown cells (with refine=True) and timed-out ones (always) are
-    bisected down to min_width and their halves queued. Memory is a chunk plus the results.
+    the journal, probed in chunks (centre and corners simulated), and handed to a backend (rayon
+    or an executor) that returns outcomes in any order; a cell the engine leaves unknown is
+    sampled (``falsify`` random runs) before it is settled, and unknown cells (with refine=True)
+    and timed-out ones (always) are bisected down to min_width and their halves queued. Memory is
+    a chunk plus the results.
+
+    Random runs come after the engine, not before: a verified cell needs none (its proof covers
+    every run), and on a row that verifies they were most of the simulation, which competes with
+    the engine for the same cores (Mountain Car's composite row: 41 runs per cell cost ~12% of
+    the engine's time). A falsified cell then also spent its engine run; its time is kept.
 
     Outcomes may be recorded from another thread while cells are falsified (``stock`` runs beside
     the engine): the state is only touched under ``lock``, which no simulation holds."""
@@ -540,7 +553,7 @@ class _Campaign:
                 if len(self.ready) >= n or not (self.queue or self.left):
                     return
                 fresh = self._draw(min(self.chunk, max(n - len(self.ready), 8)))
-            found = _falsify(self.loop, self.prop, fresh, self.prop.steps, self.falsify, self.seed)
+            found = _falsify(self.loop, self.prop, fresh, self.prop.steps, 0, self.seed)
             with self.lock:
                 for cell, cex in zip(fresh, found):
                     if cex is None:
@@ -566,18 +579,24 @@ class _Campaign:
         return fresh
 
     def record(self, cell: Box, outcome: dict):
-        """A cell's outcome from the engine (``_run_cells``)."""
+        """A cell's outcome from the engine (``_run_cells``); one not verified is sampled first
+        (outside the lock: the simulation must not hold up other threads' outcomes)."""
+        cex = None
+        if outcome["verdict"] != "verified" and self.falsify > 0:
+            cex = _falsify(self.loop, self.prop, [cell], self.prop.steps, self.falsify, self.seed, probe=False)[0]
         with self.lock:
-            self._record(cell, outcome)
+            self._record(cell, outcome, cex)
 
-    def _record(self, cell: Box, outcome: dict):
-        verdict = outcome["verdict"]
-        if verdict == "violated":
+    def _record(self, cell: Box, outcome: dict, cex: Optional[Counterexample]):
+        verdict, reason = outcome["verdict"], outcome["reason"]
+        if cex is not None:
+            verdict, reason = "falsified", f"simulation violates {cex.violated} at step {cex.step}; the engine: {reason}"
+        elif verdict == "violated":
             # The engine says every state violates, yet no simulation did: say unknown
             # rather than claim a counterexample we do not have.
             verdict = "unknown"
         c = Cell(cell.to_dict(), verdict, outcome["seconds"], outcome["nn_seconds"], outcome["branches"],
-                 outcome["steps_done"], outcome["reason"], None, outcome["boxes"], outcome.get("peak_rss_mb"),
+                 outcome["steps_done"], reason, cex, outcome["boxes"], outcome.get("peak_rss_mb"),
                  None if outcome.get("split") is None else self.init.names[outcome["split"]])
         self.cell_seconds[0] += c.seconds
         self.cell_seconds[1] += 1
@@ -672,11 +691,11 @@ def _splittable(cell: Box, init: Box, min_width: dict) -> bool:
     return any(_above_min_width(cell, init, min_width))
 
 
-def _falsify(loop: ClosedLoop, prop: _Property, cells: list, steps: int, samples: int, seed: int) -> list:
-    """Simulates each cell's centre, corners (up to 2^8) and random points, all cells in one
-    batch; per cell, the first violating trajectory is its counterexample (else None). The random
-    points are drawn from the cell itself (seeded by its bounds), so a cell gets the same ones
-    whichever order or process it is run in."""
+def _falsify(loop: ClosedLoop, prop: _Property, cells: list, steps: int, samples: int, seed: int, probe: bool = True) -> list:
+    """Simulates each cell's ``samples`` random points and, with ``probe``, its centre and corners
+    (up to 2^8), all cells in one batch; per cell, the first violating trajectory is its
+    counterexample (else None). The random points are drawn from the cell itself (seeded by its
+    bounds), so a cell gets the same ones whichever order or process it is run in."""
     if not cells:
         return []
     blocks = []
@@ -684,12 +703,13 @@ def _falsify(loop: ClosedLoop, prop: _Property, cells: list, steps: int, samples
         lo, hi = cell.lo, cell.hi
         free = np.nonzero(hi > lo)[0]
         corners = np.empty((0, len(lo)))
-        if len(free) <= 8:
+        if probe and len(free) <= 8:
             bits = (np.arange(2 ** len(free))[:, None] >> np.arange(len(free))) & 1
             corners = np.repeat(lo[None], len(bits), axis=0)
             corners[:, free] = np.where(bits, hi[free], lo[free])
         rng = np.random.default_rng([seed, zlib.crc32(_key(cell.to_dict()).encode())])
-        blocks.append(np.vstack([0.5 * (lo + hi), corners, lo + (hi - lo) * rng.random((samples, len(lo)))]))
+        centre = 0.5 * (lo + hi)[None] if probe else np.empty((0, len(lo)))
+        blocks.append(np.vstack([centre, corners, lo + (hi - lo) * rng.random((samples, len(lo)))]))
     x0 = np.vstack(blocks)
     owner = np.repeat(np.arange(len(cells)), [len(b) for b in blocks])
     traj, found = prop.monitor(loop, x0, steps)
