@@ -92,30 +92,37 @@ def test_split_options_replace_only_what_they_name():
     init = verification.initial_set("contrast")
     layout = verification.LAYOUT["paper"]["contrast"]
     default = verification._grid(init, layout, {})
-    assert [box["p"][1] for box, _, _ in default] == [verification.WALL, -0.4]
+    assert [box["p"][1] for box, _ in default] == [verification.WALL, -0.4]
     options = {"max_splits": 3, "refine": False}
     bands = verification._grid(init, layout, options)
-    assert [(box, split) for box, split, _ in bands] == [(box, split) for box, split, _ in default]
-    assert [splits for _, _, splits in bands] == [3, 3] and options == {"refine": False}
+    assert [(box, band.cells, band.order) for box, band in bands] == [(box, band.cells, band.order) for box, band in default]
+    assert [band.max_splits for _, band in bands] == [3, 3] and options == {"refine": False}
     (one,) = verification._grid(init, layout, {"split": {"p": 0.01}})
-    assert one == (init, {"p": 0.01}, layout[0][2])
-    assert verification._grid(init, layout, {"split": {}, "max_splits": 0}) == [(init, {}, 0)]
+    assert one[0] == init and (one[1].cells, one[1].max_splits, one[1].order) == ({"p": 0.01}, layout[0].max_splits, layout[0].order)
+    (none,) = verification._grid(init, layout, {"split": {}, "max_splits": 0, "order": 4})
+    assert (none[1].cells, none[1].max_splits, none[1].order) == ({}, 0, 4)
+    composite = verification.LAYOUT["paper"]["composite"]
+    assert {band.order for _, band in verification._grid(verification.initial_set("composite"), composite, {"order": 7})} == {7}
 
 
 def test_bands_partition_the_initial_set():
     layout = verification.LAYOUT["paper"]["composite"]
     bands = verification._bands(verification.initial_set("composite"), layout)
-    assert [(box["p"], box["dc"]) for box, _, _ in bands] == [
-        ((-0.55, -0.4), (0.5, verification.LOW_CONTRAST)),
-        ((-0.55, -0.4), (verification.LOW_CONTRAST, 2.0)),
-    ]
+    # Each band's region is the rectangle its box covers; together they tile the row's p0 x dc
+    # (the whole db range in each) without overlap.
+    area = sum((box["p"][1] - box["p"][0]) * (box["dc"][1] - box["dc"][0]) for box, _ in bands)
+    assert area == pytest.approx(0.15 * 1.5)
+    for low in (True, False):
+        edges = sorted(box["p"] for box, _ in bands if (box["dc"][1] <= verification.LOW_CONTRAST) == low)
+        assert edges[0][0] == -0.55 and edges[-1][1] == -0.4 and all(a[1] == b[0] for a, b in zip(edges, edges[1:]))
+    assert {box["dc"] for box, _ in bands} == {(0.5, verification.LOW_CONTRAST), (verification.LOW_CONTRAST, 2.0)}
     walls = verification._bands(verification.initial_set("contrast"), verification.LAYOUT["paper"]["contrast"])
-    assert [box["p"] for box, _, _ in walls] == [(-0.59, verification.WALL), (verification.WALL, -0.4)]
+    assert [box["p"] for box, _ in walls] == [(-0.59, verification.WALL), (verification.WALL, -0.4)]
     # A slice inside one region meets only that band; a point on a boundary goes to the upper band.
     inside = verification._bands(verification.initial_set("composite", (-0.5, -0.49), delta_c=(1.0, 1.2)), layout)
-    assert [split for _, split, _ in inside] == [layout[1][1]]
+    assert [band for _, band in inside] == [layout[4]]
     point = verification._bands(verification.initial_set("composite", (-0.5, -0.5), delta_c=(0.8, 0.8)), layout)
-    assert [box["dc"] for box, _, _ in point] == [(0.8, 0.8)] and point[0][1] == layout[1][1]
+    assert [box["dc"] for box, _ in point] == [(0.8, 0.8)] and point[0][1] == layout[4]
 
 
 def test_published_logs_are_summarised():

@@ -11,6 +11,7 @@ v0 = 0 reach p >= 0.45 within 150 steps with reward > 90, the reward being -0.1 
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -23,37 +24,60 @@ from percver.errors import InputError, MissingFileError
 NOISE_STATES = {"canonical": (), "contrast": ("dc",), "blur": ("db",), "composite": ("dc", "db")}
 KEYWORDS = {"dc": "delta_c", "db": "delta_b"}
 # The cells each row starts from, as bands (a region of the initial set, cell widths, in-cell
-# splits), for the authors' chain ("paper") and for ours (any other set). Runs from p0 above about
-# -0.415 touch the left wall (p = -1.2) near step 50; where a cell's runs hit it at different
-# steps (or some not at all), each case is a branch of its own, so those cells are narrow in p0
-# and may branch more. In the composite row, low contrast (dc < 0.8) makes the estimate at the
-# left turning point depend so nonlinearly on dc and db that cells of p0 0.005 x dc 0.1 x db 0.05
-# spend their 16 in-cell splits and stay unknown, while cells of a quarter of that size in each
-# noise direction and half in p0 verify without a split. The composite's cells need no wall
-# band: the engine now forks the wall condition once for p and v (it used to fork each `where`
-# on it, into four parts, two of which mixed the sides); in p0 [-0.41, -0.405] the 0.005 cells
-# took 44 s where 0.001 cells took 136 s. The other rows' bands were measured before that.
+# splits, Taylor order), for the authors' chain ("paper") and for ours (any other set). Runs from
+# p0 above about -0.415 touch the left wall (p = -1.2) near step 50; where a cell's runs hit it at
+# different steps (or some not at all), each case is a branch of its own, so those cells are
+# narrow in p0 and may branch more. In the composite row, low contrast (dc < 0.8) makes the
+# estimate at the left turning point depend so nonlinearly on dc and db that cells of p0 0.005 x
+# dc 0.1 x db 0.05 spend their 16 in-cell splits and stay unknown, while cells of a quarter of
+# that size in each noise direction and half in p0 verify without a split. The composite's cells
+# need no wall band: the engine now forks the wall condition once for p and v (it used to fork
+# each `where` on it, into four parts, two of which mixed the sides); in p0 [-0.41, -0.405] the
+# 0.005 cells took 44 s where 0.001 cells took 136 s. Order 6 where the composite's cells split
+# at order 5 (the left edge, the approach to the wall, most of high contrast): near the wall
+# (p0 [-0.425, -0.42] x dc [0.5, 0.6], 24 cells, one worker) 169 engine s, all verified, against
+# 453 s and 3 unknown at order 5; where order 5 needs no split, order 6 costs 1.3x more per cell.
+# The other rows' bands were measured before these changes.
 # Our chain needs narrow cells everywhere:
 # its controller coasts as soon as the estimated energy suffices, so the car arrives with little
 # margin and when it coasts depends on the estimate.
 # Measured in bench/mountain_car.py (bench/README.md, "Mountain Car").
 WALL = -0.415
 LOW_CONTRAST = 0.8
+
+
+@dataclass(frozen=True)
+class Band:
+    """Cells of ``cells`` widths over ``region`` (half-open ``[lo, hi)`` per named state), each
+    with up to ``max_splits`` in-cell splits, at Taylor ``order``."""
+
+    region: dict
+    cells: dict
+    max_splits: int
+    order: int = 5
+
+
+_LOW, _HIGH = (-math.inf, LOW_CONTRAST), (LOW_CONTRAST, math.inf)
+_COMPOSITE_LOW, _COMPOSITE_HIGH = {"p": 0.0025, "dc": 0.05, "db": 0.025}, {"p": 0.005, "dc": 0.1, "db": 0.05}
 LAYOUT = {
     "paper": {
-        "canonical": [({"p": (-math.inf, WALL)}, {"p": 0.005}, 16), ({"p": (WALL, math.inf)}, {"p": 0.001}, 64)],
-        "contrast": [({"p": (-math.inf, WALL)}, {"p": 0.005, "dc": 0.1}, 16), ({"p": (WALL, math.inf)}, {"p": 0.001, "dc": 0.2}, 64)],
-        "blur": [({"p": (-math.inf, WALL)}, {"p": 0.005, "db": 0.05}, 16), ({"p": (WALL, math.inf)}, {"p": 0.001, "db": 0.1}, 64)],
+        "canonical": [Band({"p": (-math.inf, WALL)}, {"p": 0.005}, 16), Band({"p": (WALL, math.inf)}, {"p": 0.001}, 64)],
+        "contrast": [Band({"p": (-math.inf, WALL)}, {"p": 0.005, "dc": 0.1}, 16), Band({"p": (WALL, math.inf)}, {"p": 0.001, "dc": 0.2}, 64)],
+        "blur": [Band({"p": (-math.inf, WALL)}, {"p": 0.005, "db": 0.05}, 16), Band({"p": (WALL, math.inf)}, {"p": 0.001, "db": 0.1}, 64)],
         "composite": [
-            ({"dc": (-math.inf, LOW_CONTRAST)}, {"p": 0.0025, "dc": 0.05, "db": 0.025}, 16),
-            ({"dc": (LOW_CONTRAST, math.inf)}, {"p": 0.005, "dc": 0.1, "db": 0.05}, 16),
+            Band({"p": (-math.inf, -0.545), "dc": _LOW}, _COMPOSITE_LOW, 16, 6),
+            Band({"p": (-0.545, -0.445), "dc": _LOW}, _COMPOSITE_LOW, 16, 5),
+            Band({"p": (-0.445, math.inf), "dc": _LOW}, _COMPOSITE_LOW, 16, 6),
+            Band({"p": (-math.inf, -0.515), "dc": _HIGH}, _COMPOSITE_HIGH, 16, 6),
+            Band({"p": (-0.515, -0.475), "dc": _HIGH}, _COMPOSITE_HIGH, 16, 5),
+            Band({"p": (-0.475, math.inf), "dc": _HIGH}, _COMPOSITE_HIGH, 16, 6),
         ],
     },
     "ours": {
-        "canonical": [({}, {"p": 0.001}, 16)],
-        "contrast": [({}, {"p": 0.001, "dc": 0.05}, 16)],
-        "blur": [({}, {"p": 0.001, "db": 0.05}, 16)],
-        "composite": [({}, {"p": 0.001, "dc": 0.05, "db": 0.05}, 16)],
+        "canonical": [Band({}, {"p": 0.001}, 16)],
+        "contrast": [Band({}, {"p": 0.001, "dc": 0.05}, 16)],
+        "blur": [Band({}, {"p": 0.001, "db": 0.05}, 16)],
+        "composite": [Band({}, {"p": 0.001, "dc": 0.05, "db": 0.05}, 16)],
     },
 }
 MIN_WIDTH = {"p": 0.0003, "dc": 0.0125, "db": 0.004}
@@ -140,12 +164,13 @@ def verify(noise: str = "contrast", p0=None, networks="paper", *, delta_c=None, 
     """Verify one row of Table 1 (or a slice of it) and return the ``pv.Result``.
 
     ``p0``, ``delta_c``, ``delta_b`` default to the row's ranges (:data:`dynamics.ROWS`). The
-    remaining keywords go to ``pv.verify``. By default each band of :data:`LAYOUT` (a region of p0,
-    and of dc in the composite row) is split into its cells with its in-cell splits (``split=``
-    gives one grid instead; ``max_splits=`` alone overrides only the bands' in-cell splits), and
-    unknown cells (or ones still running after 60 s) are bisected down to :data:`MIN_WIDTH`
-    (``refine=True``): a hard cell costs less as two halves than split many times inside. The
-    result's ``settings["case"]`` records the row, the networks, the initial set and the bands.
+    remaining keywords go to ``pv.verify``. By default each :class:`Band` of :data:`LAYOUT` (a
+    region of p0, and of dc in the composite row) is split into its cells with its in-cell splits
+    and order (``split=`` gives one grid instead; ``max_splits=`` or ``order=`` alone override
+    only the bands' own), and unknown cells (or ones still running after 60 s) are bisected down
+    to :data:`MIN_WIDTH` (``refine=True``): a hard cell costs less as two halves than split many
+    times inside. The result's ``settings["case"]`` records the row, the networks, the initial set
+    and the bands.
     """
     import percver as pv
 
@@ -158,14 +183,16 @@ def verify(noise: str = "contrast", p0=None, networks="paper", *, delta_c=None, 
     options = {"refine": True, "min_width": MIN_WIDTH, "timeout_per_cell": 60.0, **verify_kwargs}
     bands = _grid(init, LAYOUT["paper" if name == "paper" else "ours"][noise], options)
     journal = options.pop("journal", None)
-    results = [pv.verify(loop, box, split=split, max_splits=splits, journal=_band_journal(journal, k, len(bands)),
-                         **specification(), **options) for k, (box, split, splits) in enumerate(bands)]
+    results = [pv.verify(loop, box, split=band.cells, max_splits=band.max_splits, order=band.order,
+                         journal=_band_journal(journal, k, len(bands)), **specification(), **options)
+               for k, (box, band) in enumerate(bands)]
     result = results[0]
     if len(results) > 1:
         result = pv.Result(result.states, {**result.init, **{k: init[k] for k in result.init if k in init}}, [c for r in results for c in r.cells],
                            sum(r.seconds for r in results), result.settings)
     result.settings["case"] = {"case": "mountain_car", "noise": noise, "networks": name, "init": init,
-                               "bands": [{"box": box, "split": split, "max_splits": splits} for box, split, splits in bands],
+                               "bands": [{"box": box, "split": band.cells, "max_splits": band.max_splits, "order": band.order}
+                                         for box, band in bands],
                                "min_width": options["min_width"]}
     return result
 
@@ -180,32 +207,31 @@ def _band_journal(journal, k: int, count: int):
 
 
 def _grid(init: dict, layout: list, options: dict) -> list:
-    """The bands to verify, taking ``split`` and ``max_splits`` out of ``options``: ``split=``
-    makes one grid over ``init``; ``max_splits=`` alone keeps the bands and replaces their
-    in-cell splits."""
+    """``(initial box, band)`` per band to verify, taking ``split``, ``max_splits`` and ``order``
+    out of ``options``: ``split=`` makes one band over ``init`` (the first band's in-cell splits
+    and order unless given); ``max_splits=`` and ``order=`` alone keep the bands and replace
+    their own."""
     bands = _bands(init, layout)
+    given = {key: options.pop(option) for key, option in (("max_splits", "max_splits"), ("order", "order")) if option in options}
     if "split" in options:
-        return [(init, options.pop("split"), options.pop("max_splits", bands[0][2]))]
-    if "max_splits" in options:
-        splits = options.pop("max_splits")
-        return [(box, split, splits) for box, split, _ in bands]
-    return bands
+        return [(init, replace(bands[0][1], region={}, cells=options.pop("split"), **given))]
+    return [(box, replace(band, **given)) for box, band in bands]
 
 
 def _bands(init: dict, layout: list) -> list:
-    """``(initial box, split, max_splits)`` per band of ``layout`` whose region meets ``init``. Regions
-    are half-open, [lo, hi), so a point of ``init`` on a boundary belongs to the upper band."""
+    """``(initial box, band)`` per band of ``layout`` whose region meets ``init``. Regions are
+    half-open, [lo, hi), so a point of ``init`` on a boundary belongs to the upper band."""
     out = []
-    for region, split, splits in layout:
+    for band in layout:
         box = dict(init)
-        for name, (r_lo, r_hi) in region.items():
+        for name, (r_lo, r_hi) in band.region.items():
             lo, hi = init[name]
             a, b = max(lo, r_lo), min(hi, r_hi)
             box[name] = (a, b)
             if not (a < b or (lo == hi and r_lo <= lo < r_hi)):
                 break
         else:
-            out.append((box, split, splits))
+            out.append((box, band))
     return out
 
 
