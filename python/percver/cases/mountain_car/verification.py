@@ -212,7 +212,7 @@ def _grid(init: dict, layout: list, options: dict) -> list:
     and order unless given); ``max_splits=`` and ``order=`` alone keep the bands and replace
     their own."""
     bands = _bands(init, layout)
-    given = {key: options.pop(option) for key, option in (("max_splits", "max_splits"), ("order", "order")) if option in options}
+    given = {key: options.pop(key) for key in ("max_splits", "order") if key in options}
     if "split" in options:
         return [(init, replace(bands[0][1], region={}, cells=options.pop("split"), **given))]
     return [(box, replace(band, **given)) for box, band in bands]
