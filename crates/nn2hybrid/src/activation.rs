@@ -7,7 +7,7 @@
 //! degree at a rate set by the distance of the poles to the interval, not by the radius).
 //!
 //! The enclosure is q(s (y - c)) with q the Chebyshev interpolant at d + 3 nodes truncated to
-//! degree d, computed in floats (any q is fine: the bound is what must be rigorous). The bound
+//! degree d or lower (within a budget), computed in floats (any q is fine: the bound is what must be rigorous). The bound
 //! max |phi(y) - q(s (y - c))| over [lo, hi] is computed per piece of a subdivision: on a piece
 //! with centre c_p and half-width h_p, the difference is expanded to order K around c_p (Taylor
 //! coefficients of phi by its ODE recurrence in interval arithmetic; q shifted exactly), the
@@ -270,9 +270,8 @@ fn chebyshev_to_power() -> &'static Vec<Vec<f64>> {
     })
 }
 
-/// The linear map from phi's values at the n = d + 3 Chebyshev nodes to the power coefficients
-/// of the degree-d truncation of their interpolant (rows 0..=d) and to the two dropped Chebyshev
-/// coefficients (rows d + 1, d + 2): fixed per degree, so it is built once.
+/// The linear map from phi's values at the n = d + 3 Chebyshev nodes to the Chebyshev
+/// coefficients of their interpolant (row m for T_m): fixed per degree, so it is built once.
 struct Interpolation {
     nodes: Vec<f64>,
     rows: Vec<Vec<f64>>,
@@ -283,22 +282,13 @@ fn interpolation(d: usize) -> &'static Interpolation {
     TABLES[d].get_or_init(|| {
         let n = d + 3;
         let nodes: Vec<f64> = (0..n).map(|i| (std::f64::consts::PI * (i as f64 + 0.5) / n as f64).cos()).collect();
-        let table = chebyshev_to_power();
-        let mut rows = vec![vec![0.0; n]; d + 3];
-        // T_m at the nodes by T_(m+1) = 2x T_m - T_(m-1); Chebyshev coefficient m by discrete
+        // T_m at the nodes by T_(m+1) = 2x T_m - T_(m-1); coefficient m by discrete
         // orthogonality, c_m = w_m sum_i T_m(x_i) v_i.
         let (mut t_prev, mut t_cur) = (vec![0.0; n], vec![1.0; n]);
+        let mut rows = Vec::with_capacity(n);
         for m in 0..n {
             let w = if m == 0 { 1.0 } else { 2.0 } / n as f64;
-            match table.get(m).filter(|_| m <= d) {
-                Some(power) => {
-                    for (row, &p) in rows.iter_mut().zip(power) {
-                        row.iter_mut().zip(&t_cur).for_each(|(r, t)| *r += p * w * t);
-                    }
-                }
-                // Beyond the conversion table (degrees above K_MAX), a coefficient counts as dropped.
-                None => rows[(d + 1).max(m)].iter_mut().zip(&t_cur).for_each(|(r, t)| *r += w * t),
-            }
+            rows.push(t_cur.iter().map(|t| w * t).collect());
             let factor = if m == 0 { 1.0 } else { 2.0 };
             for i in 0..n {
                 let next = factor * nodes[i] * t_cur[i] - t_prev[i];
@@ -310,16 +300,28 @@ fn interpolation(d: usize) -> &'static Interpolation {
     })
 }
 
-/// Float Chebyshev approximation of phi(c + tau / s) of degree d, in the power basis of tau:
-/// the interpolant at d + 3 nodes truncated to degree d, and the two dropped coefficients'
-/// magnitudes, an estimate of the fit error.
-fn interpolate(f: Smooth, c: f64, s: f64, d: usize) -> (Vec<f64>, f64) {
+/// Float Chebyshev approximation of phi(c + tau / s) in the power basis of tau: the interpolant
+/// at d + 3 nodes truncated to the lowest degree (at most d, and at most K_MAX) whose dropped
+/// Chebyshev coefficients sum to at most `budget` (|T_m| <= 1, so that sum bounds what the
+/// truncation costs), and that sum over every dropped coefficient, an estimate of the fit error.
+/// Truncating the Chebyshev series rather than the power series: for the same error the degree
+/// is lower (power coefficients of a smooth function are larger by up to 2^(m-1)), and every
+/// degree less halves the cost of composing the polynomial with a neuron's Taylor model.
+fn interpolate(f: Smooth, c: f64, s: f64, d: usize, budget: f64) -> (Vec<f64>, f64) {
     let table = interpolation(d);
     let mut values = [0.0; taylor::space::MAX_ORDER + 3];
     table.nodes.iter().zip(values.iter_mut()).for_each(|(&x, v)| *v = f.eval(c + x / s));
-    let dot = |row: &Vec<f64>| row.iter().zip(&values).map(|(r, v)| r * v).sum::<f64>();
-    let power = table.rows[..=d].iter().map(dot).collect();
-    let estimate = table.rows[d + 1..].iter().map(|row| dot(row).abs()).sum();
+    let cheb: Vec<f64> = table.rows.iter().map(|row| row.iter().zip(&values).map(|(r, v)| r * v).sum()).collect();
+    let mut degree = d.min(K_MAX);
+    let mut estimate: f64 = cheb[degree + 1..].iter().map(|c| c.abs()).sum();
+    while degree > 0 && estimate + cheb[degree].abs() <= budget {
+        estimate += cheb[degree].abs();
+        degree -= 1;
+    }
+    let mut power = vec![0.0; degree + 1];
+    for (c, row) in cheb.iter().zip(chebyshev_to_power()).take(degree + 1) {
+        power.iter_mut().zip(row).for_each(|(p, t)| *p += c * t);
+    }
     (power, estimate)
 }
 
@@ -402,8 +404,9 @@ fn ln_pieces() -> &'static [f64; PIECES.len()] {
     LN.get_or_init(|| PIECES.map(|n| (n as f64).ln()))
 }
 
-/// The enclosure of phi on `range` by a polynomial of degree `degree` (bounded, non-empty range).
-pub fn enclose(f: Smooth, range: Interval, degree: usize) -> PolyEnclosure {
+/// The enclosure of phi on `range` by a polynomial of degree at most `degree`, lower where the
+/// degrees dropped cost at most about `budget` (see `interpolate`; 0 keeps the degree).
+pub fn enclose(f: Smooth, range: Interval, degree: usize, budget: f64) -> PolyEnclosure {
     let image = f.image(range);
     let constant = || PolyEnclosure { centre: range.mid(), scale: 0.0, coef: vec![image.mid()], err: image.radius() };
     let c = range.mid();
@@ -413,10 +416,10 @@ pub fn enclose(f: Smooth, range: Interval, degree: usize) -> PolyEnclosure {
     }
     // s <= 1 / h, so that |s (y - c)| <= 1 on the range.
     let s = Interval::point(h).recip().expect("h > 0").lo();
-    let (q, estimate) = interpolate(f, c, s, degree);
+    let (q, estimate) = interpolate(f, c, s, degree, budget);
     let tail = (estimate * TAIL_FRACTION).max(TAIL_MIN);
     let distance = range.mig();
-    let Some((pieces, k, disc)) = plan(f, h, distance, tail, degree) else { return constant() };
+    let Some((pieces, k, disc)) = plan(f, h, distance, tail, q.len() - 1) else { return constant() };
     let (lo, hi) = (range.lo(), range.hi());
     let mut err = 0.0f64;
     for i in 0..pieces {
@@ -469,7 +472,7 @@ mod tests {
     use super::*;
 
     fn check(f: Smooth, lo: f64, hi: f64, d: usize) -> PolyEnclosure {
-        let e = enclose(f, Interval::new(lo, hi).unwrap(), d);
+        let e = enclose(f, Interval::new(lo, hi).unwrap(), d, 0.0);
         let mut worst = 0.0f64;
         for i in 0..=4000 {
             let y = lo + (hi - lo) * i as f64 / 4000.0;
@@ -503,6 +506,28 @@ mod tests {
         let e10 = check(Smooth::Tanh, -4.0, 4.0, 10);
         assert!(e10.err < 0.2 * e4.err, "{} vs {}", e10.err, e4.err);
         assert!(check(Smooth::Sigmoid, -1.0, 1.0, 6).err < 1e-5);
+    }
+
+    #[test]
+    fn a_budget_lowers_the_degree_and_the_bound_still_holds() {
+        let (lo, hi) = (0.5, 1.5);
+        let full = enclose(Smooth::Sigmoid, Interval::new(lo, hi).unwrap(), 6, 0.0);
+        assert_eq!(full.coef.len(), 7);
+        for budget in [1e-6, 1e-4, 1e-2] {
+            let e = enclose(Smooth::Sigmoid, Interval::new(lo, hi).unwrap(), 6, budget);
+            assert!(e.coef.len() < 7, "budget {budget}: degree {}", e.coef.len() - 1);
+            // The dropped coefficients plus the Cauchy tail planned at half of them.
+            assert!(e.err <= full.err + 2.0 * budget, "budget {budget}: {} above {} + 2 budget", e.err, full.err);
+            for i in 0..=2000 {
+                let y = lo + (hi - lo) * i as f64 / 2000.0;
+                let tau = e.scale * (y - e.centre);
+                let q = e.coef.iter().rev().fold(0.0, |acc, c| acc * tau + c);
+                assert!((Smooth::Sigmoid.eval(y) - q).abs() <= e.err, "budget {budget}: at {y}");
+            }
+        }
+        // Near-linear on a narrow range: a loose budget leaves the affine part.
+        let narrow = enclose(Smooth::Tanh, Interval::new(2.0, 2.001).unwrap(), 6, 1e-6);
+        assert_eq!(narrow.coef.len(), 2);
     }
 
     #[test]

@@ -683,11 +683,9 @@ fn compose(q: &[f64], centre: f64, scale: f64, p: &[f64], ctx: &Ctx) -> TaylorMo
             }
             sa += ai.abs();
             let lim = len.min(space.len_upto(ctx.order - space.deg[i] as usize));
-            for &(j, out) in space.pairs_of(i) {
-                if j as usize >= lim {
-                    break;
-                }
-                next[out as usize] += ai * t[j as usize];
+            // The pairs of i list j = 0, 1, ... in order: the first lim are those with t_j.
+            for (&(_, out), &tj) in space.pairs_of(i)[..lim].iter().zip(&t[..lim]) {
+                next[out as usize] += ai * tj;
             }
             dropped += ai.abs() * suffix[lim];
         }
@@ -718,20 +716,6 @@ fn compose(q: &[f64], centre: f64, scale: f64, p: &[f64], ctx: &Ctx) -> TaylorMo
 /// share of 1% added domain splits, 0.1% none.
 const TRUNCATION_SHARE: f64 = 0.001;
 
-/// The smallest degree d whose dropped terms fit in `budget`, and their bound sum_(k > d) |q_k|
-/// (q in powers of tau with |tau| <= 1 on the range, so it bounds q - q_d there).
-fn truncation(q: &[f64], budget: f64) -> (usize, f64) {
-    let (mut degree, mut tail) = (q.len() - 1, 0.0);
-    while degree > 0 {
-        let more = add_up(tail, q[degree].abs());
-        if more > budget {
-            break;
-        }
-        (degree, tail) = (degree - 1, more);
-    }
-    (degree, tail)
-}
-
 /// One smooth neuron: phi(p + delta) in q(s (p - c)) +- e + phi'(Y) delta.
 fn smooth_neuron(f: Smooth, models: &Models, i: usize) -> NeuronOut {
     let ctx = &models.ctx;
@@ -745,14 +729,13 @@ fn smooth_neuron(f: Smooth, models: &Models, i: usize) -> NeuronOut {
     if !y.is_bounded() {
         return constant();
     }
-    let enc = enclose(f, range, ctx.order);
-    let (degree, tail) = truncation(&enc.coef, TRUNCATION_SHARE * slope.mag() * delta.mag());
+    let enc = enclose(f, range, ctx.order, TRUNCATION_SHARE * slope.mag() * delta.mag());
     let mut poly = if enc.scale == 0.0 {
         TaylorModel::constant(enc.coef[0])
     } else {
-        compose(&enc.coef[..=degree], enc.centre, enc.scale, &p.coef, ctx)
+        compose(&enc.coef, enc.centre, enc.scale, &p.coef, ctx)
     };
-    let mut error = Interval::symmetric(add_up(enc.err, tail)) + poly.rem;
+    let mut error = Interval::symmetric(enc.err) + poly.rem;
     poly.rem = Interval::ZERO;
     let mut sym_factor = 0.0;
     if delta != Interval::ZERO {
@@ -991,7 +974,7 @@ mod tests {
                 let mut coef: Vec<f64> = (0..space.len_upto(4)).map(|k| scale * noise(&mut state) / (1 + space.deg[k]) as f64).collect();
                 coef[0] = 3.0 * noise(&mut state);
                 let p = TaylorModel { coef: coef.clone(), rem: Interval::ZERO };
-                let enc = enclose(f, p.poly_bound(&space), 4);
+                let enc = enclose(f, p.poly_bound(&space), 4, 0.0);
                 let out = compose(&enc.coef, enc.centre, enc.scale, &coef, &ctx);
                 // No wider than Horner's scheme in Taylor-model arithmetic (same truncation).
                 let tau = p.add_constant(-enc.centre).scale(enc.scale);
@@ -1075,17 +1058,5 @@ mod tests {
             looser += (g > h * 1.001) as usize;
         }
         assert!(looser > 0, "boxing 110 of 120 symbols must lose some correlation");
-    }
-
-    #[test]
-    fn activation_polynomials_drop_degrees_within_their_budget() {
-        let q = [0.5, 0.2, -0.01, 1e-4, -2e-6, 3e-8];
-        assert_eq!(truncation(&q, 0.0), (5, 0.0));
-        let (d, tail) = truncation(&q, 1e-3);
-        assert_eq!(d, 2);
-        assert!(tail >= 1e-4 + 2e-6 + 3e-8 && tail <= 1e-3);
-        let (d, tail) = truncation(&q, 1.0);
-        assert_eq!(d, 0);
-        assert!(tail >= 0.2 + 0.01 + 1e-4 + 2e-6 + 3e-8);
     }
 }

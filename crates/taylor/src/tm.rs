@@ -95,14 +95,33 @@ impl TaylorModel {
         self.coef.len().checked_sub(1).map_or(0, |i| space.deg[i] as usize)
     }
 
-    /// Range of the polynomial part by monomial-wise interval evaluation (Flow*'s bound).
+    /// Range of the polynomial part by monomial-wise interval evaluation (Flow*'s bound). The
+    /// three sums of |coefficients| (monomials in [-1, 1]; positive and negative ones on
+    /// monomials in [0, 1], as (|c| + c) / 2 and (|c| - c) / 2, exact) are float sums of
+    /// non-negative terms, rounded once at the end by 1 + gamma: a branch-free loop the compiler
+    /// vectorises (it runs several times per neuron). Infinite or NaN coefficients take the
+    /// term-by-term loop, which keeps them apart.
     pub fn poly_bound(&self, space: &Space) -> Interval {
-        let Some(&c0) = self.coef.first() else { return Interval::ZERO };
-        let (mut lo, mut hi) = (c0, c0);
-        for (i, &c) in self.coef.iter().enumerate().skip(1) {
-            add_term_range(&mut lo, &mut hi, c, space.nonneg[i]);
+        let Some((&c0, rest)) = self.coef.split_first() else { return Interval::ZERO };
+        let (mut both, mut pos, mut neg) = (0.0f64, 0.0f64, 0.0f64);
+        for (&c, &nonneg) in rest.iter().zip(&space.nonneg[1..self.coef.len()]) {
+            let a = c.abs();
+            both += if nonneg { 0.0 } else { a };
+            pos += if nonneg { 0.5 * (a + c) } else { 0.0 };
+            neg += if nonneg { 0.5 * (a - c) } else { 0.0 };
         }
-        Interval::raw(lo, hi)
+        if !(c0 + both + pos + neg).is_finite() {
+            let (mut lo, mut hi) = (c0, c0);
+            for (i, &c) in self.coef.iter().enumerate().skip(1) {
+                add_term_range(&mut lo, &mut hi, c, space.nonneg[i]);
+            }
+            return Interval::raw(lo, hi);
+        }
+        // Two more roundings: adding `both` to each one-sided sum.
+        let grow = 1.0 + gamma(self.coef.len() + 1);
+        let below = mul_up(both + neg, grow);
+        let above = mul_up(both + pos, grow);
+        Interval::raw((c0 - below).next_down(), (c0 + above).next_up())
     }
 
     /// Range of polynomial plus remainder.
@@ -401,9 +420,13 @@ impl TaylorModel {
 }
 
 /// Adds the range of c * (a monomial with range [0, 1] if `nonneg`, else [-1, 1]) to [lo, hi],
-/// rounding outward.
+/// rounding outward; a NaN coefficient (an unknown term) makes it unbounded.
 fn add_term_range(lo: &mut f64, hi: &mut f64, c: f64, nonneg: bool) {
     if c == 0.0 {
+        return;
+    }
+    if c.is_nan() {
+        (*lo, *hi) = (f64::NEG_INFINITY, f64::INFINITY);
         return;
     }
     if !nonneg || c < 0.0 {
@@ -457,6 +480,38 @@ mod tests {
             assert!(enclosure.contains(truth), "{enclosure} misses {truth}");
             assert!(cube.bound(&c.space).contains(truth));
         }
+    }
+
+    #[test]
+    fn poly_bound_holds_at_sampled_points_and_keeps_infinities_apart() {
+        let c = ctx(3, 4, 1);
+        let mut state = 11u64;
+        let mut noise = || {
+            state = state.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+            ((state >> 11) as f64) / ((1u64 << 53) as f64) - 0.5
+        };
+        for scale in [1e-300, 1e-8, 1.0, 1e200] {
+            let p = TaylorModel { coef: (0..c.space.len()).map(|_| scale * noise()).collect(), rem: Interval::ZERO };
+            let b = p.poly_bound(&c.space);
+            for x in sample_points(&c, 2000, 3) {
+                let value = p.eval_interval(&c.space, &x.iter().map(|&t| Interval::point(t)).collect::<Vec<_>>());
+                assert!(b.lo() <= value.lo() && value.hi() <= b.hi(), "scale {scale}: {b} misses {value}");
+            }
+            // As tight as the term-by-term sum.
+            let (mut lo, mut hi) = (p.coef[0], p.coef[0]);
+            p.coef.iter().enumerate().skip(1).for_each(|(i, &a)| add_term_range(&mut lo, &mut hi, a, c.space.nonneg[i]));
+            assert!(b.width() <= (hi - lo) * (1.0 + 1e-12), "scale {scale}: {b} against [{lo}, {hi}]");
+        }
+        // x0 is in [0, 1]: +inf on it leaves the lower end alone; NaN makes both unbounded.
+        let mut p = TaylorModel::affine(&c, 1.0, 1, 0.5);
+        p.coef.resize(2, 0.0);
+        p.coef[1] = f64::INFINITY;
+        let b = p.poly_bound(&c.space);
+        assert!(b.lo() == 1.0f64.next_down() || b.lo() == 1.0, "{b}");
+        assert_eq!(b.hi(), f64::INFINITY);
+        p.coef[1] = f64::NAN;
+        let b = p.poly_bound(&c.space);
+        assert!(b.lo() == f64::NEG_INFINITY && b.hi() == f64::INFINITY, "{b}");
     }
 
     #[test]
