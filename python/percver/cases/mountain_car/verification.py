@@ -37,6 +37,10 @@ KEYWORDS = {"dc": "delta_c", "db": "delta_b"}
 # at order 5 (the left edge, the approach to the wall, most of high contrast): near the wall
 # (p0 [-0.425, -0.42] x dc [0.5, 0.6], 24 cells, one worker) 169 engine s, all verified, against
 # 453 s and 3 unknown at order 5; where order 5 needs no split, order 6 costs 1.3x more per cell.
+# Low contrast in p0 [-0.4175, -0.41), where the runs reach the wall at different steps, took a
+# fifth of the slice p0 [-0.45, -0.4] with ~10 splits per cell: cells half as wide in p0 verify
+# there without bisection (p0 [-0.4125, -0.41] x dc [0.5, 0.6]: 24 cells 173 engine s, all
+# verified, against 12 cells 161 s with 4 unknown ones to bisect).
 # The other rows' bands were measured before these changes.
 # Our chain needs narrow cells everywhere:
 # its controller coasts as soon as the estimated energy suffices, so the car arrives with little
@@ -59,6 +63,7 @@ class Band:
 
 _LOW, _HIGH = (-math.inf, LOW_CONTRAST), (LOW_CONTRAST, math.inf)
 _COMPOSITE_LOW, _COMPOSITE_HIGH = {"p": 0.0025, "dc": 0.05, "db": 0.025}, {"p": 0.005, "dc": 0.1, "db": 0.05}
+_COMPOSITE_WALL = {**_COMPOSITE_LOW, "p": 0.00125}
 LAYOUT = {
     "paper": {
         "canonical": [Band({"p": (-math.inf, WALL)}, {"p": 0.005}, 16), Band({"p": (WALL, math.inf)}, {"p": 0.001}, 64)],
@@ -67,7 +72,9 @@ LAYOUT = {
         "composite": [
             Band({"p": (-math.inf, -0.545), "dc": _LOW}, _COMPOSITE_LOW, 16, 6),
             Band({"p": (-0.545, -0.445), "dc": _LOW}, _COMPOSITE_LOW, 16, 5),
-            Band({"p": (-0.445, math.inf), "dc": _LOW}, _COMPOSITE_LOW, 16, 6),
+            Band({"p": (-0.445, -0.4175), "dc": _LOW}, _COMPOSITE_LOW, 16, 6),
+            Band({"p": (-0.4175, -0.41), "dc": _LOW}, _COMPOSITE_WALL, 16, 6),
+            Band({"p": (-0.41, math.inf), "dc": _LOW}, _COMPOSITE_LOW, 16, 6),
             Band({"p": (-math.inf, -0.515), "dc": _HIGH}, _COMPOSITE_HIGH, 16, 6),
             Band({"p": (-0.515, -0.475), "dc": _HIGH}, _COMPOSITE_HIGH, 16, 5),
             Band({"p": (-0.475, math.inf), "dc": _HIGH}, _COMPOSITE_HIGH, 16, 6),
