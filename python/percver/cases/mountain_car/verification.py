@@ -39,8 +39,8 @@ KEYWORDS = {"dc": "delta_c", "db": "delta_b"}
 # 453 s and 3 unknown at order 5; where order 5 needs no split, order 6 costs 1.3x more per cell.
 # Low contrast in p0 [-0.4175, -0.41), where the runs reach the wall at different steps, took a
 # fifth of the slice p0 [-0.45, -0.4] with ~10 splits per cell: cells half as wide in p0 verify
-# there without bisection (p0 [-0.4125, -0.41] x dc [0.5, 0.6]: 24 cells 173 engine s, all
-# verified, against 12 cells 161 s with 4 unknown ones to bisect).
+# there without bisection (p0 [-0.4125, -0.41] x dc [0.5, 0.6]: 24 cells 158 engine s, all
+# verified, against 12 cells 144 s with 4 unknown ones to bisect).
 # The other rows' bands were measured before these changes.
 # Our chain needs narrow cells everywhere:
 # its controller coasts as soon as the estimated energy suffices, so the car arrives with little
