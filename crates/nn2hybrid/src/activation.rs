@@ -7,7 +7,8 @@
 //! degree at a rate set by the distance of the poles to the interval, not by the radius).
 //!
 //! The enclosure is q(s (y - c)) with q the Chebyshev interpolant at d + 3 nodes truncated to
-//! degree d or lower (within a budget), computed in floats (any q is fine: the bound is what must be rigorous). The bound
+//! degree d or lower (within a budget), computed in floats (any q is fine: the bound is what
+//! must be rigorous). The bound
 //! max |phi(y) - q(s (y - c))| over [lo, hi] is computed per piece of a subdivision: on a piece
 //! with centre c_p and half-width h_p, the difference is expanded to order K around c_p (Taylor
 //! coefficients of phi by its ODE recurrence in interval arithmetic; q shifted exactly), the
@@ -311,7 +312,9 @@ fn interpolate(f: Smooth, c: f64, s: f64, d: usize, budget: f64) -> (Vec<f64>, f
     let table = interpolation(d);
     let mut values = [0.0; taylor::space::MAX_ORDER + 3];
     table.nodes.iter().zip(values.iter_mut()).for_each(|(&x, v)| *v = f.eval(c + x / s));
-    let cheb: Vec<f64> = table.rows.iter().map(|row| row.iter().zip(&values).map(|(r, v)| r * v).sum()).collect();
+    let mut cheb = [0.0; taylor::space::MAX_ORDER + 3];
+    cheb.iter_mut().zip(&table.rows).for_each(|(c, row)| *c = row.iter().zip(&values).map(|(r, v)| r * v).sum());
+    let cheb = &cheb[..table.rows.len()];
     let mut degree = d.min(K_MAX);
     let mut estimate: f64 = cheb[degree + 1..].iter().map(|c| c.abs()).sum();
     while degree > 0 && estimate + cheb[degree].abs() <= budget {
@@ -405,7 +408,7 @@ fn ln_pieces() -> &'static [f64; PIECES.len()] {
 }
 
 /// The enclosure of phi on `range` by a polynomial of degree at most `degree`, lower where the
-/// degrees dropped cost at most about `budget` (see `interpolate`; 0 keeps the degree).
+/// degrees dropped cost at most about `budget` (see `interpolate`; 0 drops only zero ones).
 pub fn enclose(f: Smooth, range: Interval, degree: usize, budget: f64) -> PolyEnclosure {
     let image = f.image(range);
     let constant = || PolyEnclosure { centre: range.mid(), scale: 0.0, coef: vec![image.mid()], err: image.radius() };
