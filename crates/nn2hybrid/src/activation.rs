@@ -7,14 +7,13 @@
 //! degree at a rate set by the distance of the poles to the interval, not by the radius).
 //!
 //! The enclosure is q(s (y - c)) with q the Chebyshev interpolant at d + 3 nodes truncated to
-//! degree d or lower (within a budget), computed in floats (any q is fine: the bound is what
-//! must be rigorous). The bound
-//! max |phi(y) - q(s (y - c))| over [lo, hi] is computed per piece of a subdivision: on a piece
-//! with centre c_p and half-width h_p, the difference is expanded to order K around c_p (Taylor
-//! coefficients of phi by its ODE recurrence in interval arithmetic; q shifted exactly), the
-//! expansion is converted to the Chebyshev basis of the piece and bounded by the sum of
-//! |coefficients|, and the (Lagrange) tail is bounded by Cauchy's estimate on a disc where phi is
-//! analytic: |phi^(n)(x)| / n! <= M / rho^n for every x of the piece. The discs are either fixed
+//! degree d or lower (within a budget), computed in floats (any q is fine: the bound is what must
+//! be rigorous). The bound max |phi(y) - q(s (y - c))| over [lo, hi] is computed per piece of a
+//! subdivision: on a piece with centre c_p and half-width h_p, the difference is expanded to order
+//! K around c_p (Taylor coefficients of phi by its ODE recurrence in interval arithmetic; q shifted
+//! exactly), the expansion is converted to the Chebyshev basis of the piece and bounded by the sum
+//! of |coefficients|, and the (Lagrange) tail is bounded by Cauchy's estimate on a disc where phi
+//! is analytic: |phi^(n)(x)| / n! <= M / rho^n for every x of the piece. The discs are either fixed
 //! ones inside the strip around the real axis, or, for pieces away from 0 where phi saturates,
 //! discs whose M is small because phi is nearly constant there. Pieces and K are chosen to make
 //! that tail negligible at the least cost, so narrow ranges need one piece.
