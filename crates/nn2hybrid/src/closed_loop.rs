@@ -1073,4 +1073,30 @@ mod tests {
         let out = reach_verdict("0*x", (0.2, 0.5), 2);
         assert_eq!(out.verdict, Verdict::Violated, "{:?}", out.reason);
     }
+
+    /// A sum that only adds to itself (a reward) is not an error-symbol state, but its updates
+    /// carry the symbols of the states it sums. Renewing the symbols each step must not leave it
+    /// with terms in the old symbols: read as the new ones they cancelled against the next
+    /// step's terms, and runs of this rotating loop at order 1 left the sum's box by 1.7e-3.
+    #[test]
+    fn a_sum_of_renewed_errors_encloses_simulations() {
+        let names: Vec<String> = ["x", "y", "s"].iter().map(|s| s.to_string()).collect();
+        let exprs = ["0.8*y + x*y", "-0.8*x + x*y", "s + x"].map(|e| parse_expr(e).unwrap());
+        let plant = Program::compile(&exprs, &names).unwrap();
+        let steps = 25;
+        let lp = ClosedLoop { state_names: names, stages: vec![], plant: Plant::Discrete(Arc::new(plant.clone())), safe: vec![], goal: None, goal_within: false, steps };
+        let cell = [Interval::new(0.3, 0.4).unwrap(), Interval::new(0.1, 0.2).unwrap(), Interval::point(0.0)];
+        let out = verify_cell(&lp, &cell, &CellSettings { order: 1, cutoff: 0.0, ..loop_settings(true) });
+        assert_eq!(out.steps_done, steps);
+        for a in 0..=60 {
+            for b in 0..=60 {
+                let mut state = vec![0.3 + 0.1 * a as f64 / 60.0, 0.1 + 0.1 * b as f64 / 60.0, 0.0];
+                for (step, bx) in out.boxes.iter().enumerate() {
+                    assert!(bx.iter().zip(&state).all(|(iv, &x)| iv.contains(x)), "step {step}: {state:?} outside {bx:?}");
+                    let point: Vec<Interval> = state.iter().map(|&x| Interval::point(x)).collect();
+                    state = plant.eval(&Intervals, &point).unwrap().iter().map(|iv| iv.mid()).collect();
+                }
+            }
+        }
+    }
 }

@@ -151,11 +151,19 @@ impl ErrorSymbols {
 
     /// Folds the remainders and the non-linear symbol terms of the states with symbols into
     /// fresh symbols: afterwards each such state is x_i(z) + sum_j a_ij e_j with a remainder of
-    /// rounding only.
+    /// rounding only. The other states (a reward sum) keep no symbol terms: the fresh symbols
+    /// are new quantities, so terms in the old ones would be read as the new ones' and could
+    /// cancel against them where the true errors do not (a sum of terms of opposite sign); they
+    /// are bounded into the remainder instead.
     pub fn renew(&self, state: &mut [TaylorModel]) {
         let d = self.count();
         if d == 0 {
             return;
+        }
+        for (i, t) in state.iter_mut().enumerate() {
+            if !self.states.contains(&i) && t.coef.iter().enumerate().any(|(k, &c)| c != 0.0 && self.kind[k].is_err()) {
+                *t = self.join(&self.domain_part(t), &[]);
+            }
         }
         let mut polys = Vec::with_capacity(d);
         let mut g = DMatrix::zeros(d, 2 * d);
