@@ -136,6 +136,8 @@ pub struct CellOutcome {
     pub seconds: f64,
     pub nn_seconds: f64,
     pub branches: usize,
+    /// Steps a piece replayed from another piece's tape instead of computing them ([`Tape`]).
+    pub replayed: usize,
     /// The state the engine would have split next when it gave up (or split most often): a
     /// caller that bisects the cell halves this one, not merely the widest.
     pub split: Option<usize>,
@@ -235,7 +237,7 @@ fn apply_network(net: &Network, inputs: &[TaylorModel], symbols: &ErrorSymbols, 
 /// Runs one cell: the initial box `cell` (one interval per state variable).
 pub fn verify_cell(lp: &ClosedLoop, cell: &[Interval], settings: &CellSettings) -> CellOutcome {
     let started = Instant::now();
-    let mut out = CellOutcome { verdict: Verdict::Unknown, reason: None, steps_done: 0, boxes: Vec::new(), seconds: 0.0, nn_seconds: 0.0, branches: 0, split: None };
+    let mut out = CellOutcome { verdict: Verdict::Unknown, reason: None, steps_done: 0, boxes: Vec::new(), seconds: 0.0, nn_seconds: 0.0, branches: 0, replayed: 0, split: None };
     if let Err(e) = run(lp, cell, settings, &mut out, started) {
         out.verdict = Verdict::Unknown;
         out.reason = Some(e.to_string());
@@ -326,9 +328,19 @@ fn run(lp: &ClosedLoop, cell: &[Interval], settings: &CellSettings, out: &mut Ce
     // Where the boxes stop being complete when the cell stops early: pieces still waiting (and
     // the one that stopped) have put their states into the boxes only up to their own step.
     let mut stopped_at = None;
+    let sums = sums(lp, settings);
+    let mut tapes: Vec<Tape> = Vec::new();
     while let Some(mut piece) = work.pop() {
         let forks = settings.max_splits.saturating_sub(splits);
-        match advance(lp, &mut piece, &symbols, settings, forks, out, &mut boxes, &mut hulls, started)? {
+        let mut on_tape = (!sums.is_empty()).then(|| {
+            let start: Vec<TaylorModel> = piece.state.iter().enumerate().filter(|(i, _)| !sums.contains(i)).map(|(_, m)| m.clone()).collect();
+            let k = tapes.iter().position(|t| t.encloses(&start)).unwrap_or_else(|| {
+                tapes.push(Tape { start, steps: Vec::new() });
+                tapes.len() - 1
+            });
+            OnTape { tape: &mut tapes[k], sums: &sums, from: piece.step, base: sums.iter().map(|&i| piece.state[i].clone()).collect() }
+        });
+        match advance(lp, &mut piece, &symbols, settings, forks, out, &mut boxes, &mut hulls, on_tape.as_mut(), started)? {
             End::Done => {}
             End::Forked(pieces) => {
                 splits += pieces.len() - 1;
@@ -437,16 +449,96 @@ fn symbol_states(lp: &ClosedLoop, settings: &CellSettings) -> Vec<usize> {
         return vec![];
     }
     let deps = plant.dependencies();
-    let n = lp.state_names.len();
-    (0..n)
+    (0..lp.state_names.len())
         .filter(|&i| {
             let copied = matches!(plant.ops[plant.outputs[i]], Op::Input(j) if j == i);
-            let staged = lp.stages.iter().any(|s| s.inputs.contains(&i));
-            // The plant reads the environment: the states, then the stages' outputs.
-            let updates_other = (0..n).any(|j| j != i && deps[j][i]);
-            !copied && (staged || updates_other)
+            !copied && steers(lp, &deps, i)
         })
         .collect()
+}
+
+/// Whether state `i` steers the loop: a stage reads it, or another state's update does (`deps`:
+/// the plant's dependencies per output; the plant reads the environment, the states first).
+fn steers(lp: &ClosedLoop, deps: &[Vec<bool>], i: usize) -> bool {
+    lp.stages.iter().any(|s| s.inputs.contains(&i)) || (0..lp.state_names.len()).any(|j| j != i && deps[j][i])
+}
+
+/// The states that are sums along the run (a reward, a step counter) of a discrete plant:
+/// updated as s + g or s - g with g not reading s, and steering nothing. Pieces replay each
+/// other's steps through them ([`Tape`]). None with `rebox`, whose boxes drop what a sum's model
+/// says about each point of the domain.
+fn sums(lp: &ClosedLoop, settings: &CellSettings) -> Vec<usize> {
+    let Plant::Discrete(plant) = &lp.plant else { return vec![] };
+    if settings.rebox {
+        return vec![];
+    }
+    let deps = plant.dependencies();
+    let slots = plant.slot_dependencies();
+    let is_own = |slot: usize, i: usize| matches!(plant.ops[slot], Op::Input(k) if k == i);
+    (0..lp.state_names.len())
+        .filter(|&i| {
+            let adds = match plant.ops[plant.outputs[i]] {
+                Op::Binary(taylor::BinOp::Add, a, b) => (is_own(a, i) && !slots[b][i]) || (is_own(b, i) && !slots[a][i]),
+                Op::Binary(taylor::BinOp::Sub, a, b) => is_own(a, i) && !slots[b][i],
+                _ => false,
+            };
+            adds && !steers(lp, &deps, i)
+        })
+        .collect()
+}
+
+/// The steps of a piece, kept so that a later piece in the same state replays them instead of
+/// computing them again. The loop does not change with time and the sums ([`sums`]) steer
+/// nothing, so two pieces whose other states are the same models take the same steps, whatever
+/// their sums and whatever step they are at: a step's models enclose the successors of every
+/// state their predecessors enclose, and what a sum adds over the steps is enclosed by its
+/// recorded model's change. At Mountain Car's left wall every run that hits it stops at p = -1.2,
+/// v = 0: the pieces forked off at each step at which part of a cell hits it (up to seven per
+/// cell, again in each half of a split cell) climb out the same way.
+struct Tape {
+    /// The states other than the sums where the tape starts.
+    start: Vec<TaylorModel>,
+    /// The state after each step from there; a sum as what it added since the start.
+    steps: Vec<Vec<TaylorModel>>,
+}
+
+impl Tape {
+    /// Whether the tape's start encloses `start` (the same polynomials, remainders no narrower):
+    /// its steps then enclose the successors of every state `start` holds.
+    fn encloses(&self, start: &[TaylorModel]) -> bool {
+        self.start.iter().zip(start).all(|(t, s)| t.coef == s.coef && t.rem.contains_interval(&s.rem))
+    }
+}
+
+/// A piece on a tape: it replays the steps the tape has and records those it computes beyond.
+struct OnTape<'a> {
+    tape: &'a mut Tape,
+    sums: &'a [usize],
+    /// The piece's step where the tape starts, and its sums there.
+    from: usize,
+    base: Vec<TaylorModel>,
+}
+
+impl OnTape<'_> {
+    /// The state after step `step` when the tape has it.
+    fn replay(&self, step: usize) -> Option<Vec<TaylorModel>> {
+        let mut state = self.tape.steps.get(step - self.from)?.clone();
+        for (&i, base) in self.sums.iter().zip(&self.base) {
+            state[i] = base.add(&state[i]);
+        }
+        Some(state)
+    }
+
+    /// Keeps the state the piece computed after step `step` when it extends the tape.
+    fn record(&mut self, step: usize, state: &[TaylorModel]) {
+        if step - self.from == self.tape.steps.len() {
+            let mut added = state.to_vec();
+            for (&i, base) in self.sums.iter().zip(&self.base) {
+                added[i] = state[i].sub(base);
+            }
+            self.tape.steps.push(added);
+        }
+    }
 }
 
 /// Steps one piece until it satisfies the property, violates it, or is lost.
@@ -460,6 +552,7 @@ fn advance(
     out: &mut CellOutcome,
     boxes: &mut [Option<Vec<Interval>>],
     hulls: &mut usize,
+    mut tape: Option<&mut OnTape>,
     started: Instant,
 ) -> Result<End> {
     let ctx = &symbols.ctx;
@@ -534,7 +627,10 @@ fn advance(
                 return Ok(End::Timeout(format!("timeout after {limit} s at step {step}")));
             }
         }
-        let nexts = match one_step(lp, &piece.state, symbols, settings, forks, out, hulls) {
+        let replayed = tape.as_ref().and_then(|t| t.replay(step));
+        let fresh = replayed.is_none();
+        out.replayed += usize::from(!fresh);
+        let nexts = match replayed.map(|next| Ok(Ok(vec![next]))).unwrap_or_else(|| one_step(lp, &piece.state, symbols, settings, forks, out, hulls)) {
             Ok(Ok(nexts)) => nexts,
             Err(NetworkError::Input(m)) => return Err(NetworkError::Input(m)),
             Ok(Err(reason)) => return Ok(End::Lost { step: step + 1, reason: format!("step {}: {reason}", step + 1) }),
@@ -542,7 +638,10 @@ fn advance(
         };
         let mut states = Vec::with_capacity(nexts.len());
         for mut next in nexts {
-            symbols.renew(&mut next);
+            // A replayed state was renewed when it was recorded.
+            if fresh {
+                symbols.renew(&mut next);
+            }
             let b: Vec<Interval> = next.iter().map(|m| m.bound(space)).collect();
             if let Some((i, w)) = b.iter().enumerate().find(|(_, w)| !w.is_bounded() || w.width() > settings.blow_up_width) {
                 let reason = format!("step {}: the enclosure of '{}' blew up ({w}); split the cell or raise the order", step + 1, lp.state_names[i]);
@@ -564,6 +663,9 @@ fn advance(
             return Ok(End::Forked(forked));
         }
         piece.state = states.pop().expect("one successor");
+        if let Some(t) = tape.as_mut().filter(|_| fresh) {
+            t.record(step, &piece.state);
+        }
         piece.step = step + 1;
     }
 }
@@ -782,10 +884,13 @@ fn arrived(margins: &[(usize, TaylorModel)], cmp: &Cmp, ctx: &Ctx) -> f64 {
 }
 
 /// The models restricted to the half x_v in [half - 1/2, half + 1/2] of the domain, written
-/// over a fresh [-1, 1] variable: x_v = half + x_v / 2 (a rigorous composition).
+/// over a fresh [-1, 1] variable: x_v = half + x_v / 2 (a rigorous composition). A model without
+/// x_v stays as it is, not widened by the composition's rounding: the halves' parameters (a noise
+/// level) keep the models of their parent, so their pieces can share tapes ([`Tape`]).
 fn restrict_half(state: &[TaylorModel], v: usize, half: f64, ctx: &Ctx) -> Vec<TaylorModel> {
     let args: Vec<TaylorModel> = (0..ctx.space.nvars).map(|w| if w == v { TaylorModel::affine(ctx, half, v, 0.5) } else { TaylorModel::var(ctx, w) }).collect();
-    state.iter().map(|m| m.compose(&args, ctx)).collect()
+    let reads_v = |m: &TaylorModel| m.coef.iter().enumerate().any(|(k, &c)| c != 0.0 && ctx.space.exponents(k)[v] > 0);
+    state.iter().map(|m| if reads_v(m) { m.compose(&args, ctx) } else { m.clone() }).collect()
 }
 
 /// `model` with each variable v of `from` renamed to v + shift in `to` (same order).
@@ -916,6 +1021,7 @@ mod tests {
     use super::*;
     use crate::network::{Activation, LayerArrays};
     use taylor::parser::parse_expr;
+    use taylor::Expr;
 
     /// x+ = x + 0.1 v, v+ = v + 0.1 u, u = tanh(-g x - g v) over `steps` steps, safe while x <= 2.
     fn feedback_loop(gain: f64, steps: usize) -> (ClosedLoop, Network) {
@@ -1096,6 +1202,36 @@ mod tests {
                     let point: Vec<Interval> = state.iter().map(|&x| Interval::point(x)).collect();
                     state = plant.eval(&Intervals, &point).unwrap().iter().map(|iv| iv.mid()).collect();
                 }
+            }
+        }
+    }
+
+    /// Runs that hit a wall x = 0 at different steps stop there (x = v = 0) and climb out the
+    /// same way: the pieces forked off at each hit replay the first one's steps ([`Tape`]) with
+    /// their own sums s (of x, which only these pieces have large: the other piece carries the
+    /// runs as if there were no wall). Float runs stay in every step's box, s included.
+    #[test]
+    fn pieces_that_hit_a_wall_at_different_steps_replay_one_climb_inside_the_simulations() {
+        let names: Vec<String> = ["x", "v", "s"].iter().map(|s| s.to_string()).collect();
+        let (x, s) = (Expr::var("x"), Expr::var("s"));
+        let v1 = parse_expr("v + 0.03 - 0.02*x").unwrap();
+        let y = Expr::binary(taylor::BinOp::Add, &x, &v1);
+        let zero = Expr::constant(0.0);
+        let at_wall = |then: &Expr, otherwise: &Expr| Expr::select(&y, Cmp::Le, &zero, then, otherwise);
+        let sum = Expr::binary(taylor::BinOp::Add, &s, &x);
+        let plant = Program::compile(&[at_wall(&zero, &y), at_wall(&zero, &v1), sum], &names).unwrap();
+        let steps = 30;
+        let lp = ClosedLoop { state_names: names, stages: vec![], plant: Plant::Discrete(Arc::new(plant.clone())), safe: vec![], goal: None, goal_within: false, steps };
+        let cell = [Interval::new(0.5, 1.2).unwrap(), Interval::point(-0.3), Interval::point(0.0)];
+        let out = verify_cell(&lp, &cell, &CellSettings { max_splits: 16, ..loop_settings(false) });
+        assert_eq!(out.verdict, Verdict::Verified, "{:?}", out.reason);
+        assert!(out.replayed >= steps / 2, "{} steps replayed", out.replayed);
+        for a in 0..=1000 {
+            let mut state = vec![0.5 + 0.7 * a as f64 / 1000.0, -0.3, 0.0];
+            for (step, bx) in out.boxes.iter().enumerate() {
+                assert!(bx.iter().zip(&state).all(|(iv, &x)| iv.contains(x)), "step {step}: {state:?} outside {bx:?}");
+                let point: Vec<Interval> = state.iter().map(|&x| Interval::point(x)).collect();
+                state = plant.eval(&Intervals, &point).unwrap().iter().map(|iv| iv.mid()).collect();
             }
         }
     }

@@ -264,8 +264,14 @@ pub struct Program {
 }
 
 impl Program {
+    /// A name listed twice in `inputs` is read at its first place: in a loop's environment a
+    /// later one is a copy (a fused network carries states it passes on as identity neurons, whose
+    /// models gain rounding at every step; the state itself is exact).
     pub fn compile(outputs: &[Expr], inputs: &[String]) -> Result<Program> {
-        let positions: HashMap<&str, usize> = inputs.iter().enumerate().map(|(i, n)| (n.as_str(), i)).collect();
+        let mut positions: HashMap<&str, usize> = HashMap::with_capacity(inputs.len());
+        for (i, n) in inputs.iter().enumerate() {
+            positions.entry(n.as_str()).or_insert(i);
+        }
         let mut program = Program { inputs: inputs.to_vec(), ops: Vec::new(), outputs: Vec::new() };
         let mut slots: HashMap<usize, usize> = HashMap::new();
         for e in outputs {
@@ -321,6 +327,12 @@ impl Program {
 
     /// Per output, whether it depends on each input (syntactically).
     pub fn dependencies(&self) -> Vec<Vec<bool>> {
+        let deps = self.slot_dependencies();
+        self.outputs.iter().map(|&s| deps[s].clone()).collect()
+    }
+
+    /// Per slot (op), whether its value depends on each input (syntactically).
+    pub fn slot_dependencies(&self) -> Vec<Vec<bool>> {
         let n = self.inputs.len();
         let mut deps: Vec<Vec<bool>> = Vec::with_capacity(self.ops.len());
         for op in &self.ops {
@@ -340,7 +352,7 @@ impl Program {
             }
             deps.push(d);
         }
-        self.outputs.iter().map(|&s| deps[s].clone()).collect()
+        deps
     }
 
     /// The outputs among the values of every slot.
@@ -764,6 +776,12 @@ mod tests {
         assert!(e.describe(100).len() < 120);
         assert_eq!(e.structural_hash(), e.structural_hash());
         assert_ne!(e.structural_hash(), Expr::var("x").structural_hash());
+    }
+
+    #[test]
+    fn a_name_given_twice_is_read_at_its_first_place() {
+        let p = Program::compile(&[Expr::var("x")], &["x".into(), "y".into(), "x".into()]).unwrap();
+        assert!(matches!(p.ops[p.outputs[0]], Op::Input(0)));
     }
 
     #[test]

@@ -150,7 +150,10 @@ impl TaylorModel {
             }
         }
         self.coef.truncate(keep.max(1));
-        self.rem = self.rem + Interval::raw(lo, hi);
+        // Nothing swept leaves the remainder as it is (an outward sum would widen it by an ulp).
+        if lo != 0.0 || hi != 0.0 {
+            self.rem = self.rem + Interval::raw(lo, hi);
+        }
         self.trim();
     }
 
