@@ -43,6 +43,11 @@ KEYWORDS = {"dc": "delta_c", "db": "delta_b"}
 # verified, against 12 cells 144 s with 4 unknown ones to bisect). Low contrast in p0
 # [-0.53, -0.46), where the cells of p0 0.0025 almost never split, in cells twice as wide in p0:
 # per p0 slice of 0.01 (144 narrow cells or 72 wide ones), 117-177 engine s against 210-230 s.
+# High contrast just above LOW_CONTRAST (dc [0.8, 0.9)) with blur db >= 0.05 left of p0 -0.5 split
+# its cells 7-16 times (up to 53 s a cell): in cells of dc 0.05 x db 0.025 (p0 0.005 as before)
+# they verify without a split (p0 [-0.55, -0.53] x db [0.1, 0.15]: 28 engine s against 193 s;
+# p0 [-0.52, -0.5] x db [0.05, 0.15]: 63 s against 141 s); halving dc or db alone does not do it
+# (66 s and 77 s against 28 s).
 # The other rows' bands were measured before these changes.
 # Our chain needs narrow cells everywhere:
 # its controller coasts as soon as the estimated energy suffices, so the car arrives with little
@@ -66,6 +71,9 @@ class Band:
 _LOW, _HIGH = (-math.inf, LOW_CONTRAST), (LOW_CONTRAST, math.inf)
 _COMPOSITE_LOW, _COMPOSITE_HIGH = {"p": 0.0025, "dc": 0.05, "db": 0.025}, {"p": 0.005, "dc": 0.1, "db": 0.05}
 _COMPOSITE_WALL, _COMPOSITE_VALLEY = {**_COMPOSITE_LOW, "p": 0.00125}, {**_COMPOSITE_LOW, "p": 0.005}
+# The hardest high-contrast cells: dc just above LOW_CONTRAST, blurred, left of the valley.
+_HARD, _ABOVE_HARD, _BLURRED, _SHARP = (LOW_CONTRAST, 0.9), (0.9, math.inf), (0.05, math.inf), (-math.inf, 0.05)
+_COMPOSITE_HARD = {**_COMPOSITE_HIGH, "dc": 0.05, "db": 0.025}
 LAYOUT = {
     "paper": {
         "canonical": [Band({"p": (-math.inf, WALL)}, {"p": 0.005}, 16), Band({"p": (WALL, math.inf)}, {"p": 0.001}, 64)],
@@ -79,8 +87,12 @@ LAYOUT = {
             Band({"p": (-0.445, -0.4175), "dc": _LOW}, _COMPOSITE_LOW, 16, 6),
             Band({"p": (-0.4175, -0.41), "dc": _LOW}, _COMPOSITE_WALL, 16, 6),
             Band({"p": (-0.41, math.inf), "dc": _LOW}, _COMPOSITE_LOW, 16, 6),
-            Band({"p": (-math.inf, -0.515), "dc": _HIGH}, _COMPOSITE_HIGH, 16, 6),
-            Band({"p": (-0.515, -0.475), "dc": _HIGH}, _COMPOSITE_HIGH, 16, 5),
+            Band({"p": (-math.inf, -0.5), "dc": _HARD, "db": _BLURRED}, _COMPOSITE_HARD, 16, 6),
+            Band({"p": (-math.inf, -0.515), "dc": _HARD, "db": _SHARP}, _COMPOSITE_HIGH, 16, 6),
+            Band({"p": (-0.515, -0.5), "dc": _HARD, "db": _SHARP}, _COMPOSITE_HIGH, 16, 5),
+            Band({"p": (-math.inf, -0.515), "dc": _ABOVE_HARD}, _COMPOSITE_HIGH, 16, 6),
+            Band({"p": (-0.515, -0.5), "dc": _ABOVE_HARD}, _COMPOSITE_HIGH, 16, 5),
+            Band({"p": (-0.5, -0.475), "dc": _HIGH}, _COMPOSITE_HIGH, 16, 5),
             Band({"p": (-0.475, math.inf), "dc": _HIGH}, _COMPOSITE_HIGH, 16, 6),
         ],
     },
