@@ -19,6 +19,9 @@
 //! With `state_symbols`, the remainders of the states that feed back are error symbols kept from
 //! step to step ([`taylor::error_symbols`]): the cell's space has those symbols after its domain
 //! variables, networks carry them as pinned shared symbols, and each step ends by renewing them.
+//!
+//! A piece whose states, apart from running sums such as a reward, are enclosed by the start of
+//! an earlier piece replays that piece's steps instead of computing them ([`Tape`]).
 use crate::error::{NetworkError, Result};
 use crate::network::Network;
 use crate::propagate::{self, Models, Settings as NnSettings};
