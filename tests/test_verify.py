@@ -7,6 +7,7 @@ import signal
 import subprocess
 import sys
 import textwrap
+import threading
 import time
 from pathlib import Path
 
@@ -120,10 +121,10 @@ def test_cells_the_engine_cannot_verify_are_sampled_and_verified_ones_are_not(mo
     assert (0.0, 1.0) in randomly and not randomly & {(2.0, 3.0), (4.0, 5.0)}
 
 
-def test_chunks_falsified_beside_the_engine_add_up(tmp_path):
-    # 200 cells in chunks of 32 (one worker): each chunk is falsified while the engine runs the
-    # previous one. Every cell is settled once, in the result and in the journal, with the verdict
-    # its position asks for: falsified exactly where a corner passes 12.02 at step 5.
+def test_cells_falsified_in_batches_add_up(tmp_path):
+    # 200 cells on one worker, which falsifies a batch (STOCK cells) whenever it has none ready.
+    # Every cell is settled once, in the result and in the journal, with the verdict its position
+    # asks for: falsified exactly where a corner passes 12.02 at step 5.
     x = pv.variables("x")
     loop = pv.ClosedLoop(pv.Discrete({x: x + 1.0}))
     journal = tmp_path / "chunks.jsonl"
@@ -173,6 +174,56 @@ def test_refinement_halves_the_state_the_engine_needed(tmp_path):
     assert [c["split"] for c in parents if c["verdict"] == "unknown"] and all(
         c["split"] == "p" for c in parents if c["verdict"] == "unknown")
     assert_contains_simulations(loop, res, n=200, goal_p=0.45)
+
+
+def test_parts_share_one_pool_with_their_own_grids_orders_and_journals(tmp_path):
+    # Part a (order 2, no in-cell split) leaves its cell unknown and is refined into halves while
+    # part b's cells (order 5, a grid of 3) run on the other thread: each part keeps its own cells,
+    # settings and journal, and the cells' verdicts and reach boxes are those of verify() on each
+    # part alone (a cell's run does not depend on the pool).
+    loop, p, v = mountain_car()
+    common = dict(steps=150, goal=p >= 0.45, within=True, refine=True, min_width={"p": 0.005}, progress=False)
+    a = pv.Part({"p": (-0.53, -0.45), "v": (0, 0)}, order=2, max_splits=0, journal=str(tmp_path / "a.jsonl"))
+    b = pv.Part({"p": (-0.45, -0.42), "v": (0, 0)}, split={"p": 3}, journal=str(tmp_path / "b.jsonl"))
+    both = pv.verify_parts(loop, [a, b], workers=2, **common)
+    alone = [pv.verify(loop, part.init, split=part.split, order=part.order, max_splits=part.max_splits, **common) for part in (a, b)]
+    for got, want, part in zip(both, alone, (a, b)):
+        assert got.settings["order"] == part.order and got.init["p"] == part.init["p"]
+        cells = {c.box["p"]: (c.verdict, c.boxes) for c in got.cells}
+        assert cells == {c.box["p"]: (c.verdict, c.boxes) for c in want.cells}
+        assert sum(hi - lo for lo, hi in cells) == pytest.approx(part.init["p"][1] - part.init["p"][0])
+        journal = [json.loads(line) for line in Path(part.journal).read_text().splitlines()[1:]]
+        assert {tuple(c["box"]["p"]) for c in journal} >= set(cells)
+        assert_contains_simulations(loop, got, n=200, goal_p=0.45)
+    assert len(both[0].cells) > 1 and len(both[1].cells) == 3
+    assert both[0].seconds == both[1].seconds  # one call: each result has its wall time
+
+
+def test_an_error_in_a_pool_thread_reaches_the_caller_and_closes_the_journals(tmp_path, monkeypatch):
+    x = pv.variables("x")
+    loop = pv.ClosedLoop(pv.Discrete({x: x + 1.0}))
+    calls = []
+
+    def broken(*args, **kwargs):
+        calls.append(threading.current_thread().name)
+        raise RuntimeError("simulation failed")
+
+    monkeypatch.setattr(verify_module, "_falsify", broken)
+    parts = [pv.Part({"x": (0.0, 1.0)}, split={"x": 40}, journal=str(tmp_path / f"{k}.jsonl")) for k in range(2)]
+    with pytest.raises(RuntimeError, match="simulation failed"):
+        pv.verify_parts(loop, parts, steps=3, safe=x <= 100.0, workers=2, progress=False)
+    assert calls and not list(tmp_path.glob("*.lock"))
+
+
+def test_verify_parts_rejects_what_is_not_a_part():
+    x = pv.variables("x")
+    loop = pv.ClosedLoop(pv.Discrete({x: x + 1.0}))
+    with pytest.raises(pv.InputError, match="at least one"):
+        pv.verify_parts(loop, [], steps=3, safe=x <= 100.0)
+    with pytest.raises(pv.InputError, match=r"part 0 is a dict; give pv.Part\(init="):
+        pv.verify_parts(loop, [{"init": {"x": (0, 1)}}], steps=3, safe=x <= 100.0)
+    with pytest.raises(pv.InputError, match="workers must be a positive integer"):
+        pv.verify_parts(loop, [pv.Part({"x": (0, 1)})], steps=3, safe=x <= 100.0, workers=0, progress=False)
 
 
 def test_a_wall_hit_at_different_steps_forks_the_plant():

@@ -19,8 +19,8 @@ import time
 import warnings
 import zlib
 from collections import deque
-from concurrent.futures import ThreadPoolExecutor
-from dataclasses import asdict, dataclass, field
+from contextlib import ExitStack
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import Optional, Sequence, Union
 
@@ -376,6 +376,18 @@ def _bisect(box: Box, init: Box, min_width: dict, hint: Optional[str] = None) ->
     return [Box(box.names, tuple(left)), Box(box.names, tuple(right))]
 
 
+@dataclass(frozen=True)
+class Part:
+    """A region of the initial set verified with its own grid (``split``), Taylor ``order``,
+    in-cell ``max_splits`` and ``journal``: see :func:`verify_parts`."""
+
+    init: Optional[BoxLike] = None
+    split: Optional[dict] = None
+    order: int = 5
+    max_splits: int = 16
+    journal: Optional[str] = None
+
+
 def verify(
     loop: ClosedLoop,
     init: Optional[BoxLike] = None,
@@ -405,10 +417,10 @@ def verify(
 ) -> Result:
     """Prove ``loop`` satisfies the property from every state of ``init`` (see module doc).
 
-    Cells run on this machine's cores (rayon; ``workers`` threads) or, with ``executor=``, on a
-    ``dask.distributed.Client``, a scheduler address ``"tcp://host:8786"`` or any
-    ``concurrent.futures.Executor`` (``workers`` then caps the batches in flight; ``batch`` fixes
-    the cells per task, else tasks are sized to about a quarter second). A cell still running
+    Cells run on this machine's cores (``workers`` threads, one cell each at a time) or, with
+    ``executor=``, on a ``dask.distributed.Client``, a scheduler address ``"tcp://host:8786"`` or
+    any ``concurrent.futures.Executor`` (``workers`` then caps the batches in flight; ``batch``
+    fixes the cells per task, else tasks are sized to about a quarter second). A cell still running
     after ``timeout_per_cell`` seconds stops at the next step and is bisected down to
     ``min_width`` (default 1/64 of the initial set per dimension), then reported unknown.
 
@@ -431,68 +443,117 @@ def verify(
     wrapping effect of a stiff feedback); it pays where the loop's Jacobian varies little over a
     cell, and is off by default because on Mountain Car's cells it does not (bench/README.md).
     """
+    part = Part(init, split, order, max_splits, journal)
+    return verify_parts(loop, [part], steps=steps, goal=goal, safe=safe, unsafe=unsafe, within=within, reward=reward,
+                        refine=refine, min_width=min_width, method=method, rebox=rebox, state_symbols=state_symbols,
+                        workers=workers, executor=executor, batch=batch, timeout_per_cell=timeout_per_cell,
+                        falsify=falsify, progress=progress, seed=seed)[0]
+
+
+def verify_parts(
+    loop: ClosedLoop,
+    parts: Sequence[Part],
+    *,
+    steps: Optional[int] = None,
+    goal: Optional[Condition] = None,
+    safe: Union[Condition, Sequence[Condition], None] = None,
+    unsafe: Union[Condition, Sequence[Condition], None] = None,
+    within: bool = False,
+    reward: Optional[dict] = None,
+    refine: bool = False,
+    min_width: Optional[dict] = None,
+    method: str = "taylor",
+    rebox: bool = False,
+    state_symbols: bool = False,
+    workers: Optional[int] = None,
+    executor=None,
+    batch: Optional[int] = None,
+    timeout_per_cell: Optional[float] = None,
+    falsify: int = 32,
+    progress: bool = True,
+    seed: int = 0,
+) -> list:
+    """:func:`verify` on several :class:`Part` s of an initial set (regions that need different
+    cell widths or orders), one :class:`Result` per part, each with the whole call's wall time.
+
+    Locally, all parts' cells share one pool of ``workers`` threads, each running one cell at a
+    time and taking the next from the first part that has one: no core waits for the last cell
+    of a batch or of a part (verifying the parts one after another left a core idle at each
+    part's end). On an executor the parts run one after another. The other keywords are
+    :func:`verify`'s, the same for every part."""
     started = time.time()
     if not isinstance(loop, ClosedLoop) and isinstance(getattr(loop, "loop", None), ClosedLoop):
         # A loaded problem (e.g. pv.formats.load_verisig): its file's init, horizon and property fill what is not given.
         d = loop.defaults
-        init, steps = d["init"] if init is None else init, d["steps"] if steps is None else steps
+        parts = [p if p.init is not None else replace(p, init=d["init"]) for p in parts]
+        steps = d["steps"] if steps is None else steps
         if goal is None and safe is None and unsafe is None:
             goal, safe, within = d.get("goal"), d.get("safe"), d.get("within", within)
         loop = loop.loop
     if not isinstance(loop, ClosedLoop):
         raise InputError("verify() needs a pv.ClosedLoop")
-    if init is None:
+    if not parts:
+        raise InputError("verify_parts() needs at least one pv.Part")
+    for k, p in enumerate(parts):
+        if not isinstance(p, Part):
+            raise InputError(f"part {k} is a {type(p).__name__}; give pv.Part(init=..., split=..., order=..., max_splits=..., journal=...)")
+    if any(p.init is None for p in parts):
         raise InputError("verify() needs init={state: (lo, hi), ...}")
     if not (isinstance(steps, int) and steps >= 0):
         raise InputError(f"steps must be a non-negative integer, got {steps!r}")
     if method not in ("taylor", "verisig"):
         raise InputError(f"unknown method '{method}'; use 'taylor' or 'verisig'")
+    for p in parts:
+        if not (isinstance(p.max_splits, int) and p.max_splits >= 0):
+            raise InputError(f"max_splits must be a non-negative integer, got {p.max_splits!r}")
     if reward is not None:
         loop = loop.with_accumulators(reward)  # sums as extra states: see ClosedLoop.with_accumulators
-    box = loop.initial_box(init)
+    boxes = [loop.initial_box(p.init) for p in parts]
     prop = _Property(loop, safe, unsafe, goal, within, steps)
     safe_r, goal_r = prop.rust()
     problem = loop.compile(safe=safe_r, goal=goal_r, within=within, steps=steps)
-    if not (isinstance(max_splits, int) and max_splits >= 0):
-        raise InputError(f"max_splits must be a non-negative integer, got {max_splits!r}")
-    settings = {"steps": steps, "method": method, "order": order, "max_splits": max_splits, "rebox": bool(rebox),
-                "timeout_per_cell": timeout_per_cell, "within": within}
-    if state_symbols:  # only when on, so that journals written before the option still resume
-        settings["state_symbols"] = True
-    fingerprint = _fingerprint(loop, prop, settings)
-    options = {"order": order, "method": method, "timeout": timeout_per_cell, "max_splits": max_splits, "rebox": bool(rebox),
-               "state_symbols": bool(state_symbols)}
-    cells, count = _grid(box, split or {})
     runner = None
     if executor is not None:
         from percver.executors import Runner
 
         runner = Runner(executor, slots=workers, batch=batch)  # checked (and connected) before any work
+    jobs, bar = [], None
+    lock = threading.RLock()  # one for all parts: they share the progress bar
     try:
-        journal_ = _Journal(journal, fingerprint)
-    except BaseException:
-        if runner is not None:
-            runner.close()
-        raise
-    bar = None
-    try:
-        if progress:
-            from tqdm import tqdm
+        with ExitStack() as journals:
+            for p, box in zip(parts, boxes):
+                settings = {"steps": steps, "method": method, "order": p.order, "max_splits": p.max_splits, "rebox": bool(rebox),
+                            "timeout_per_cell": timeout_per_cell, "within": within}
+                if state_symbols:  # only when on, so that journals written before the option still resume
+                    settings["state_symbols"] = True
+                fingerprint = _fingerprint(loop, prop, settings)
+                options = {"order": p.order, "method": method, "timeout": timeout_per_cell, "max_splits": p.max_splits,
+                           "rebox": bool(rebox), "state_symbols": bool(state_symbols)}
+                cells, count = _grid(box, p.split or {})
+                journal = _Journal(p.journal, fingerprint)
+                journals.callback(journal.close)
+                campaign = _Campaign(loop, prop, box, cells, count, journal, None, refine=refine, timeout=timeout_per_cell,
+                                     min_width={n: float(w) for n, w in (min_width or {}).items()}, falsify=falsify, seed=seed,
+                                     lock=lock)
+                jobs.append((campaign, settings, fingerprint, options))
+            if progress:
+                from tqdm import tqdm
 
-            bar = tqdm(total=count, unit="cell", desc="verify")
-        campaign = _Campaign(loop, prop, box, cells, count, journal_, bar, refine=refine, timeout=timeout_per_cell,
-                             min_width={n: float(w) for n, w in (min_width or {}).items()}, falsify=falsify, seed=seed)
-        if runner is None:
-            _run_local(campaign, problem, options, workers)
-        else:
-            runner.run(campaign, (loop, safe_r, goal_r, within, steps), fingerprint, options)
+                bar = tqdm(total=sum(c.left for c, *_ in jobs), unit="cell", desc="verify")
+                for campaign, *_ in jobs:
+                    campaign.bar = bar
+            if runner is None:
+                _run_local([(campaign, problem, options) for campaign, _, _, options in jobs], workers)
+            else:
+                for campaign, _, fingerprint, options in jobs:
+                    runner.run(campaign, (loop, safe_r, goal_r, within, steps), fingerprint, options)
     finally:
         if runner is not None:
             runner.close()
         if bar is not None:
             bar.close()
-        journal_.close()
-    return Result(loop.states, box.to_dict(), campaign.cells, time.time() - started, settings)
+    seconds = time.time() - started
+    return [Result(loop.states, box.to_dict(), campaign.cells, seconds, settings) for box, (campaign, settings, _, _) in zip(boxes, jobs)]
 
 
 def _grid(box: Box, split: dict):
@@ -507,25 +568,25 @@ def _grid(box: Box, split: dict):
 
 
 class _Campaign:
-    """The cells of one verify() call as they flow: the lazy grid and sub-cells are looked up in
-    the journal, probed in chunks (centre and corners simulated), and handed to a backend (rayon
-    or an executor) that returns outcomes in any order; a cell the engine leaves unknown is
-    sampled (``falsify`` random runs) before it is settled, and unknown cells (with refine=True)
-    and timed-out ones (always) are bisected down to min_width and their halves queued. Memory is
-    a chunk plus the results.
+    """The cells of one part of a verify() call as they flow: the lazy grid and sub-cells are
+    looked up in the journal, probed in batches (centre and corners simulated), and handed to a
+    backend (the local pool of :func:`_run_local` or an executor) that returns outcomes in any
+    order; a cell the engine leaves unknown is sampled (``falsify`` random runs) before it is
+    settled, and unknown cells (with refine=True) and timed-out ones (always) are bisected down to
+    min_width and their halves queued. Memory is a batch plus the results.
 
     Random runs come after the engine, not before: a verified cell needs none (its proof covers
     every run), and on a row that verifies they were most of the simulation, which competes with
     the engine for the same cores (Mountain Car's composite row: 41 runs per cell cost ~12% of
     the engine's time). A falsified cell then also spent its engine run; its time is kept.
 
-    Outcomes may be recorded from another thread while cells are falsified (``stock`` runs beside
+    Outcomes may be recorded from one thread while another falsifies cells (``stock`` runs beside
     the engine): the state is only touched under ``lock``, which no simulation holds."""
 
     chunk = 128  # cells falsified together at most: one simulation batch, bounded trajectories
 
     def __init__(self, loop, prop, init: Box, grid, count: int, journal, bar, *, refine: bool, timeout, min_width: dict,
-                 falsify: int, seed: int):
+                 falsify: int, seed: int, lock=None):
         self.loop, self.prop, self.init, self.grid, self.left, self.journal, self.bar = loop, prop, init, grid, count, journal, bar
         self.refine, self.timeout, self.min_width, self.falsify, self.seed = refine, timeout, min_width, falsify, seed
         self.queue: list = []  # sub-cells, last in first out: depth-first keeps the queue short
@@ -533,16 +594,17 @@ class _Campaign:
         self.cells: list = []
         self.counts = dict.fromkeys(("verified", "unknown", "falsified"), 0)
         self.cell_seconds = [0.0, 0]  # engine seconds and cells so far, to size executor batches
-        self.lock = threading.RLock()
+        self.lock = lock or threading.RLock()  # campaigns that share a progress bar share their lock
 
     def remaining(self) -> int:
         """Cells known to be still to run (sub-cells of running cells may add more)."""
         with self.lock:
             return self.left + len(self.queue) + len(self.ready)
 
-    def take(self, n: int) -> list:
-        """Up to n cells to run; empty when none is left for now. One thread takes or stocks at a time."""
-        self.stock(n)
+    def take(self, n: int, stock: int = 0) -> list:
+        """Up to n cells to run (falsifying up to max(n, stock) first); empty when none is left for
+        now. Threads may take and stock at once: cells are drawn under the lock, each by one thread."""
+        self.stock(max(n, stock))
         with self.lock:
             return [self.ready.popleft() for _ in range(min(n, len(self.ready)))]
 
@@ -666,18 +728,68 @@ def _run_cells(problem, cells: list, done, options: dict, workers: Optional[int]
     _core.verify_cells(problem, [list(c) for c in cells], each, workers=workers, **options)
 
 
-def _run_local(campaign: _Campaign, problem, options: dict, workers: Optional[int]):
-    """All cells on this machine's cores (rayon), a chunk at a time so sub-cells join in."""
-    chunk = 32 * (workers or os.cpu_count() or 1)
-    with ThreadPoolExecutor(1, thread_name_prefix="percver-falsify") as ahead:
-        cells = campaign.take(chunk)
-        while cells:
-            # The next chunk is simulated (numpy, mostly without the GIL) while the engine runs this one;
-            # sub-cells the engine adds meanwhile are taken after it.
-            stocked = ahead.submit(campaign.stock, chunk)
-            _run_cells(problem, [c.bounds for c in cells], lambda i, o: campaign.record(cells[i], o), options, workers)
-            stocked.result()
-            cells = campaign.take(chunk)
+def _run_local(jobs: list, workers: Optional[int]):
+    """The cells of all ``jobs`` (campaign, problem, options) on this machine's cores: ``workers``
+    threads (the caller's among them) each take one cell at a time from the first campaign that
+    has one and run it alone (a rayon pool of one), so sub-cells join in as they are made and no
+    core waits for a batch's or a campaign's last cell. A thread that finds no cell ready
+    falsifies the next few (numpy, mostly without the GIL) while the others run the engine."""
+    if workers is not None and not (isinstance(workers, int) and workers >= 1):
+        raise InputError(f"workers must be a positive integer, got {workers!r}")
+    count = workers or os.cpu_count() or 1
+    idle = threading.Condition()
+    busy = [0]  # threads taking or running a cell: while any is, more cells may come
+    stop = threading.Event()
+    failures: list = []
+
+    def next_cell():
+        with idle:
+            busy[0] += 1
+        for campaign, problem, options in jobs:
+            cells = campaign.take(1, stock=STOCK)
+            if cells:
+                return campaign, problem, options, cells[0]
+        with idle:
+            busy[0] -= 1
+            if busy[0] == 0:
+                idle.notify_all()
+        return None
+
+    def work():
+        try:
+            while not stop.is_set():
+                got = next_cell()
+                if got is None:
+                    with idle:
+                        if busy[0] == 0 and not any(campaign.remaining() for campaign, _, _ in jobs):
+                            return
+                        idle.wait(0.1)  # a running cell may be bisected into more
+                    continue
+                campaign, problem, options, cell = got
+                try:
+                    _run_cells(problem, [cell.bounds], lambda i, o: campaign.record(cell, o), options, 1)
+                finally:
+                    with idle:
+                        busy[0] -= 1
+                        idle.notify_all()
+        except BaseException as error:
+            failures.append(error)
+            stop.set()
+
+    helpers = [threading.Thread(target=work, name=f"percver-cells-{k}", daemon=True) for k in range(1, count)]
+    for t in helpers:
+        t.start()
+    try:
+        work()
+    finally:
+        stop.set()  # an interrupt or an error: the others stop after their current cell
+        for t in helpers:
+            t.join()
+    if failures:
+        raise failures[0]
+
+
+STOCK = 16  # cells falsified together when a thread finds none ready (one numpy batch)
 
 
 def _above_min_width(cell: Box, init: Box, min_width: dict) -> list:

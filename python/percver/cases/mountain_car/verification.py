@@ -190,7 +190,7 @@ def verify(noise: str = "contrast", p0=None, networks="paper", *, delta_c=None, 
     remaining keywords go to ``pv.verify``. By default each :class:`Band` of :data:`LAYOUT` (a
     region of p0, and of dc in the composite row) is split into its cells with its in-cell splits
     and order (``split=`` gives one grid instead; ``max_splits=`` or ``order=`` alone override
-    only the bands' own), and unknown cells (or ones still running after 60 s) are bisected down
+    only the bands' own), all bands' cells in one pool (``pv.verify_parts``), and unknown cells (or ones still running after 60 s) are bisected down
     to :data:`MIN_WIDTH` (``refine=True``): a hard cell costs less as two halves than split many
     times inside. The result's ``settings["case"]`` records the row, the networks, the initial set
     and the bands.
@@ -206,13 +206,13 @@ def verify(noise: str = "contrast", p0=None, networks="paper", *, delta_c=None, 
     options = {"refine": True, "min_width": MIN_WIDTH, "timeout_per_cell": 60.0, **verify_kwargs}
     bands = _grid(init, LAYOUT["paper" if name == "paper" else "ours"][noise], options)
     journal = options.pop("journal", None)
-    results = [pv.verify(loop, box, split=band.cells, max_splits=band.max_splits, order=band.order,
-                         journal=_band_journal(journal, k, len(bands)), **specification(), **options)
-               for k, (box, band) in enumerate(bands)]
+    parts = [pv.Part(box, band.cells, band.order, band.max_splits, _band_journal(journal, k, len(bands)))
+             for k, (box, band) in enumerate(bands)]
+    results = pv.verify_parts(loop, parts, **specification(), **options)
     result = results[0]
-    if len(results) > 1:
+    if len(results) > 1:  # the bands ran in one pool: each result's seconds is the whole call's
         result = pv.Result(result.states, {**result.init, **{k: init[k] for k in result.init if k in init}}, [c for r in results for c in r.cells],
-                           sum(r.seconds for r in results), result.settings)
+                           result.seconds, result.settings)
     result.settings["case"] = {"case": "mountain_car", "noise": noise, "networks": name, "init": init,
                                "bands": [{"box": box, "split": band.cells, "max_splits": band.max_splits, "order": band.order}
                                          for box, band in bands],
