@@ -47,7 +47,13 @@ KEYWORDS = {"dc": "delta_c", "db": "delta_b"}
 # its cells 7-16 times (up to 53 s a cell): in cells of dc 0.05 x db 0.025 (p0 0.005 as before)
 # they verify without a split (p0 [-0.55, -0.53] x db [0.1, 0.15]: 28 engine s against 193 s;
 # p0 [-0.52, -0.5] x db [0.05, 0.15]: 63 s against 141 s); halving dc or db alone does not do it
-# (66 s and 77 s against 28 s).
+# (66 s and 77 s against 28 s). The same cells for the next hardest, dc [0.9, 1.0) with db >= 0.1
+# left of p0 -0.53: 25 engine s against 71 s. Right of p0 -0.475, high contrast at dc >= 1.4 in
+# cells of dc 0.2: p0 [-0.475, -0.465] 58 s against 87 s, [-0.44, -0.43] 79 s against 137 s,
+# [-0.425, -0.42] 64 s against ~120 s (below dc 1.4 such cells cost more: 210 s against 137 s);
+# right of the wall's runs (p0 [-0.41, -0.4]) at every dc: 93 s against 171 s, while in p0
+# [-0.415, -0.41] they left 7 of 18 cells unknown (engine s with two workers, against the
+# whole-row run of 68b4484).
 # The other rows' bands were measured before these changes.
 # Our chain needs narrow cells everywhere:
 # its controller coasts as soon as the estimated energy suffices, so the car arrives with little
@@ -74,6 +80,11 @@ _COMPOSITE_WALL, _COMPOSITE_VALLEY = {**_COMPOSITE_LOW, "p": 0.00125}, {**_COMPO
 # The hardest high-contrast cells: dc just above LOW_CONTRAST, blurred, left of the valley.
 _HARD, _ABOVE_HARD, _BLURRED, _SHARP = (LOW_CONTRAST, 0.9), (0.9, math.inf), (0.05, math.inf), (-math.inf, 0.05)
 _COMPOSITE_HARD = {**_COMPOSITE_HIGH, "dc": 0.05, "db": 0.025}
+# The next hardest: dc [0.9, 1.0) with db >= 0.1 at the left edge (p0 < -0.53), in the same cells.
+_NEXT_HARD, _MOST_BLURRED = (0.9, 1.0), (0.1, math.inf)
+# High contrast right of p0 -0.475 at dc >= 1.4, and all of it right of the wall's runs (p0 >=
+# -0.41): cells twice as wide in dc.
+_STRONG, _COMPOSITE_STRONG = (1.4, math.inf), {**_COMPOSITE_HIGH, "dc": 0.2}
 LAYOUT = {
     "paper": {
         "canonical": [Band({"p": (-math.inf, WALL)}, {"p": 0.005}, 16), Band({"p": (WALL, math.inf)}, {"p": 0.001}, 64)],
@@ -90,10 +101,16 @@ LAYOUT = {
             Band({"p": (-math.inf, -0.5), "dc": _HARD, "db": _BLURRED}, _COMPOSITE_HARD, 16, 6),
             Band({"p": (-math.inf, -0.515), "dc": _HARD, "db": _SHARP}, _COMPOSITE_HIGH, 16, 6),
             Band({"p": (-0.515, -0.5), "dc": _HARD, "db": _SHARP}, _COMPOSITE_HIGH, 16, 5),
-            Band({"p": (-math.inf, -0.515), "dc": _ABOVE_HARD}, _COMPOSITE_HIGH, 16, 6),
+            Band({"p": (-math.inf, -0.53), "dc": _NEXT_HARD, "db": _MOST_BLURRED}, _COMPOSITE_HARD, 16, 6),
+            Band({"p": (-math.inf, -0.53), "dc": _NEXT_HARD, "db": (-math.inf, _MOST_BLURRED[0])}, _COMPOSITE_HIGH, 16, 6),
+            Band({"p": (-0.53, -0.515), "dc": _NEXT_HARD}, _COMPOSITE_HIGH, 16, 6),
+            Band({"p": (-math.inf, -0.515), "dc": (_NEXT_HARD[1], math.inf)}, _COMPOSITE_HIGH, 16, 6),
             Band({"p": (-0.515, -0.5), "dc": _ABOVE_HARD}, _COMPOSITE_HIGH, 16, 5),
             Band({"p": (-0.5, -0.475), "dc": _HIGH}, _COMPOSITE_HIGH, 16, 5),
-            Band({"p": (-0.475, math.inf), "dc": _HIGH}, _COMPOSITE_HIGH, 16, 6),
+            Band({"p": (-0.475, WALL), "dc": (LOW_CONTRAST, _STRONG[0])}, _COMPOSITE_HIGH, 16, 6),
+            Band({"p": (-0.475, WALL), "dc": _STRONG}, _COMPOSITE_STRONG, 16, 6),
+            Band({"p": (WALL, -0.41), "dc": _HIGH}, _COMPOSITE_HIGH, 16, 6),
+            Band({"p": (-0.41, math.inf), "dc": _HIGH}, _COMPOSITE_STRONG, 16, 6),
         ],
     },
     "ours": {
