@@ -215,6 +215,18 @@ def test_an_error_in_a_pool_thread_reaches_the_caller_and_closes_the_journals(tm
     assert calls and not list(tmp_path.glob("*.lock"))
 
 
+def test_the_progress_bar_counts_the_verdicts_of_all_parts(capsys):
+    # x + 3 <= 4.5 from x in [0, 1] (4 cells, verified) and [1, 2] (3 cells: [1, 4/3] verified,
+    # the others falsified): the bar's last line has the verdicts of both parts together.
+    x = pv.variables("x")
+    loop = pv.ClosedLoop(pv.Discrete({x: x + 1.0}))
+    parts = [pv.Part({"x": (0.0, 1.0)}, split={"x": 4}), pv.Part({"x": (1.0, 2.0)}, split={"x": 3})]
+    first, second = pv.verify_parts(loop, parts, steps=3, safe=x <= 4.5, workers=2)
+    assert [len(first.cells), len(second.cells)] == [4, 3] and first.verdict == "verified"
+    last = capsys.readouterr().err.split("\r")[-1]
+    assert "7/7" in last and "verified=5, unknown=0, falsified=2" in last, last
+
+
 def test_verify_parts_rejects_what_is_not_a_part():
     x = pv.variables("x")
     loop = pv.ClosedLoop(pv.Discrete({x: x + 1.0}))

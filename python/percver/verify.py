@@ -517,7 +517,7 @@ def verify_parts(
         from percver.executors import Runner
 
         runner = Runner(executor, slots=workers, batch=batch)  # checked (and connected) before any work
-    jobs, bar = [], None
+    jobs, bar = [], _Progress()
     lock = threading.RLock()  # one for all parts: they share the progress bar
     try:
         with ExitStack() as journals:
@@ -532,16 +532,12 @@ def verify_parts(
                 cells, count = _grid(box, p.split or {})
                 journal = _Journal(p.journal, fingerprint)
                 journals.callback(journal.close)
-                campaign = _Campaign(loop, prop, box, cells, count, journal, None, refine=refine, timeout=timeout_per_cell,
+                campaign = _Campaign(loop, prop, box, cells, count, journal, bar, refine=refine, timeout=timeout_per_cell,
                                      min_width={n: float(w) for n, w in (min_width or {}).items()}, falsify=falsify, seed=seed,
                                      lock=lock)
                 jobs.append((campaign, settings, fingerprint, options))
             if progress:
-                from tqdm import tqdm
-
-                bar = tqdm(total=sum(c.left for c, *_ in jobs), unit="cell", desc="verify")
-                for campaign, *_ in jobs:
-                    campaign.bar = bar
+                bar.start(sum(campaign.left for campaign, *_ in jobs))
             if runner is None:
                 _run_local([(campaign, problem, options) for campaign, _, _, options in jobs], workers)
             else:
@@ -550,8 +546,7 @@ def verify_parts(
     finally:
         if runner is not None:
             runner.close()
-        if bar is not None:
-            bar.close()
+        bar.close()
     seconds = time.time() - started
     return [Result(loop.states, box.to_dict(), campaign.cells, seconds, settings) for box, (campaign, settings, _, _) in zip(boxes, jobs)]
 
@@ -586,15 +581,14 @@ class _Campaign:
     chunk = 128  # cells falsified together at most: one simulation batch, bounded trajectories
 
     def __init__(self, loop, prop, init: Box, grid, count: int, journal, bar, *, refine: bool, timeout, min_width: dict,
-                 falsify: int, seed: int, lock=None):
+                 falsify: int, seed: int, lock: threading.RLock):
         self.loop, self.prop, self.init, self.grid, self.left, self.journal, self.bar = loop, prop, init, grid, count, journal, bar
         self.refine, self.timeout, self.min_width, self.falsify, self.seed = refine, timeout, min_width, falsify, seed
         self.queue: list = []  # sub-cells, last in first out: depth-first keeps the queue short
         self.ready: deque = deque()  # falsification found nothing: to be run
         self.cells: list = []
-        self.counts = dict.fromkeys(("verified", "unknown", "falsified"), 0)
         self.cell_seconds = [0.0, 0]  # engine seconds and cells so far, to size executor batches
-        self.lock = lock or threading.RLock()  # campaigns that share a progress bar share their lock
+        self.lock = lock  # the parts of one call share it, with their progress bar
 
     def remaining(self) -> int:
         """Cells known to be still to run (sub-cells of running cells may add more)."""
@@ -681,14 +675,37 @@ class _Campaign:
         """A finished cell (fresh or from the journal) is a result, or replaced by its halves."""
         if self._splits(cell, c):
             self.queue += _bisect(cell, self.init, self.min_width, c.split)
-            if self.bar is not None:
-                self.bar.total += 2
+            self.bar.settled(None, more=2)
         else:
             self.cells.append(c)
-            self.counts[c.verdict] += 1
-        if self.bar is not None:
-            self.bar.set_postfix(self.counts, refresh=False)
-            self.bar.update(1)
+            self.bar.settled(c.verdict)
+
+
+class _Progress:
+    """The progress bar of a verify call (tqdm once started, else nothing), shared by its parts:
+    cells settled and the verdicts so far over all of them. Updated under the parts' lock."""
+
+    def __init__(self):
+        self.tqdm = None
+        self.counts = dict.fromkeys(("verified", "unknown", "falsified"), 0)
+
+    def start(self, total: int):
+        from tqdm import tqdm
+
+        self.tqdm = tqdm(total=total, unit="cell", desc="verify")
+
+    def settled(self, verdict: Optional[str], more: int = 0):
+        """A cell is settled with ``verdict``, or (None) replaced by ``more`` sub-cells."""
+        if verdict is not None:
+            self.counts[verdict] += 1
+        if self.tqdm is not None:
+            self.tqdm.total += more
+            self.tqdm.set_postfix(self.counts, refresh=False)
+            self.tqdm.update(1)
+
+    def close(self):
+        if self.tqdm is not None:
+            self.tqdm.close()
 
 
 _CLEAR: dict = {}  # pid -> descriptor of /proc/self/clear_refs (a forked child opens its own)
