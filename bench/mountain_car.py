@@ -12,6 +12,7 @@ plus a coverage map per entry (``bench/results/mountain_car_<row>_<networks>.png
     python bench/mountain_car.py --rows contrast --networks paper [--p0 -0.5 -0.45] [--workers 2]
     python bench/mountain_car.py --rows composite --combine   # join the --p0 slices run so far into one row
     python bench/mountain_car.py --rows contrast --networks ours --p0 -0.51 -0.4 --survey  # a quick map, not the row
+    python bench/mountain_car.py --rows contrast --networks ours --controller paper  # our perception, the authors' controller
 """
 
 import argparse
@@ -47,14 +48,32 @@ def _sessions(path: Path, journal: Path) -> list:
     return sessions
 
 
-def run(noise: str, networks: str, p0, workers: int, journal_dir: Path, options: dict, survey: bool = False) -> dict:
-    tag = f"{noise}_{networks}" + ("_survey" if survey else "") + ("" if p0 is None else f"_{p0[0]:g}_{p0[1]:g}")
+def _networks_key(networks: str, controller) -> str:
+    """``ours`` or, with another set's controller, ``ours+paper-controller`` (results keys, file names)."""
+    return networks if controller is None else f"{networks}+{controller}-controller"
+
+
+def _cpu() -> str:
+    """The processor as /proc/cpuinfo names it, with its family and model: machines of this kind
+    differ (an EPYC of family 25 model 1 ran the composite row's cells 2.6x slower than another)."""
+    try:
+        info = dict(line.split(":", 1) for line in Path("/proc/cpuinfo").read_text().splitlines() if ":" in line)
+    except OSError:
+        return "unknown"
+    info = {k.strip(): v.strip() for k, v in info.items()}
+    return f"{info.get('model name', '?')} (family {info.get('cpu family', '?')}, model {info.get('model', '?')})"
+
+
+def run(noise: str, networks: str, p0, workers: int, journal_dir: Path, options: dict, survey: bool = False,
+        controller=None) -> dict:
+    tag = f"{noise}_{_networks_key(networks, controller)}" + ("_survey" if survey else "") + ("" if p0 is None else f"_{p0[0]:g}_{p0[1]:g}")
     journal = journal_dir / f"mc_{tag}.jsonl"
     session_file = journal_dir / f"mc_{tag}.sessions.json"
     sessions = _sessions(session_file, journal)
-    session = {"start": time.time(), "end": None, "loadavg_start": os.getloadavg(), "cells_in_journal": len(_journal_cells(journal))}
+    session = {"start": time.time(), "end": None, "loadavg_start": os.getloadavg(), "cpu": _cpu(),
+               "cells_in_journal": len(_journal_cells(journal))}
     session_file.write_text(json.dumps(sessions + [session]))
-    result = verification.verify(noise, p0, networks, workers=workers, journal=str(journal), **options)
+    result = verification.verify(noise, p0, networks, controller=controller, workers=workers, journal=str(journal), **options)
     session.update(end=time.time(), loadavg_end=os.getloadavg())
     sessions.append(session)
     session_file.write_text(json.dumps(sessions))
@@ -66,7 +85,7 @@ def run(noise: str, networks: str, p0, workers: int, journal_dir: Path, options:
     verification.plot_coverage(result, plot)
     noise_states = verification.NOISE_STATES[noise]
     return {
-        "noise": noise, "networks": networks, "init": result.init, "settings": result.settings, "workers": workers,
+        "noise": noise, "networks": networks, **({} if controller is None else {"controller": controller}), "init": result.init, "settings": result.settings, "workers": workers,
         "cpu_count": os.cpu_count(), "sessions": sessions, "row": row, "reasons": verification.reasons(result),
         "paper": verification.published(noise), "coverage_plot": str(plot.relative_to(ROOT.parent)),
         # Per cell: p0 interval, noise intervals, verdict, engine seconds, NN seconds, branches, reason.
@@ -124,6 +143,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--rows", default="contrast,blur,composite")
     parser.add_argument("--networks", default="paper")
+    parser.add_argument("--controller", help="the controller of another set (e.g. --networks ours --controller paper)")
     parser.add_argument("--p0", nargs=2, type=float, help="a sub-range of the rows' initial positions")
     parser.add_argument("--workers", type=int, default=2)
     parser.add_argument("--journal-dir", default="/tmp/percver-bench-mountain-car", help="journals (large; not in the repository)")
@@ -138,9 +158,10 @@ def main() -> None:
     if args.combine:
         doc = json.loads(out.read_text())
         for networks in args.networks.split(","):
+            key = _networks_key(networks, args.controller)
             for noise in args.rows.split(","):
-                entry = combine(doc, noise, networks)
-                doc[f"{noise}/{networks}/slices"] = entry
+                entry = combine(doc, noise, key)
+                doc[f"{noise}/{key}/slices"] = entry
                 out.write_text(json.dumps(doc, indent=1))
                 print(verification.format_row(noise, entry["row"], entry["paper"]), "gaps:", entry["gaps"], flush=True)
         return
@@ -151,9 +172,9 @@ def main() -> None:
         options.update(refine=False, max_splits=SURVEY_SPLITS)
     for networks in args.networks.split(","):
         for noise in args.rows.split(","):
-            entry = run(noise, networks, args.p0, args.workers, journal_dir, options, args.survey)
+            entry = run(noise, networks, args.p0, args.workers, journal_dir, options, args.survey, args.controller)
             doc = json.loads(out.read_text()) if out.exists() else {}
-            doc[f"{noise}/{networks}" + ("/survey" if args.survey else "") + ("" if args.p0 is None else f"/{args.p0[0]:g},{args.p0[1]:g}")] = entry
+            doc[f"{noise}/{_networks_key(networks, args.controller)}" + ("/survey" if args.survey else "") + ("" if args.p0 is None else f"/{args.p0[0]:g},{args.p0[1]:g}")] = entry
             out.write_text(json.dumps(doc, indent=1))
             print(verification.format_row(noise, entry["row"], entry["paper"]), flush=True)
 

@@ -13,7 +13,7 @@ import pytest
 import percver as pv
 from percver.cases import mountain_car as mc
 from percver.cases.mountain_car import verification
-from percver.errors import InputError
+from percver.errors import InputError, MissingFileError
 
 from closed_loops import DATA
 
@@ -32,6 +32,22 @@ def test_loop_is_the_networks_chain(paper):
     u = paper.control(paper.estimate(paper.images(x[:, 0], delta_c=x[:, 2], delta_b=x[:, 3])), x[:, 1])
     p_next, v_next = mc.step(x[:, 0], x[:, 1], u)
     np.testing.assert_allclose(loop.step_float(x), np.column_stack([p_next, v_next, x[:, 2], x[:, 3]]), rtol=0, atol=1e-12)
+
+
+def test_controller_of_another_set_drives_our_perception(paper, tmp_path):
+    """``controller="paper"``: our images and estimator, the authors' controller, and their layout."""
+    ours = mc.load("ours")
+    loop = verification.closed_loop("contrast", "ours", controller="paper", shared=DATA)
+    rng = np.random.default_rng(1)
+    x = np.column_stack([rng.uniform(-0.6, -0.4, 50), rng.uniform(-0.07, 0.07, 50), rng.uniform(0.3, 2, 50)])
+    p_hat = ours.estimate(ours.images(x[:, 0], delta_c=x[:, 2]))
+    for controller, close in ((paper, True), (ours, False)):
+        p_next, v_next = mc.step(x[:, 0], x[:, 1], controller.control(p_hat, x[:, 1]))
+        expected = np.column_stack([p_next, v_next, x[:, 2]])
+        assert np.allclose(loop.step_float(x), expected, rtol=0, atol=1e-12) == close
+    assert verification.layout_of("paper") == "paper" and verification.layout_of("ours") == "ours"
+    with pytest.raises(MissingFileError, match="lacks"):  # an empty folder names the file it lacks
+        verification.closed_loop("contrast", "ours", controller=str(tmp_path))
 
 
 def test_slice_verified_and_contains_sampled_runs(paper):

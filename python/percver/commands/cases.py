@@ -150,6 +150,8 @@ def _register_mc_verify(stages) -> None:
     verify.add_argument("--delta-c", nargs=2, type=float, metavar=("LO", "HI"), help="contrast range (default: the row's)")
     verify.add_argument("--delta-b", nargs=2, type=float, metavar=("LO", "HI"), help="blur range (default: the row's)")
     verify.add_argument("--networks", default="paper", help="paper (the authors', from the shared data), ours (shipped) or DIR")
+    verify.add_argument("--controller", help="take the controller from another set: paper, ours, DIR or a network file "
+                        "(e.g. --networks ours --controller paper: our perception, the authors' verified controller)")
     verify.add_argument("--shared", help="the shared data folder (default: ../shared/data next to the repository)")
     verify.add_argument("--split", metavar="NAME=W,...", help="initial cell widths, e.g. p=0.005,dc=0.2 (default: per row)")
     verify.add_argument("--min-width", metavar="NAME=W,...", help="refinement stops at these widths, e.g. p=0.0003,dc=0.02")
@@ -185,7 +187,7 @@ def _mc_verify(args) -> int:
                                  ("timeout_per_cell", args.timeout_per_cell), ("workers", args.workers),
                                  ("journal", args.journal)) if v is not None}  # fmt: skip
     result = verification.verify(args.noise, args.p0, args.networks, delta_c=args.delta_c, delta_b=args.delta_b,
-                                 shared=args.shared, refine=not args.no_refine, max_splits=args.max_splits,
+                                 controller=args.controller, shared=args.shared, refine=not args.no_refine, max_splits=args.max_splits,
                                  progress=not args.no_progress and not args.json, **options)
     record = verification.save(result, args.out, shared=args.shared)
     if args.json:

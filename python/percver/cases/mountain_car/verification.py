@@ -55,9 +55,9 @@ KEYWORDS = {"dc": "delta_c", "db": "delta_b"}
 # [-0.415, -0.41] they left 7 of 18 cells unknown (engine s with two workers, against the
 # whole-row run of 68b4484).
 # The other rows' bands were measured before these changes.
-# Our chain needs narrow cells everywhere:
-# its controller coasts as soon as the estimated energy suffices, so the car arrives with little
-# margin and when it coasts depends on the estimate.
+# Our controller (whatever the perception) needs narrow cells everywhere: it coasts as soon as the
+# estimated energy suffices, so the car arrives with little margin and when it coasts depends on
+# the estimate; the bands follow the controller's set (:func:`layout_of`).
 # Measured in bench/mountain_car.py (bench/README.md, "Mountain Car").
 WALL = -0.415
 LOW_CONTRAST = 0.8
@@ -139,10 +139,12 @@ def _noise(noise: str) -> tuple:
     return NOISE_STATES[noise]
 
 
-def closed_loop(noise: str = "contrast", networks="paper", *, shared=None):
+def closed_loop(noise: str = "contrast", networks="paper", *, controller=None, shared=None):
     """The closed loop of one row (``pv.ClosedLoop``; states ``p``, ``v`` and the row's noise states).
 
-    ``networks`` is "paper", "ours", a directory (see :func:`networks.load`) or a loaded :class:`Networks`.
+    ``networks`` is "paper", "ours", a directory (see :func:`networks.load`) or a loaded :class:`Networks`;
+    ``controller`` takes the controller from another set (e.g. our perception with the authors'
+    verified controller, as the paper's Table 1 pairs it: ``networks="ours", controller="paper"``).
     Each network is its own stage; ``pv.verify`` fuses the chain into one network. The step of
     :func:`dynamics.equations` is the last stage (``next``), which the plant copies: where a set of
     runs partly hits the left wall, the engine forks the undecided condition into both cases (the
@@ -151,7 +153,7 @@ def closed_loop(noise: str = "contrast", networks="paper", *, shared=None):
     import percver as pv
 
     states = _noise(noise)
-    nets = networks if isinstance(networks, Networks) else load(networks, shared=shared)
+    nets = load(networks, controller=controller, shared=shared)
     p, v, u, p_next, v_next = pv.variables("p v u next_0 next_1")
     noise_vars = {name: pv.variables(name) for name in states}
     step = dynamics.equations()
@@ -200,12 +202,14 @@ def _pair(value, what: str) -> tuple:
     return (lo, hi)
 
 
-def verify(noise: str = "contrast", p0=None, networks="paper", *, delta_c=None, delta_b=None, shared=None, **verify_kwargs):
+def verify(noise: str = "contrast", p0=None, networks="paper", *, delta_c=None, delta_b=None, controller=None, shared=None,
+           **verify_kwargs):
     """Verify one row of Table 1 (or a slice of it) and return the ``pv.Result``.
 
-    ``p0``, ``delta_c``, ``delta_b`` default to the row's ranges (:data:`dynamics.ROWS`). The
+    ``p0``, ``delta_c``, ``delta_b`` default to the row's ranges (:data:`dynamics.ROWS`);
+    ``controller`` swaps in another set's controller (see :func:`closed_loop`). The
     remaining keywords go to ``pv.verify``. By default each :class:`Band` of :data:`LAYOUT` (a
-    region of p0, and of dc in the composite row) is split into its cells with its in-cell splits
+    region of p0, and of dc in the composite row; the layout of the controller's set) is split into its cells with its in-cell splits
     and order (``split=`` gives one grid instead; ``max_splits=`` or ``order=`` alone override
     only the bands' own), all bands' cells in one pool (``pv.verify_parts``), and unknown cells (or ones still running after 60 s) are bisected down
     to :data:`MIN_WIDTH` (``refine=True``): a hard cell costs less as two halves than split many
@@ -214,14 +218,14 @@ def verify(noise: str = "contrast", p0=None, networks="paper", *, delta_c=None, 
     """
     import percver as pv
 
-    loop = closed_loop(noise, networks, shared=shared)
+    loop = closed_loop(noise, networks, controller=controller, shared=shared)
     init = initial_set(noise, p0, delta_c=delta_c, delta_b=delta_b)
     overlap = set(verify_kwargs) & set(specification())
     if overlap:
         raise InputError(f"{sorted(overlap)} are fixed by the Mountain Car property; use pv.verify(closed_loop(...)) to change them")
     name = networks.name if isinstance(networks, Networks) else str(networks)
     options = {"refine": True, "min_width": MIN_WIDTH, "timeout_per_cell": 60.0, **verify_kwargs}
-    bands = _grid(init, LAYOUT["paper" if name == "paper" else "ours"][noise], options)
+    bands = _grid(init, LAYOUT[layout_of(name if controller is None else str(controller))][noise], options)
     journal = options.pop("journal", None)
     parts = [pv.Part(box, band.cells, band.order, band.max_splits, _band_journal(journal, k, len(bands)))
              for k, (box, band) in enumerate(bands)]
@@ -230,11 +234,19 @@ def verify(noise: str = "contrast", p0=None, networks="paper", *, delta_c=None, 
     if len(results) > 1:  # the bands ran in one pool: each result's seconds is the whole call's
         result = pv.Result(result.states, {**result.init, **{k: init[k] for k in result.init if k in init}}, [c for r in results for c in r.cells],
                            result.seconds, result.settings)
-    result.settings["case"] = {"case": "mountain_car", "noise": noise, "networks": name, "init": init,
+    result.settings["case"] = {"case": "mountain_car", "noise": noise, "networks": name,
+                               **({} if controller is None else {"controller": str(controller)}), "init": init,
                                "bands": [{"box": box, "split": band.cells, "max_splits": band.max_splits, "order": band.order}
                                          for box, band in bands],
                                "min_width": options["min_width"]}
     return result
+
+
+def layout_of(controller: str) -> str:
+    """The :data:`LAYOUT` for a chain whose controller comes from set ``controller``: the
+    controller decides where runs meet the wall and with how much margin they arrive, so it
+    decides the cells (our perception with the authors' controller takes the authors' layout)."""
+    return "paper" if controller == "paper" else "ours"
 
 
 def _band_journal(journal, k: int, count: int):
