@@ -45,7 +45,8 @@ def test_controller_of_another_set_drives_our_perception(paper, tmp_path):
         p_next, v_next = mc.step(x[:, 0], x[:, 1], controller.control(p_hat, x[:, 1]))
         expected = np.column_stack([p_next, v_next, x[:, 2]])
         assert np.allclose(loop.step_float(x), expected, rtol=0, atol=1e-12) == close
-    assert verification.layout_of("paper") == "paper" and verification.layout_of("ours") == "ours"
+    assert [verification.layout_of(*pair) for pair in (("paper",), ("ours",), ("ours", "paper"), ("paper", "ours"))] == [
+        "paper", "ours", "ours+paper", "ours"]
     with pytest.raises(MissingFileError, match="lacks"):  # an empty folder names the file it lacks
         verification.closed_loop("contrast", "ours", controller=str(tmp_path))
 
@@ -137,6 +138,10 @@ def test_bands_partition_the_initial_set():
     for low in (True, False):
         edges = sorted({box["p"] for box, _ in bands if (box["dc"][1] <= verification.LOW_CONTRAST) == low})
         assert edges[0][0] == -0.55 and edges[-1][1] == -0.4
+    ours = verification._bands(verification.initial_set("contrast"), verification.LAYOUT["ours+paper"]["contrast"])
+    assert sum(volume({**box, "db": (0, 1)}) for box, _ in ours) == pytest.approx(0.19 * 1.7)
+    for (a, _), (b, _) in itertools.combinations(ours, 2):
+        assert any(a[k][1] <= b[k][0] or b[k][1] <= a[k][0] for k in ("p", "dc")), (a, b)
     walls = verification._bands(verification.initial_set("contrast"), verification.LAYOUT["paper"]["contrast"])
     assert [box["p"] for box, _ in walls] == [(-0.59, verification.WALL), (verification.WALL, -0.4)]
     # A slice inside one region meets only that band; a point on a boundary goes to the upper band.
