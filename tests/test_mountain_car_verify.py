@@ -187,5 +187,10 @@ def test_cli_writes_row_result_and_plots(tmp_path):
     assert record["row"]["verified"] == record["row"]["intervals"] == 1 and record["paper"]["table"]["avg_seconds"] > 0
     assert pv.Result.from_json(str(tmp_path / "result.json")).verdict == "verified"
     assert (tmp_path / "coverage.png").stat().st_size > 5000 and (tmp_path / "tube.png").stat().st_size > 5000
+    # Our perception with the authors' controller: the record names it, and the tube is drawn from that loop.
+    theirs = subprocess.run(base + ["--controller", "paper", "--shared", str(DATA), "--json"], capture_output=True, text=True, timeout=300)
+    assert theirs.returncode == 0, theirs.stderr
+    record = json.loads(theirs.stdout)
+    assert record["controller"] == "paper" and record["row"]["verified"] == record["row"]["intervals"] == 1
     bad = subprocess.run(base + ["--split", "p=wide"], capture_output=True, text=True, timeout=300)
     assert bad.returncode == 1 and bad.stderr.strip().count("\n") == 0 and "NAME=WIDTH" in bad.stderr

@@ -156,7 +156,7 @@ def _register_mc_verify(stages) -> None:
     verify.add_argument("--split", metavar="NAME=W,...", help="initial cell widths, e.g. p=0.005,dc=0.2 (default: per row)")
     verify.add_argument("--min-width", metavar="NAME=W,...", help="refinement stops at these widths, e.g. p=0.0003,dc=0.02")
     verify.add_argument("--no-refine", action="store_true", help="report unknown cells instead of bisecting them")
-    verify.add_argument("--max-splits", type=int, default=64, help="in-cell splits per cell (default: %(default)s)")
+    verify.add_argument("--max-splits", type=int, help="in-cell splits per cell (default: the row's cells' own, 16 or 64)")
     verify.add_argument("--timeout-per-cell", type=float, help="seconds before a cell is stopped and bisected")
     verify.add_argument("--workers", type=int, help="threads (default: all cores)")
     verify.add_argument("--journal", help="JSONL journal: finished cells are kept, a rerun resumes")
@@ -184,10 +184,10 @@ def _mc_verify(args) -> int:
     from percver.commands.verify import EXIT
 
     options = {k: v for k, v in (("split", _widths(args.split, "--split")), ("min_width", _widths(args.min_width, "--min-width")),
-                                 ("timeout_per_cell", args.timeout_per_cell), ("workers", args.workers),
+                                 ("timeout_per_cell", args.timeout_per_cell), ("workers", args.workers), ("max_splits", args.max_splits),
                                  ("journal", args.journal)) if v is not None}  # fmt: skip
     result = verification.verify(args.noise, args.p0, args.networks, delta_c=args.delta_c, delta_b=args.delta_b,
-                                 controller=args.controller, shared=args.shared, refine=not args.no_refine, max_splits=args.max_splits,
+                                 controller=args.controller, shared=args.shared, refine=not args.no_refine,
                                  progress=not args.no_progress and not args.json, **options)
     record = verification.save(result, args.out, shared=args.shared)
     if args.json:

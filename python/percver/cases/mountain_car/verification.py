@@ -542,8 +542,9 @@ def save(result, out, loop=None, *, shared=None, samples: int = 40) -> dict:
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     if loop is None:
-        loop = closed_loop(case["noise"], case["networks"], shared=shared)
-    record = {"noise": case["noise"], "networks": case["networks"], "init": case["init"], "row": table_row(result),
+        loop = closed_loop(case["noise"], case["networks"], controller=case.get("controller"), shared=shared)
+    record = {"noise": case["noise"], "networks": case["networks"], **{k: case[k] for k in ("controller",) if k in case},
+              "init": case["init"], "row": table_row(result),
               "paper": published(case["noise"], shared=shared), "reasons": reasons(result),
               "files": {"result": str(out / "result.json"), "coverage": str(out / "coverage.png"), "tube": str(out / "tube.png")}}
     result.to_json(str(out / "result.json"))
