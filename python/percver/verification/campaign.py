@@ -35,10 +35,10 @@ class Campaign:
 
     chunk = 128  # cells falsified together at most: one simulation batch, bounded trajectories
 
-    def __init__(self, loop, prop, init: Box, splitter, journal, bar, *, timeout, falsify: int, seed: int,
+    def __init__(self, loop, prop, init: Box, splitter, cells, journal, bar, *, timeout, falsify: int, seed: int,
                  lock: threading.RLock):
         self.loop, self.prop, self.init, self.splitter, self.journal, self.bar = loop, prop, init, splitter, journal, bar
-        self.grid, self.left = splitter.initial(init)
+        self.grid, self.left = cells  # the splitter's initial cells (a lazy iterator) and their count
         self.timeout, self.falsify, self.seed = timeout, falsify, seed
         self.queue: list = []  # sub-cells, last in first out: depth-first keeps the queue short
         self.ready: deque = deque()  # falsification found nothing: to be run
@@ -120,7 +120,7 @@ class Campaign:
         self.cell_seconds[1] += 1
         halves = self._again(cell, c)
         if self._timed_out(c) and not halves:
-            c.reason += "; not split further: the cell is at its splitter's smallest width"
+            c.reason += "; not split further: the cell is at min_width"
         self.journal.write(c)
         self._place(cell, c, halves)
 

@@ -168,6 +168,10 @@ def verify_parts(
     if reward is not None:
         loop = loop.with_accumulators(reward)  # sums as extra states: see ClosedLoop.with_accumulators
     boxes = [loop.initial_box(p.init) for p in parts]
+    splitters = []  # each part's splitter and its initial cells, checked before any journal is opened
+    for p, box in zip(parts, boxes):
+        part_splitter = _splitter_of(p, splitter, refine, min_width)
+        splitters.append((part_splitter, part_splitter.initial(box)))
     prop = Property(loop, safe, unsafe, goal, within, steps)
     safe_r, goal_r = prop.rust()
     problem = loop.compile(safe=safe_r, goal=goal_r, within=within, steps=steps)
@@ -180,7 +184,7 @@ def verify_parts(
     lock = threading.RLock()  # one for all parts: they share the progress bar
     try:
         with ExitStack() as journals:
-            for p, box in zip(parts, boxes):
+            for p, box, (part_splitter, cells) in zip(parts, boxes, splitters):
                 settings = {"steps": steps, "method": method, "order": p.order, "max_splits": p.max_splits, "rebox": bool(rebox),
                             "timeout_per_cell": timeout_per_cell, "within": within}
                 if state_symbols:  # only when on, so that journals written before the option still resume
@@ -190,7 +194,7 @@ def verify_parts(
                            "rebox": bool(rebox), "state_symbols": bool(state_symbols)}
                 journal = Journal(p.journal, fingerprint)
                 journals.callback(journal.close)
-                campaign = Campaign(loop, prop, box, _splitter_of(p, splitter, refine, min_width), journal, bar,
+                campaign = Campaign(loop, prop, box, part_splitter, cells, journal, bar,
                                     timeout=timeout_per_cell, falsify=falsify, seed=seed, lock=lock)
                 jobs.append((campaign, settings, fingerprint, options))
             if progress:
