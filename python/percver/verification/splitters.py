@@ -119,8 +119,9 @@ class Bisection(Grid):
 class Adaptive(Bisection):
     """The default: the initial set as it is (or ``start`` pieces along each state it is wide in,
     the first six of them), so a set that verifies whole costs one run; unknown cells halved down
-    to ``min_width`` (default 1/1024 of the initial set); at most ``max_cells`` engine runs in all (then what is left is reported unknown, with
-    its reason), and cells cut ahead of their run to the size their settled neighbours needed.
+    to ``min_width`` (default 1/1024 of the initial set); at most ``max_cells`` engine runs in all
+    (then what is left is reported unknown, with its reason); and cells cut ahead of their run to
+    the size their settled neighbours needed.
 
     Learning is by position: a cell that verified after its ancestors did not says that cells of
     its size are needed there; a cell about to run that touches one is cut to that size along the
