@@ -254,9 +254,11 @@ fn flow_from(
                 Ok(left) => break Some(left),
                 Err(reason) => {
                     stats.rejected_steps += 1;
-                    let can_halve = matches!(settings.step, StepSize::Adaptive { .. }) && h_try * 0.5 >= h_min;
+                    // On the grid a step of one grid unit cannot halve: it stays, so stop there too.
+                    let half = on_grid(h_try * 0.5, grid);
+                    let can_halve = matches!(settings.step, StepSize::Adaptive { .. }) && h_try * 0.5 >= h_min && half < h_try;
                     if can_halve {
-                        h_try = on_grid(h_try * 0.5, grid);
+                        h_try = half;
                     } else if k < k_max {
                         k += 1;
                         break None;
@@ -583,6 +585,20 @@ mod tests {
             assert_eq!(pair[0].t1, pair[1].t0, "gap between segments");
         }
         assert_eq!(fp.segments.last().unwrap().t1, t_end);
+    }
+
+    #[test]
+    fn halving_stops_at_the_time_grid() {
+        // x' = x^2 from 1 blows up at t = 1: with a minimum step below the grid of t_end (2^-12
+        // for a horizon of 2^40), halving must end at one grid unit and report the blow-up, not
+        // retry the same step forever.
+        let o = ode(&["x"], &["x^2"]);
+        let init = [Interval::new(1.0, 1.0).unwrap()];
+        let mut s = settings(1, 0.0, 3, 2f64.powi(40));
+        s.step = StepSize::Adaptive { min: 1e-300, max: 0.5 };
+        let fp = reach(&o, &init, &s, &mut |_| true).unwrap();
+        let Some(TaylorError::BlowUp { time_reached, .. }) = fp.failure else { panic!("expected blow-up") };
+        assert!(time_reached <= 1.0);
     }
 
     #[test]
