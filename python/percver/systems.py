@@ -179,7 +179,8 @@ def _with_output_map(net, output_map):
     s, o = output_map
     s1 = np.ones(n) if net.scale is None else np.asarray(net.scale, float)
     o1 = np.zeros(n) if net.offset is None else np.asarray(net.offset, float)
-    return Network(net.layers, scale=s * s1, offset=s * o1 + o, name=net.name, source=net.source, input_names=net.input_names)
+    return Network(net.layers, scale=s * s1, offset=s * o1 + o, name=net.name, source=net.source, input_names=net.input_names,
+                   domain=net.domain)
 
 
 class ClosedLoop:
