@@ -67,6 +67,7 @@ OPTIONS = {
     "splitter": ("verify", (str, dict), '{kind = "adaptive", max_cells = 512}',
                  'how cells are made: "grid", "bisection" or "adaptive" (pv.Grid, pv.Bisection, pv.Adaptive), '
                  "or a table with kind and their keywords (instead of [split], refine, min_width)"),
+    "strict": ("verify", bool, "false", "an initial or reach set leaving a network's input domain is an error (else a warning)"),
     "journal": ("verify", str, '"run.jsonl"', "append finished cells here, skip them on a rerun (--journal overrides)"),
     "progress": ("verify", bool, "true", "the progress bar (--no-progress turns it off)"),
 }
