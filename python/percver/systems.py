@@ -83,8 +83,9 @@ class Continuous:
             raise InputError(f"the integration step must be in (0, period], got {step}")
         self.remainder = float(remainder)
 
-    def advance(self, x: np.ndarray, u: np.ndarray) -> np.ndarray:
-        """States after one period from the rows of x with the inputs u held (scipy, tight tolerances)."""
+    def advance(self, x: np.ndarray, u: np.ndarray, parameters: Optional[dict] = None) -> np.ndarray:
+        """States after one period from the rows of x with the inputs u held (scipy, tight
+        tolerances); ``parameters`` maps an uncertain parameter's id to its value per row."""
         from scipy.integrate import solve_ivp
 
         n, count = len(self.states), len(x)
@@ -92,7 +93,7 @@ class Continuous:
 
         def f(_t, flat):
             s = flat.reshape(n, count).T
-            return _core.eval_float(self.rhs, names, np.ascontiguousarray(np.hstack([s, u]))).T.reshape(-1)
+            return _core.eval_float(self.rhs, names, np.ascontiguousarray(np.hstack([s, u])), parameters).T.reshape(-1)
 
         sol = solve_ivp(f, (0.0, self.period), x.T.reshape(-1), method="DOP853", rtol=1e-11, atol=1e-12)
         if not sol.success:
@@ -322,36 +323,51 @@ class ClosedLoop:
                                   InputRangeWarning, stacklevel=3)
         return box
 
-    def _stage_float(self, k: int, env: np.ndarray) -> np.ndarray:
+    def _stage_float(self, k: int, env: np.ndarray, parameters: Optional[dict]) -> np.ndarray:
         stage = self.stages[k]
         x = env[:, self._float_inputs[k]]
         if stage.is_network:
             return np.atleast_2d(stage.component(x)).reshape(len(env), -1)
         names = [self.env_names[i] for i in self.stage_inputs[k]]
-        return _core.eval_float(stage.component, names, np.ascontiguousarray(x))
+        return _core.eval_float(stage.component, names, np.ascontiguousarray(x), parameters)
 
-    def step_float(self, x: np.ndarray) -> np.ndarray:
-        """One step of the loop for a batch of states (N x n)."""
+    def parameters(self) -> list:
+        """The uncertain parameters (``pv.uncertain``) the loop reads, as ``(id, lo, hi)``, each once."""
+        exprs = list(self.plant.rhs if isinstance(self.plant, Continuous) else self.plant.update)
+        for stage in self.stages:
+            if not stage.is_network:
+                exprs += list(stage.component)
+        found: dict = {}
+        for e in exprs:
+            for pid, lo, hi in e.parameters():
+                found.setdefault(pid, (pid, lo, hi))
+        return list(found.values())
+
+    def step_float(self, x: np.ndarray, parameters: Optional[dict] = None) -> np.ndarray:
+        """One step of the loop for a batch of states (N x n); ``parameters`` maps an uncertain
+        parameter's id to its value in each run (a parameter not given takes its midpoint)."""
         x = np.atleast_2d(np.asarray(x, dtype=float))
         env = np.empty((len(x), len(self.env_names)))  # every signal's column, filled stage by stage
         env[:, : x.shape[1]] = x
         for k in range(len(self.stages)):
             start = self.signals[self.stages[k].output][0]
             width = len(self.signals[self.stages[k].output])
-            env[:, start: start + width] = self._stage_float(k, env)
+            env[:, start: start + width] = self._stage_float(k, env, parameters)
         if isinstance(self.plant, Continuous):
             u = env[:, [self.signals[i][0] for i in self.plant.inputs]]
-            return self.plant.advance(env[:, : len(self.states)], u)
+            return self.plant.advance(env[:, : len(self.states)], u, parameters)
         reads = self._plant_reads
-        return _core.eval_float(self.plant.update, [self.env_names[i] for i in reads], np.ascontiguousarray(env[:, reads]))
+        return _core.eval_float(self.plant.update, [self.env_names[i] for i in reads], np.ascontiguousarray(env[:, reads]),
+                                parameters)
 
-    def simulate(self, x0: np.ndarray, steps: int) -> np.ndarray:
-        """Trajectories (N x (steps + 1) x n) from the rows of ``x0``."""
+    def simulate(self, x0: np.ndarray, steps: int, parameters: Optional[dict] = None) -> np.ndarray:
+        """Trajectories (N x (steps + 1) x n) from the rows of ``x0``, each run with its own
+        values of the uncertain parameters (``{id: values}``, held for the whole run)."""
         x = np.atleast_2d(np.asarray(x0, dtype=float))
         out = np.empty((len(x), steps + 1, len(self.states)))
         out[:, 0] = x
         for t in range(steps):
-            x = self.step_float(x)
+            x = self.step_float(x, parameters)
             out[:, t + 1] = x
         return out
 

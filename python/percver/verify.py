@@ -47,6 +47,13 @@ class Counterexample:
     trajectory: list  # steps x states
     step: int
     violated: str
+    # The run's values of the loop's uncertain parameters: [{"id", "range": [lo, hi], "value"}];
+    # replay with ``loop.simulate(x0, steps, parameters=cex.parameter_values())``.
+    parameters: list = field(default_factory=list)
+
+    def parameter_values(self) -> dict:
+        """``{id: [value]}``, the form :meth:`ClosedLoop.simulate` takes for one run."""
+        return {p["id"]: [p["value"]] for p in self.parameters}
 
 
 @dataclass
@@ -211,30 +218,38 @@ class _Property:
         goal = (self.goal.margin(), self.goal.op, str(self.goal)) if self.goal is not None else None
         return safe, goal
 
-    def _satisfied(self, condition, x: np.ndarray) -> np.ndarray:
-        margin = _core.eval_float([condition.margin()], self.states, np.ascontiguousarray(x))[:, 0]
+    def _satisfied(self, condition, x: np.ndarray, parameters: Optional[dict]) -> np.ndarray:
+        margin = _core.eval_float([condition.margin()], self.states, np.ascontiguousarray(x), parameters)[:, 0]
         return _holds(condition.op, margin)
 
-    def monitor(self, loop: ClosedLoop, x0: np.ndarray, steps: int):
-        """Runs from the rows of ``x0`` judged as the engine judges them: the safe conditions at
-        every step and, with ``within``, a run ends at its first step at the goal (after it, its
-        states are NaN and need not be simulated). Returns the trajectories (N x (steps + 1) x n)
-        and per run its first violation ``(step, label)``, or None."""
+    def parameters(self) -> list:
+        """The uncertain parameters the property's conditions read, as ``(id, lo, hi)``."""
+        conditions = self.safe + ([self.goal] if self.goal is not None else [])
+        return [p for c in conditions for p in c.margin().parameters()]
+
+    def monitor(self, loop: ClosedLoop, x0: np.ndarray, steps: int, parameters: Optional[dict] = None):
+        """Runs from the rows of ``x0`` (with ``parameters``: ``{id: value per run}``) judged as
+        the engine judges them: the safe conditions at every step and, with ``within``, a run
+        ends at its first step at the goal (after it, its states are NaN and need not be
+        simulated). Returns the trajectories (N x (steps + 1) x n) and per run its first
+        violation ``(step, label)``, or None."""
         traj = np.full((len(x0), steps + 1, len(self.states)), np.nan)
         found: list = [None] * len(x0)
         live, x = np.arange(len(x0)), np.asarray(x0, dtype=float)
+        drawn = {k: np.asarray(v, dtype=float) for k, v in (parameters or {}).items()}
         for t in range(steps + 1):
+            values = {k: v[live] for k, v in drawn.items()}
             if t:
-                x = loop.step_float(x)
+                x = loop.step_float(x, values)
             traj[live, t] = x
             going = np.ones(len(live), dtype=bool)
             for c in self.safe:
-                bad = going & ~self._satisfied(c, x)
+                bad = going & ~self._satisfied(c, x, values)
                 for i in np.nonzero(bad)[0]:
                     found[live[i]] = (t, str(c))
                 going &= ~bad
             if self.goal is not None and (self.within or t == steps):
-                arrived = self._satisfied(self.goal, x)
+                arrived = self._satisfied(self.goal, x, values)
                 if t == steps:
                     for i in np.nonzero(going & ~arrived)[0]:
                         found[live[i]] = (t, f"goal {self.goal}")
@@ -823,30 +838,51 @@ def _splittable(cell: Box, init: Box, min_width: dict) -> bool:
 def _falsify(loop: ClosedLoop, prop: _Property, cells: list, steps: int, samples: int, seed: int, probe: bool = True) -> list:
     """Simulates each cell's ``samples`` random points and, with ``probe``, its centre and corners
     (up to 2^8), all cells in one batch; per cell, the first violating trajectory is its
-    counterexample (else None). The random points are drawn from the cell itself (seeded by its
-    bounds), so a cell gets the same ones whichever order or process it is run in."""
+    counterexample (else None). The loop's uncertain parameters are drawn per run and held for
+    the run: random points draw them uniformly; the probe crosses the centre and corners with
+    the parameters' corners and midpoint (up to :data:`PROBE_RUNS` runs per cell, a random subset
+    beyond). The draws come from the cell itself (seeded by its bounds), so a cell gets the same
+    runs whichever order or process it is run in."""
     if not cells:
         return []
-    blocks = []
+    params = list({p[0]: p for p in loop.parameters() + prop.parameters()}.values())
+    p_lo, p_hi = np.array([p[1] for p in params]), np.array([p[2] for p in params])
+    p_corners = np.vstack([0.5 * (p_lo + p_hi)[None], _corners(p_lo, p_hi, 8)])
+    blocks, drawn = [], []
     for cell in cells:
         lo, hi = cell.lo, cell.hi
-        free = np.nonzero(hi > lo)[0]
-        corners = np.empty((0, len(lo)))
-        if probe and len(free) <= 8:
-            bits = (np.arange(2 ** len(free))[:, None] >> np.arange(len(free))) & 1
-            corners = np.repeat(lo[None], len(bits), axis=0)
-            corners[:, free] = np.where(bits, hi[free], lo[free])
         rng = np.random.default_rng([seed, zlib.crc32(_key(cell.to_dict()).encode())])
-        centre = 0.5 * (lo + hi)[None] if probe else np.empty((0, len(lo)))
-        blocks.append(np.vstack([centre, corners, lo + (hi - lo) * rng.random((samples, len(lo)))]))
-    x0 = np.vstack(blocks)
+        starts = np.vstack([0.5 * (lo + hi)[None], _corners(lo, hi, 8)]) if probe else np.empty((0, len(lo)))
+        # Every probe start with every parameter corner: a violation may need both at once.
+        pick = np.arange(len(starts) * len(p_corners))
+        if len(pick) > PROBE_RUNS:
+            pick = np.sort(rng.choice(pick, PROBE_RUNS, replace=False))
+        blocks.append(np.vstack([starts[pick // len(p_corners)], lo + (hi - lo) * rng.random((samples, len(lo)))]))
+        drawn.append(np.vstack([p_corners[pick % len(p_corners)], p_lo + (p_hi - p_lo) * rng.random((samples, len(params)))]))
+    x0, values = np.vstack(blocks), np.vstack(drawn)
+    parameters = {p[0]: values[:, k] for k, p in enumerate(params)}
     owner = np.repeat(np.arange(len(cells)), [len(b) for b in blocks])
-    traj, found = prop.monitor(loop, x0, steps)
+    traj, found = prop.monitor(loop, x0, steps, parameters)
     out = [None] * len(cells)
     # Per cell, its earliest violation (the first run among equals) is the counterexample.
     for r in sorted((r for r in range(len(x0)) if found[r] is not None), key=lambda r: (found[r][0], r)):
         k = owner[r]
         if out[k] is None:
             step, label = found[r]
-            out[k] = Counterexample(dict(zip(loop.states, map(float, x0[r]))), traj[r, : step + 1].tolist(), step, label)
+            used = [{"id": p[0], "range": [p[1], p[2]], "value": float(values[r, j])} for j, p in enumerate(params)]
+            out[k] = Counterexample(dict(zip(loop.states, map(float, x0[r]))), traj[r, : step + 1].tolist(), step, label, used)
     return out
+
+
+PROBE_RUNS = 1024  # probe runs per cell at most: centre and corners crossed with parameter corners
+
+
+def _corners(lo: np.ndarray, hi: np.ndarray, most: int) -> np.ndarray:
+    """The corners of the box over its non-degenerate dimensions, when there are at most ``most``."""
+    free = np.nonzero(hi > lo)[0]
+    if not len(free) or len(free) > most:
+        return np.empty((0, len(lo)))
+    bits = (np.arange(2 ** len(free))[:, None] >> np.arange(len(free))) & 1
+    corners = np.repeat(lo[None], len(bits), axis=0)
+    corners[:, free] = np.where(bits, hi[free], lo[free])
+    return corners

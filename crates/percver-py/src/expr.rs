@@ -150,6 +150,11 @@ impl PyExpr {
     fn structural_hash(&self) -> u64 {
         self.0.structural_hash()
     }
+    /// The uncertain parameters the expression reads, as (id, lo, hi), each once: simulations
+    /// draw values for them by id (`eval_float(..., parameters={id: values})`).
+    fn parameters(&self) -> Vec<(u64, f64, f64)> {
+        self.0.parameters().into_iter().map(|(id, r)| (id, r.lo(), r.hi())).collect()
+    }
     fn __repr__(&self) -> String {
         self.0.describe(2000)
     }
@@ -184,7 +189,7 @@ fn flatten(root: &Expr) -> Vec<FlatNode> {
         }
         let node = match &*e.0 {
             Node::Const(c) => (0, 0, vec![*c], vec![], String::new()),
-            Node::Uncertain(iv) => (1, 0, vec![iv.lo(), iv.hi()], vec![], String::new()),
+            Node::Uncertain { range, id } => (1, 0, vec![range.lo(), range.hi()], vec![], id.to_string()),
             Node::Var(n) => (2, 0, vec![], vec![], n.clone()),
             Node::Neg(a) => (3, 0, vec![], vec![go(a, memo, out)], String::new()),
             Node::Binary(op, a, b) => (4, position(&BINOPS, op), vec![], vec![go(a, memo, out), go(b, memo, out)], String::new()),
@@ -213,7 +218,7 @@ fn unflatten(nodes: &[FlatNode]) -> PyResult<Expr> {
         let num = |k: usize| x.get(k).copied().ok_or_else(bad);
         let e = match kind {
             0 => Expr::constant(num(0)?),
-            1 => Expr::uncertain(Interval::new(num(0)?, num(1)?).py_err()?),
+            1 => Expr::parameter(Interval::new(num(0)?, num(1)?).py_err()?, name.parse().map_err(|_| bad())?),
             2 => Expr::var(name),
             3 => arg(0)?.neg(),
             4 => Expr::binary(*BINOPS.get(*sub as usize).ok_or_else(bad)?, &arg(0)?, &arg(1)?),
@@ -280,16 +285,31 @@ pub fn to_intervals(bounds: &[(f64, f64)], names: &[String]) -> PyResult<Vec<Int
 }
 
 /// Float evaluation of `exprs` on the rows of `points` (N x len(names)) -> N x len(exprs).
+/// `parameters` maps a parameter's id to its value in each row (others take their midpoint).
 #[pyfunction]
-pub fn eval_float<'py>(py: Python<'py>, exprs: Vec<PyExpr>, names: Vec<String>, points: PyReadonlyArray2<'py, f64>) -> PyResult<Bound<'py, PyArray2<f64>>> {
+#[pyo3(signature = (exprs, names, points, parameters=None))]
+pub fn eval_float<'py>(
+    py: Python<'py>,
+    exprs: Vec<PyExpr>,
+    names: Vec<String>,
+    points: PyReadonlyArray2<'py, f64>,
+    parameters: Option<std::collections::HashMap<u64, Vec<f64>>>,
+) -> PyResult<Bound<'py, PyArray2<f64>>> {
     let program = compile(&exprs, &names)?;
     let a = points.as_array();
     if a.ncols() != names.len() {
         return Err(to_py(TaylorError::input(format!("points have {} columns for {} variables", a.ncols(), names.len()))));
     }
     let n = a.nrows();
+    let mut batch = FloatBatch::new(n);
+    for (id, values) in parameters.unwrap_or_default() {
+        if values.len() != n {
+            return Err(to_py(TaylorError::input(format!("parameter {id} has {} values for {n} points", values.len()))));
+        }
+        batch.parameters.insert(id, values);
+    }
     let columns: Vec<Vec<f64>> = (0..a.ncols()).map(|j| a.column(j).to_vec()).collect();
-    let out = py.allow_threads(|| program.eval(&FloatBatch { n }, &columns)).py_err()?;
+    let out = py.allow_threads(|| program.eval(&batch, &columns)).py_err()?;
     let m = out.len();
     let arr = numpy::ndarray::Array2::from_shape_fn((n, m), |(i, j)| out[j][i]);
     Ok(arr.to_pyarray(py))

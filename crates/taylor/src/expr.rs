@@ -68,8 +68,10 @@ impl Cmp {
 #[derive(Debug)]
 pub enum Node {
     Const(f64),
-    /// A constant known only to an interval (uncertain parameter), as in Flow*'s `[a, b]`.
-    Uncertain(Interval),
+    /// A constant known only to an interval (uncertain parameter), as in Flow*'s `[a, b]`. `id`
+    /// is its identity: two parameters with the same range are different quantities, and a
+    /// simulation draws each one's value by id ([`FloatBatch::parameters`]).
+    Uncertain { range: Interval, id: u64 },
     Var(String),
     Neg(Expr),
     Binary(BinOp, Expr, Expr),
@@ -83,6 +85,21 @@ pub enum Node {
 #[derive(Clone, Debug)]
 pub struct Expr(pub Arc<Node>);
 
+/// Fresh parameter ids: a counter from a random start, so expressions pickled in one process and
+/// built in another do not confuse their parameters.
+fn next_parameter_id() -> u64 {
+    use std::hash::{BuildHasher, Hasher};
+    use std::sync::atomic::{AtomicU64, Ordering};
+    use std::sync::OnceLock;
+    static NEXT: OnceLock<AtomicU64> = OnceLock::new();
+    let next = NEXT.get_or_init(|| {
+        let mut h = std::collections::hash_map::RandomState::new().build_hasher();
+        h.write_u32(std::process::id());
+        AtomicU64::new(h.finish() >> 1)
+    });
+    next.fetch_add(1, Ordering::Relaxed)
+}
+
 impl Expr {
     fn new(n: Node) -> Expr {
         Expr(Arc::new(n))
@@ -90,8 +107,13 @@ impl Expr {
     pub fn constant(c: f64) -> Expr {
         Expr::new(Node::Const(c))
     }
+    /// A new uncertain parameter: a quantity of its own, whatever its range.
     pub fn uncertain(iv: Interval) -> Expr {
-        Expr::new(Node::Uncertain(iv))
+        Expr::parameter(iv, next_parameter_id())
+    }
+    /// The parameter `id` (a pickled or parsed expression's own parameter, kept by identity).
+    pub fn parameter(range: Interval, id: u64) -> Expr {
+        Expr::new(Node::Uncertain { range, id })
     }
     pub fn var(name: &str) -> Expr {
         Expr::new(Node::Var(name.to_string()))
@@ -128,10 +150,9 @@ impl Expr {
         Expr::binary(BinOp::Min, &Expr::binary(BinOp::Max, self, lo), hi)
     }
 
-    /// Names of the variables used, in order of first appearance.
-    pub fn variables(&self) -> Vec<String> {
+    /// Every distinct node (shared ones once), parents before children, left to right.
+    fn nodes(&self) -> Vec<Expr> {
         let mut out = Vec::new();
-        let mut seen = std::collections::HashSet::new();
         let mut stack = vec![self.clone()];
         let mut visited = std::collections::HashSet::new();
         while let Some(e) = stack.pop() {
@@ -139,12 +160,7 @@ impl Expr {
                 continue;
             }
             match &*e.0 {
-                Node::Var(n) => {
-                    if seen.insert(n.clone()) {
-                        out.push(n.clone());
-                    }
-                }
-                Node::Const(_) | Node::Uncertain(_) => {}
+                Node::Const(_) | Node::Uncertain { .. } | Node::Var(_) => {}
                 Node::Neg(a) | Node::PowI(a, _) | Node::PowF(a, _) | Node::Func(_, a) => stack.push(a.clone()),
                 Node::Binary(_, a, b) => {
                     stack.push(b.clone());
@@ -154,6 +170,34 @@ impl Expr {
                     for x in [otherwise, then, rhs, lhs] {
                         stack.push(x.clone());
                     }
+                }
+            }
+            out.push(e);
+        }
+        out
+    }
+
+    /// The uncertain parameters used, by id with their ranges, in order of first appearance.
+    pub fn parameters(&self) -> Vec<(u64, Interval)> {
+        let mut out: Vec<(u64, Interval)> = Vec::new();
+        for e in self.nodes() {
+            if let Node::Uncertain { range, id } = &*e.0 {
+                if !out.iter().any(|(k, _)| k == id) {
+                    out.push((*id, *range));
+                }
+            }
+        }
+        out
+    }
+
+    /// Names of the variables used, in order of first appearance.
+    pub fn variables(&self) -> Vec<String> {
+        let mut seen = std::collections::HashSet::new();
+        let mut out: Vec<String> = Vec::new();
+        for e in self.nodes() {
+            if let Node::Var(n) = &*e.0 {
+                if seen.insert(n.clone()) {
+                    out.push(n.clone());
                 }
             }
         }
@@ -189,30 +233,37 @@ impl Expr {
     /// node is hashed once), stable across runs: for journals' problem fingerprints.
     pub fn structural_hash(&self) -> u64 {
         use std::hash::{Hash, Hasher};
-        fn go(e: &Expr, memo: &mut HashMap<usize, u64>) -> u64 {
+        // Parameters hash by their order of first appearance, not their random ids: `a + a` and
+        // `a + b` are different problems, and the hash is the same in every process.
+        fn go(e: &Expr, memo: &mut HashMap<usize, u64>, params: &mut HashMap<u64, usize>) -> u64 {
             let key = Arc::as_ptr(&e.0) as usize;
             if let Some(&h) = memo.get(&key) {
                 return h;
             }
             let mut s = std::collections::hash_map::DefaultHasher::new();
+            let mut go = |e: &Expr| go(e, memo, params);
             match &*e.0 {
                 Node::Const(c) => (0u8, c.to_bits()).hash(&mut s),
-                Node::Uncertain(iv) => (1u8, iv.lo().to_bits(), iv.hi().to_bits()).hash(&mut s),
+                Node::Uncertain { range, id } => {
+                    let fresh = params.len();
+                    let ordinal = *params.entry(*id).or_insert(fresh);
+                    (1u8, range.lo().to_bits(), range.hi().to_bits(), ordinal).hash(&mut s)
+                }
                 Node::Var(n) => (2u8, n).hash(&mut s),
-                Node::Neg(a) => (3u8, go(a, memo)).hash(&mut s),
-                Node::Binary(op, a, b) => (4u8, *op as u8, go(a, memo), go(b, memo)).hash(&mut s),
-                Node::PowI(a, n) => (5u8, go(a, memo), n).hash(&mut s),
-                Node::PowF(a, r) => (6u8, go(a, memo), r.to_bits()).hash(&mut s),
-                Node::Func(f, a) => (7u8, *f as u8, go(a, memo)).hash(&mut s),
+                Node::Neg(a) => (3u8, go(a)).hash(&mut s),
+                Node::Binary(op, a, b) => (4u8, *op as u8, go(a), go(b)).hash(&mut s),
+                Node::PowI(a, n) => (5u8, go(a), n).hash(&mut s),
+                Node::PowF(a, r) => (6u8, go(a), r.to_bits()).hash(&mut s),
+                Node::Func(f, a) => (7u8, *f as u8, go(a)).hash(&mut s),
                 Node::Where { lhs, cmp, rhs, then, otherwise } => {
-                    (8u8, *cmp as u8, go(lhs, memo), go(rhs, memo), go(then, memo), go(otherwise, memo)).hash(&mut s)
+                    (8u8, *cmp as u8, go(lhs), go(rhs), go(then), go(otherwise)).hash(&mut s)
                 }
             }
             let h = s.finish();
             memo.insert(key, h);
             h
         }
-        go(self, &mut HashMap::new())
+        go(self, &mut HashMap::new(), &mut HashMap::new())
     }
 }
 
@@ -220,7 +271,7 @@ impl fmt::Display for Expr {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         match &*self.0 {
             Node::Const(c) => write!(f, "{c:?}"),
-            Node::Uncertain(iv) => write!(f, "[{:?}, {:?}]", iv.lo(), iv.hi()),
+            Node::Uncertain { range, .. } => write!(f, "[{:?}, {:?}]", range.lo(), range.hi()),
             Node::Var(n) => write!(f, "{n}"),
             Node::Neg(a) => write!(f, "(-{a})"),
             Node::Binary(op, a, b) => match op {
@@ -245,7 +296,7 @@ impl fmt::Display for Expr {
 #[derive(Clone, Debug)]
 pub enum Op {
     Const(f64),
-    Uncertain(Interval),
+    Uncertain { range: Interval, id: u64 },
     Input(usize),
     Neg(usize),
     Binary(BinOp, usize, usize),
@@ -253,6 +304,31 @@ pub enum Op {
     PowF(usize, f64),
     Func(Func, usize),
     Where { lhs: usize, cmp: Cmp, rhs: usize, then: usize, otherwise: usize },
+}
+
+impl Op {
+    /// What the operation computes, as a hashable key: kind, operand slots and constants (bits).
+    fn identity(&self) -> (u8, u8, [u64; 5]) {
+        let u = |x: usize| x as u64;
+        match *self {
+            Op::Const(c) => (0, 0, [c.to_bits(), 0, 0, 0, 0]),
+            Op::Uncertain { range, id } => (1, 0, [range.lo().to_bits(), range.hi().to_bits(), id, 0, 0]),
+            Op::Input(i) => (2, 0, [u(i), 0, 0, 0, 0]),
+            Op::Neg(a) => (3, 0, [u(a), 0, 0, 0, 0]),
+            Op::Binary(op, a, b) => (4, op as u8, [u(a), u(b), 0, 0, 0]),
+            Op::PowI(a, n) => (5, 0, [u(a), n as u64, 0, 0, 0]),
+            Op::PowF(a, r) => (6, 0, [u(a), r.to_bits(), 0, 0, 0]),
+            Op::Func(f, a) => (7, f as u8, [u(a), 0, 0, 0, 0]),
+            Op::Where { lhs, cmp, rhs, then, otherwise } => (8, cmp as u8, [u(lhs), u(rhs), u(then), u(otherwise), 0]),
+        }
+    }
+}
+
+/// Slots already emitted, by expression node and by what they compute.
+#[derive(Default)]
+struct Slots {
+    by_node: HashMap<usize, usize>,
+    by_op: HashMap<(u8, u8, [u64; 5]), usize>,
 }
 
 /// Expressions compiled against an ordered list of input names.
@@ -267,13 +343,17 @@ impl Program {
     /// A name listed twice in `inputs` is read at its first place: in a loop's environment a
     /// later one is a copy (a fused network carries states it passes on as identity neurons, whose
     /// models gain rounding at every step; the state itself is exact).
+    ///
+    /// Structurally equal operations share one slot (the same operation on the same slots is the
+    /// same quantity at every point; a parameter is equal only to itself, by id). A slot is
+    /// therefore what a quantity *is*, which is what [`Forking`] keys its decisions by.
     pub fn compile(outputs: &[Expr], inputs: &[String]) -> Result<Program> {
         let mut positions: HashMap<&str, usize> = HashMap::with_capacity(inputs.len());
         for (i, n) in inputs.iter().enumerate() {
             positions.entry(n.as_str()).or_insert(i);
         }
         let mut program = Program { inputs: inputs.to_vec(), ops: Vec::new(), outputs: Vec::new() };
-        let mut slots: HashMap<usize, usize> = HashMap::new();
+        let mut slots = Slots::default();
         for e in outputs {
             let s = program.emit(e, &positions, &mut slots)?;
             program.outputs.push(s);
@@ -281,14 +361,14 @@ impl Program {
         Ok(program)
     }
 
-    fn emit(&mut self, e: &Expr, positions: &HashMap<&str, usize>, slots: &mut HashMap<usize, usize>) -> Result<usize> {
+    fn emit(&mut self, e: &Expr, positions: &HashMap<&str, usize>, slots: &mut Slots) -> Result<usize> {
         let key = Arc::as_ptr(&e.0) as usize;
-        if let Some(&s) = slots.get(&key) {
+        if let Some(&s) = slots.by_node.get(&key) {
             return Ok(s);
         }
         let op = match &*e.0 {
             Node::Const(c) => Op::Const(*c),
-            Node::Uncertain(iv) => Op::Uncertain(*iv),
+            Node::Uncertain { range, id } => Op::Uncertain { range: *range, id: *id },
             Node::Var(n) => match positions.get(n.as_str()) {
                 Some(&i) => Op::Input(i),
                 None => {
@@ -314,9 +394,12 @@ impl Program {
                 otherwise: self.emit(otherwise, positions, slots)?,
             },
         };
-        self.ops.push(op);
-        slots.insert(key, self.ops.len() - 1);
-        Ok(self.ops.len() - 1)
+        let slot = *slots.by_op.entry(op.identity()).or_insert_with(|| {
+            self.ops.push(op);
+            self.ops.len() - 1
+        });
+        slots.by_node.insert(key, slot);
+        Ok(slot)
     }
 
     /// Runs the program on one algebra; returns one value per output.
@@ -338,7 +421,7 @@ impl Program {
         for op in &self.ops {
             let mut d = vec![false; n];
             let operands: Vec<usize> = match *op {
-                Op::Const(_) | Op::Uncertain(_) => vec![],
+                Op::Const(_) | Op::Uncertain { .. } => vec![],
                 Op::Input(k) => {
                     d[k] = true;
                     vec![]
@@ -381,7 +464,7 @@ impl Program {
         for op in &self.ops {
             let value = match op {
                 Op::Const(c) => Ok(alg.constant(*c)),
-                Op::Uncertain(iv) => Ok(alg.uncertain(*iv)),
+                Op::Uncertain { range, id } => Ok(alg.uncertain(*range, *id)),
                 Op::Input(i) => Ok(inputs[*i].clone()),
                 Op::Neg(a) => get(&v, *a).map(|x| alg.neg(x)),
                 Op::Binary(op, a, b) => get(&v, *a).and_then(|x| alg.binary(*op, x, get(&v, *b)?)),
@@ -390,7 +473,7 @@ impl Program {
                 Op::Func(f, a) => get(&v, *a).and_then(|x| alg.func(*f, x)),
                 Op::Where { lhs, cmp, rhs, then, otherwise } => (|| {
                     let (l, r) = (get(&v, *lhs)?, get(&v, *rhs)?);
-                    match alg.decide(l, *cmp, r) {
+                    match alg.decide_at(Question { lhs: *lhs, cmp: *cmp, rhs: *rhs }, l, r) {
                         Some(true) => get(&v, *then).cloned(),
                         Some(false) => get(&v, *otherwise).cloned(),
                         None => alg.select(l, *cmp, r, get(&v, *then)?, get(&v, *otherwise)?),
@@ -406,11 +489,21 @@ impl Program {
     }
 }
 
+/// A condition of a compiled program: `slot lhs cmp slot rhs`. Two `where`s with the same
+/// question ask it of the same quantities, so every point answers them alike.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub struct Question {
+    pub lhs: usize,
+    pub cmp: Cmp,
+    pub rhs: usize,
+}
+
 /// A number system the expression language can be evaluated in.
 pub trait Algebra {
     type Value: Clone;
     fn constant(&self, c: f64) -> Self::Value;
-    fn uncertain(&self, iv: Interval) -> Self::Value;
+    /// The value of parameter `id`, known to lie in `range`.
+    fn uncertain(&self, range: Interval, id: u64) -> Self::Value;
     fn neg(&self, a: &Self::Value) -> Self::Value;
     fn binary(&self, op: BinOp, a: &Self::Value, b: &Self::Value) -> Result<Self::Value>;
     fn powi(&self, a: &Self::Value, n: i32) -> Result<Self::Value>;
@@ -418,6 +511,11 @@ pub trait Algebra {
     fn func(&self, f: Func, a: &Self::Value) -> Result<Self::Value>;
     /// Whether `lhs cmp rhs` holds everywhere (Some(true)), nowhere (Some(false)), or either.
     fn decide(&self, lhs: &Self::Value, cmp: Cmp, rhs: &Self::Value) -> Option<bool>;
+    /// Decides the condition a program asks at `question`; an algebra that follows a plan
+    /// remembers its answers by question ([`Forking`]), the others decide on the values.
+    fn decide_at(&self, question: Question, lhs: &Self::Value, rhs: &Self::Value) -> Option<bool> {
+        self.decide(lhs, question.cmp, rhs)
+    }
     /// `then` where `lhs cmp rhs` holds, `otherwise` elsewhere; sets take the hull when the
     /// comparison is undecided (callers that need branching decide the condition first).
     fn select(&self, lhs: &Self::Value, cmp: Cmp, rhs: &Self::Value, then: &Self::Value, otherwise: &Self::Value) -> Result<Self::Value>;
@@ -426,9 +524,16 @@ pub trait Algebra {
 /// Plain floats, batched: each value is a column of `n` samples.
 pub struct FloatBatch {
     pub n: usize,
+    /// Per parameter id, its value in each sample; a parameter not listed takes its midpoint.
+    pub parameters: HashMap<u64, Vec<f64>>,
 }
 
 impl FloatBatch {
+    /// `n` samples, every parameter at its midpoint.
+    pub fn new(n: usize) -> FloatBatch {
+        FloatBatch { n, parameters: HashMap::new() }
+    }
+
     fn map2(a: &[f64], b: &[f64], f: impl Fn(f64, f64) -> f64) -> Vec<f64> {
         a.iter().zip(b).map(|(&x, &y)| f(x, y)).collect()
     }
@@ -439,9 +544,12 @@ impl Algebra for FloatBatch {
     fn constant(&self, c: f64) -> Vec<f64> {
         vec![c; self.n]
     }
-    /// Simulation uses the midpoint of an uncertain constant.
-    fn uncertain(&self, iv: Interval) -> Vec<f64> {
-        vec![iv.mid(); self.n]
+    /// The samples' drawn values of the parameter, or its midpoint in every sample.
+    fn uncertain(&self, range: Interval, id: u64) -> Vec<f64> {
+        match self.parameters.get(&id) {
+            Some(values) => values.clone(),
+            None => vec![range.mid(); self.n],
+        }
     }
     fn neg(&self, a: &Vec<f64>) -> Vec<f64> {
         a.iter().map(|x| -x).collect()
@@ -482,8 +590,8 @@ impl Algebra for Intervals {
     fn constant(&self, c: f64) -> Interval {
         Interval::point(c)
     }
-    fn uncertain(&self, iv: Interval) -> Interval {
-        iv
+    fn uncertain(&self, range: Interval, _id: u64) -> Interval {
+        range
     }
     fn neg(&self, a: &Interval) -> Interval {
         -*a
@@ -552,8 +660,8 @@ impl Algebra for TaylorModels<'_> {
     fn constant(&self, c: f64) -> TaylorModel {
         TaylorModel::constant(c)
     }
-    fn uncertain(&self, iv: Interval) -> TaylorModel {
-        TaylorModel::from_interval(iv)
+    fn uncertain(&self, range: Interval, _id: u64) -> TaylorModel {
+        TaylorModel::from_interval(range)
     }
     fn neg(&self, a: &TaylorModel) -> TaylorModel {
         a.neg()
@@ -606,19 +714,21 @@ impl Algebra for TaylorModels<'_> {
 }
 
 /// Taylor-model arithmetic that follows a plan through undecided conditions: the k-th
-/// undecided `where` met takes branch `plan[k]` (and evaluates only that branch), conditions
+/// undecided question met takes branch `plan[k]` (and evaluates only that branch), questions
 /// beyond the plan take the hull. Evaluating every plan a condition tree allows, each branch
 /// assumed on the whole set, covers every point: a point's own path through the conditions is
-/// one of the plans. `beyond` reports whether a condition past the plan was undecided.
-/// A condition met again with the same operands (a plant's `where`s on one guard, say
-/// p' <= -1.2 for both p and v) takes the branch it took before: a point's two answers to one
-/// condition agree, so the plans that mix them cover no point and are not made.
+/// one of the plans. `beyond` reports whether a question past the plan was undecided.
+/// A question asked again (two `where`s on one guard, say p' <= -1.2 for both p and v) takes the
+/// answer it got before: a point answers one question once, so the plans that mix answers cover
+/// no point and are not made. Questions are told apart by what they ask ([`Question`]: the
+/// compiled slots of their operands), never by their models: two different quantities can
+/// have equal models (sin(1000 x) and sin(1000 y) on a wide set are both [-1, 1]).
 pub struct Forking<'a> {
     pub tm: TaylorModels<'a>,
     pub plan: &'a [bool],
     seen: std::cell::Cell<usize>,
     beyond: std::cell::Cell<bool>,
-    taken: std::cell::RefCell<Vec<(TaylorModel, Cmp, TaylorModel, bool)>>,
+    taken: std::cell::RefCell<HashMap<Question, bool>>,
 }
 
 impl<'a> Forking<'a> {
@@ -628,7 +738,7 @@ impl<'a> Forking<'a> {
             plan,
             seen: std::cell::Cell::new(0),
             beyond: std::cell::Cell::new(false),
-            taken: std::cell::RefCell::new(Vec::new()),
+            taken: std::cell::RefCell::new(HashMap::new()),
         }
     }
     /// Whether an undecided condition was met after the plan ran out.
@@ -642,8 +752,8 @@ impl Algebra for Forking<'_> {
     fn constant(&self, c: f64) -> TaylorModel {
         self.tm.constant(c)
     }
-    fn uncertain(&self, iv: Interval) -> TaylorModel {
-        self.tm.uncertain(iv)
+    fn uncertain(&self, range: Interval, id: u64) -> TaylorModel {
+        self.tm.uncertain(range, id)
     }
     fn neg(&self, a: &TaylorModel) -> TaylorModel {
         self.tm.neg(a)
@@ -660,19 +770,25 @@ impl Algebra for Forking<'_> {
     fn func(&self, f: Func, a: &TaylorModel) -> Result<TaylorModel> {
         self.tm.func(f, a)
     }
+    /// Without a question there is nothing to follow a plan by: decided or undecided.
     fn decide(&self, l: &TaylorModel, cmp: Cmp, r: &TaylorModel) -> Option<bool> {
-        let decided = self.tm.decide(l, cmp, r);
+        self.tm.decide(l, cmp, r)
+    }
+    fn decide_at(&self, question: Question, l: &TaylorModel, r: &TaylorModel) -> Option<bool> {
+        let decided = self.tm.decide(l, question.cmp, r);
         if decided.is_some() {
             return decided;
         }
-        if let Some(&(_, _, _, b)) = self.taken.borrow().iter().find(|(a, c, z, _)| a == l && *c == cmp && z == r) {
+        if let Some(&b) = self.taken.borrow().get(&question) {
             return Some(b);
         }
         let k = self.seen.get();
         self.seen.set(k + 1);
         let forced = self.plan.get(k).copied();
         match forced {
-            Some(b) => self.taken.borrow_mut().push((l.clone(), cmp, r.clone(), b)),
+            Some(b) => {
+                self.taken.borrow_mut().insert(question, b);
+            }
             None => self.beyond.set(true),
         }
         forced
@@ -705,7 +821,7 @@ mod tests {
         let pts = [(0.3, -0.2), (1.0, 2.0), (-1.5, 0.7)];
         let xs: Vec<f64> = pts.iter().map(|p| p.0).collect();
         let ys: Vec<f64> = pts.iter().map(|p| p.1).collect();
-        let floats = p.eval(&FloatBatch { n: 3 }, &[xs, ys]).unwrap();
+        let floats = p.eval(&FloatBatch::new(3), &[xs, ys]).unwrap();
         let ctx = Ctx::new(Space::get(2, 4, 0).unwrap(), 4, 0.0);
         for (k, &(x, y)) in pts.iter().enumerate() {
             let iv = p.eval(&Intervals, &[Interval::point(x), Interval::point(y)]).unwrap();
@@ -751,6 +867,71 @@ mod tests {
                 assert!(b.lo() <= lo && b.hi() >= hi && b.width() <= hi - lo + 1e-12, "{b} against [{lo}, {hi}]");
             }
         }
+    }
+
+    /// Every plan `Forking` needs for `prog` on `input`, each run to its end.
+    fn plans(prog: &Program, input: &[TaylorModel], ctx: &Ctx) -> Vec<Vec<bool>> {
+        let (mut done, mut todo) = (Vec::new(), vec![Vec::new()]);
+        while let Some(plan) = todo.pop() {
+            let alg = Forking::new(ctx, &plan);
+            prog.eval(&alg, input).unwrap();
+            if alg.beyond() {
+                todo.extend([false, true].map(|b| [plan.clone(), vec![b]].concat()));
+            } else {
+                done.push(plan);
+            }
+        }
+        done
+    }
+
+    #[test]
+    fn forking_tells_different_quantities_with_equal_models_apart() {
+        // sin(1000 x) and sin(1000 y) on a wide box are both [-1, 1] (equal models), as are two
+        // parameters of one range; each pair is two questions, so four plans, not two.
+        let ctx = Ctx::new(Space::get(2, 3, 0).unwrap(), 3, 0.0);
+        let (x, y) = (Expr::var("x"), Expr::var("y"));
+        let k = Expr::constant(1000.0);
+        let zero = Expr::constant(0.0);
+        let (one, none) = (Expr::constant(1.0), Expr::constant(0.0));
+        let sx = Expr::func(Func::Sin, &Expr::binary(BinOp::Mul, &k, &x));
+        let sy = Expr::func(Func::Sin, &Expr::binary(BinOp::Mul, &k, &y));
+        let range = Interval::new(-1.0, 1.0).unwrap();
+        let (a, b) = (Expr::uncertain(range), Expr::uncertain(range));
+        let input = [TaylorModel::affine(&ctx, 0.5, 0, 0.5), TaylorModel::affine(&ctx, 0.5, 1, 0.5)];
+        for (p, q) in [(sx, sy), (a.clone(), b)] {
+            let e = Expr::binary(BinOp::Add, &Expr::select(&p, Cmp::Le, &zero, &one, &none), &Expr::select(&q, Cmp::Le, &zero, &none, &one));
+            let prog = Program::compile(&[e], &["x".into(), "y".into()]).unwrap();
+            let mut found = plans(&prog, &input, &ctx);
+            found.sort();
+            assert_eq!(found, vec![vec![false, false], vec![false, true], vec![true, false], vec![true, true]]);
+        }
+        // One parameter asked twice (by two separately built conditions) is one question.
+        let twice = Expr::binary(
+            BinOp::Add,
+            &Expr::select(&a, Cmp::Le, &Expr::constant(0.0), &one, &none),
+            &Expr::select(&a, Cmp::Le, &Expr::constant(0.0), &none, &one),
+        );
+        let prog = Program::compile(&[twice], &["x".into(), "y".into()]).unwrap();
+        assert_eq!(plans(&prog, &input, &ctx).len(), 2);
+    }
+
+    #[test]
+    fn parameters_keep_their_identity() {
+        let range = Interval::new(-1.0, 1.0).unwrap();
+        let (a, b) = (Expr::uncertain(range), Expr::uncertain(range));
+        let sum = Expr::binary(BinOp::Add, &a, &b);
+        let ids: Vec<u64> = sum.parameters().iter().map(|p| p.0).collect();
+        assert_eq!(ids.len(), 2);
+        assert_ne!(ids[0], ids[1]);
+        // Equal ranges, different quantities: not merged, and the hash tells a + a from a + b.
+        let prog = Program::compile(&[sum.clone()], &[]).unwrap();
+        assert_eq!(prog.ops.len(), 3);
+        assert_ne!(sum.structural_hash(), Expr::binary(BinOp::Add, &a, &a).structural_hash());
+        // A simulation draws each by id.
+        let mut batch = FloatBatch::new(2);
+        batch.parameters.insert(ids[0], vec![0.25, -1.0]);
+        batch.parameters.insert(ids[1], vec![0.5, 1.0]);
+        assert_eq!(prog.eval(&batch, &[]).unwrap()[0], vec![0.75, 0.0]);
     }
 
     #[test]

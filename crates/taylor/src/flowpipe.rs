@@ -475,7 +475,7 @@ mod tests {
         use crate::expr::FloatBatch;
         let f = |x: &[f64]| -> Vec<f64> {
             let cols: Vec<Vec<f64>> = x.iter().map(|&v| vec![v]).collect();
-            ode.program.eval(&FloatBatch { n: 1 }, &cols).unwrap().into_iter().map(|c| c[0]).collect()
+            ode.program.eval(&FloatBatch::new(1), &cols).unwrap().into_iter().map(|c| c[0]).collect()
         };
         let steps = (t_end / dt).round() as usize;
         let mut out = vec![x.to_vec()];

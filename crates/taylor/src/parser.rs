@@ -285,7 +285,7 @@ mod tests {
     fn eval(src: &str, x: f64, y: f64) -> f64 {
         let e = parse_expr(src).unwrap();
         let p = Program::compile(&[e], &["x".into(), "y".into()]).unwrap();
-        p.eval(&FloatBatch { n: 1 }, &[vec![x], vec![y]]).unwrap()[0][0]
+        p.eval(&FloatBatch::new(1), &[vec![x], vec![y]]).unwrap()[0][0]
     }
 
     #[test]
