@@ -67,7 +67,8 @@ def _run(program: Program, runs: int, seed: int, verify: Optional[Callable]) -> 
             namespace = build(program)
             result = verify(namespace["loop"], namespace["kwargs"])
         files = [namespace["DIR"] / f"net{k + 1}.onnx" for k in range(len(program.nets()))] if "DIR" in namespace else None
-        report = check(program, Simulator(program, files), result, runs, np.random.default_rng([seed, 7]))
+        ids = [namespace[f"p{i + 1}"].parameters()[0][0] for i in range(len(program.params))]
+        report = check(program, Simulator(program, files), result, runs, np.random.default_rng([seed, 7]), ids)
         for v in report.violations:
             v.program = program
         return Outcome(result.verdict, report, result)

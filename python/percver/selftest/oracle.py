@@ -14,8 +14,8 @@ The checks, per cell of the result:
      run's first step at a ``within`` goal, after which the engine need not track it): exactly
      for discrete plants, up to ``ODE_TOLERANCE`` (relative) for continuous ones, the
      integrator's own error;
-  3. a falsified cell's counterexample replays here (the parameters at their midpoints, which is
-     what percver's simulation assumes): the oracle's run from it violates the property too.
+  3. a falsified cell's counterexample replays here (with the parameter values it carries): the
+     oracle's run from it violates the property too.
 """
 
 from __future__ import annotations
@@ -247,8 +247,10 @@ class Report:
     violations: list = field(default_factory=list)
 
 
-def check(program: Program, simulator: Simulator, result, runs: int, rng: np.random.Generator) -> Report:
-    """Checks 1-3 of the module doc on ``result`` with ``runs`` sampled runs spread over its cells."""
+def check(program: Program, simulator: Simulator, result, runs: int, rng: np.random.Generator, param_ids: list = ()) -> Report:
+    """Checks 1-3 of the module doc on ``result`` with ``runs`` sampled runs spread over its cells;
+    ``param_ids`` are percver's ids of the program's parameters (a counterexample names its
+    parameters' values by them)."""
     if list(result.states) != program.all_states:
         raise ValueError(f"the result's states {result.states} are not the program's {program.all_states}")
     report = Report()
@@ -273,7 +275,7 @@ def check(program: Program, simulator: Simulator, result, runs: int, rng: np.ran
                     {"cell": k, "initial": x0[i].tolist(), "params": params[i].tolist(), "step": step, "label": label,
                      "trajectory": traj[i, : step + 1].tolist()}))
         if cell.counterexample is not None:
-            _check_counterexample(program, simulator, k, cell, report)
+            _check_counterexample(program, simulator, k, cell, report, list(param_ids))
     return report
 
 
@@ -297,10 +299,13 @@ def _check_boxes(program, k, cell, traj, params, end, report):
              "value": float(value), "box": [float(lo), float(hi)], "trajectory": traj[i, : t + 1].tolist()}))
 
 
-def _check_counterexample(program, simulator, k, cell, report):
+def _check_counterexample(program, simulator, k, cell, report, param_ids):
     cex = cell.counterexample
     x0 = np.array([[cex.initial[s] for s in program.all_states]])
-    params = np.array([[0.5 * (lo + hi) for lo, hi in program.params]]).reshape(1, len(program.params))
+    # A parameter the counterexample does not name is read by nothing: any value does.
+    values = {p["id"]: p["value"] for p in cex.parameters}
+    params = np.array([[values.get(i, 0.5 * (lo + hi)) for i, (lo, hi) in zip(param_ids, program.params, strict=True)]])
+    params = params.reshape(1, len(program.params))
     inside = all(cell.box[s][0] <= cex.initial[s] <= cell.box[s][1] for s in program.all_states)
     found, _ = judge(program, simulator.simulate(x0, params), params, REPLAY_SLACK["continuous" if program.continuous else "discrete"])
     if found[0] is None or not inside:
