@@ -23,12 +23,13 @@ def register(sub) -> None:
     parser.add_argument("--runs", type=int, default=350, help="oracle runs sampled per program (default: %(default)s)")
     parser.add_argument("--keep-going", action="store_true", help="report every violation, not just the first")
     parser.add_argument("--no-shrink", action="store_true", help="print the reproducer of the program as generated")
+    parser.add_argument("--shrink-seconds", type=float, default=120.0, help="time spent shrinking a violation (default: %(default)s)")
     parser.add_argument("--no-progress", action="store_true", help="hide the progress bar")
     parser.set_defaults(func=run)
 
 
 def run(args) -> int:
-    from percver.selftest import campaign
+    from percver.selftest import run_campaign
 
     if args.minutes is not None and args.minutes <= 0 or args.programs is not None and args.programs <= 0 or args.runs <= 0:
         print("percver selftest: error: --minutes, --programs and --runs must be positive", file=sys.stderr)
@@ -42,7 +43,7 @@ def run(args) -> int:
             print(f"shrunk: {v.message}")
         print(f"reproducer:\n{'-' * 72}\n{finding.reproducer}{'-' * 72}", flush=True)
 
-    tally = campaign(args.seed, programs=args.programs, minutes=minutes, runs=args.runs, shrink=not args.no_shrink,
+    tally = run_campaign(args.seed, programs=args.programs, minutes=minutes, runs=args.runs, shrink_seconds=0.0 if args.no_shrink else args.shrink_seconds,
                      keep_going=args.keep_going, progress=not args.no_progress, on_finding=show)
     print(f"percver selftest: {tally.line()}")
     return 1 if tally.findings else 0

@@ -7,7 +7,7 @@ oracle (:mod:`~percver.selftest.oracle`: numpy, onnxruntime, scipy) by a campaig
 runnable reproducer. See docs/selftest.md.
 """
 
-from percver.selftest.campaign import Finding, Tally, campaign, reproducer, run
+from percver.selftest.campaign import Finding, Tally, reproducer, run, run_campaign
 from percver.selftest.generator import generate
 
-__all__ = ["campaign", "generate", "reproducer", "run", "Finding", "Tally"]
+__all__ = ["run_campaign", "generate", "reproducer", "run", "Finding", "Tally"]

@@ -34,19 +34,20 @@ def build(program: Program) -> dict:
     return namespace
 
 
-def run(program: Program, runs: int, seed: int, verify: Optional[Callable] = None) -> Outcome:
-    """Verifies ``program`` (with ``verify``, default ``pv.verify`` on one worker) and checks the
-    result with ``runs`` oracle runs. An exception that is not a ``PercverError`` is a violation
+def run(program: Program, runs: int, seed: int) -> Outcome:
+    """Verifies ``program`` (:func:`verify_with_percver`) and checks the result with ``runs``
+    oracle runs. An exception from percver that is not a ``PercverError`` is a violation
     ("crash"): every error a user can cause must be one.
 
     A cell falsified by percver's probes (its centre and corners) before the engine ran has no
     reach boxes; then the loop is verified once more against a property that always holds
     (:func:`boxes_only`), so that its boxes are checked too."""
-    outcome = _run(program, runs, seed, verify)
+    outcome = _run(program, runs, seed)
     if outcome.result is not None and not outcome.report.violations and any(not c.boxes for c in outcome.result.cells):
-        again = _run(boxes_only(program), runs, seed, verify)
+        again = _run(boxes_only(program), runs, seed)
         outcome.report.runs += again.report.runs
         outcome.report.box_checks += again.report.box_checks
+        outcome.report.diverged += again.report.diverged
         outcome.report.violations += again.report.violations
     return outcome
 
@@ -56,29 +57,36 @@ def boxes_only(program: Program) -> Program:
     return replace(program, safe=[Cond(Var(program.states[0]), "<=", Const(1e300))], unsafe=[], goal=[], within=False)
 
 
-def _run(program: Program, runs: int, seed: int, verify: Optional[Callable]) -> Outcome:
+def verify_with_percver(loop, kwargs: dict):
+    """The verification under test: ``pv.verify`` on one worker (tests put a faulty one here)."""
     import percver as pv
 
-    verify = verify or (lambda loop, kwargs: pv.verify(loop, **kwargs, workers=1, progress=False))
+    return pv.verify(loop, **kwargs, workers=1, progress=False)
+
+
+def _run(program: Program, runs: int, seed: int) -> Outcome:
+    import percver as pv
+
     namespace: dict = {}
     try:
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore")
-            namespace = build(program)
-            result = verify(namespace["loop"], namespace["kwargs"])
+        try:
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore")
+                namespace = build(program)
+                result = verify_with_percver(namespace["loop"], namespace["kwargs"])
+        except pv.PercverError as error:
+            return Outcome(type(error).__name__, Report())
+        except (KeyboardInterrupt, SystemExit):
+            raise
+        except BaseException as error:  # a Rust panic arrives as pyo3's PanicException, a BaseException
+            text = "".join(traceback.format_exception_only(type(error), error)).strip()
+            return Outcome("crash", Report(violations=[Violation("crash", text, program=program)]))
         files = [namespace["DIR"] / f"net{k + 1}.onnx" for k in range(len(program.nets()))] if "DIR" in namespace else None
         ids = [namespace[f"p{i + 1}"].parameters()[0][0] for i in range(len(program.params))]
         report = check(program, Simulator(program, files), result, runs, np.random.default_rng([seed, 7]), ids)
         for v in report.violations:
             v.program = program
         return Outcome(result.verdict, report, result)
-    except pv.PercverError as error:
-        return Outcome(type(error).__name__, Report())
-    except (KeyboardInterrupt, SystemExit):
-        raise
-    except BaseException as error:  # a Rust panic arrives as pyo3's PanicException, a BaseException
-        text = "".join(traceback.format_exception_only(type(error), error)).strip()
-        return Outcome("crash", Report(violations=[Violation("crash", text, program=program)]))
     finally:
         if "DIR" in namespace:
             shutil.rmtree(namespace["DIR"], ignore_errors=True)
@@ -102,6 +110,7 @@ class Tally:
     programs: int = 0
     runs: int = 0
     box_checks: int = 0
+    diverged: int = 0
     seconds: float = 0.0
     verdicts: Counter = field(default_factory=Counter)
     findings: list = field(default_factory=list)
@@ -109,14 +118,17 @@ class Tally:
     def line(self) -> str:
         verdicts = ", ".join(f"{k} {v}" for k, v in sorted(self.verdicts.items()))
         return (f"seed {self.seed}: {self.programs} programs ({verdicts}), {self.runs:,} runs sampled, "
-                f"{self.box_checks:,} box checks, {len(self.findings)} violations in {self.seconds:.0f} s")
+                f"{self.box_checks:,} box checks, {len(self.findings)} violations in {self.seconds:.0f} s"
+                + (f" ({self.diverged:,} runs not finite in the oracle, left out)" if self.diverged else ""))
 
 
-def campaign(seed: int = 0, *, programs: Optional[int] = None, minutes: Optional[float] = None, runs: int = 350,
-             shrink: bool = True, keep_going: bool = False, progress: bool = False, on_finding: Optional[Callable] = None) -> Tally:
+def run_campaign(seed: int = 0, *, programs: Optional[int] = None, minutes: Optional[float] = None, runs: int = 350,
+             shrink_seconds: float = 120.0, keep_going: bool = False, progress: bool = False,
+             on_finding: Optional[Callable] = None) -> Tally:
     """Programs 0, 1, ... of ``seed`` until ``programs`` are done or ``minutes`` have passed (the
     first that comes), each checked with ``runs`` oracle runs. Stops at the first violation unless
-    ``keep_going``; each violation is shrunk (unless ``shrink=False``) and passed to ``on_finding``."""
+    ``keep_going``; each violation is shrunk for up to ``shrink_seconds`` (0: not at all) and
+    passed to ``on_finding``."""
     if programs is None and minutes is None:
         raise ValueError("give programs= or minutes= (or both)")
     from tqdm import tqdm
@@ -133,11 +145,12 @@ def campaign(seed: int = 0, *, programs: Optional[int] = None, minutes: Optional
             tally.programs += 1
             tally.runs += outcome.report.runs
             tally.box_checks += outcome.report.box_checks
+            tally.diverged += outcome.report.diverged
             tally.verdicts[outcome.verdict] += 1
             bar.update(1)
             bar.set_postfix(runs=tally.runs, boxes=tally.box_checks, violations=len(tally.findings) + len(outcome.report.violations), refresh=False)
             if outcome.report.violations:
-                finding = _finding(index, program, outcome.report.violations[0], runs, seed, shrink)
+                finding = _finding(index, program, outcome.report.violations[0], runs, seed, shrink_seconds)
                 tally.findings.append(finding)
                 if on_finding:
                     on_finding(finding)
@@ -150,16 +163,16 @@ def campaign(seed: int = 0, *, programs: Optional[int] = None, minutes: Optional
     return tally
 
 
-def _finding(index: int, program: Program, violation: Violation, runs: int, seed: int, shrink: bool) -> Finding:
+def _finding(index: int, program: Program, violation: Violation, runs: int, seed: int, seconds: float) -> Finding:
     from percver.selftest.shrink import shrink as shrunk_form
 
     small, small_violation = violation.program, violation  # the boxes-only form when its rerun failed
-    if shrink:
+    if seconds > 0:
         def fails(candidate: Program) -> Optional[Violation]:
             found = run(candidate, runs, seed).report.violations
             return next((v for v in found if v.kind == violation.kind), None)
 
-        small, small_violation = shrunk_form(small, violation, fails)
+        small, small_violation = shrunk_form(small, violation, fails, seconds)
     return Finding(index, violation, program, small, small_violation, reproducer(small, small_violation, seed, index))
 
 

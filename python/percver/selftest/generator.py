@@ -258,8 +258,7 @@ class _Draw:
         names = program.all_states
         rng = self.rng
         runs = 32
-        lo = np.array([program.init.get(s, (0.0, 0.0))[0] for s in names])
-        hi = np.array([program.init.get(s, (0.0, 0.0))[1] for s in names])
+        lo, hi = np.array([program.start[s] for s in names]).T
         x0 = lo + (hi - lo) * rng.random((runs, len(names)))
         params = np.array([[rng.uniform(a, b) for a, b in program.params] for _ in range(runs)]).reshape(runs, len(program.params))
         traj = Simulator(program).simulate(x0, params)

@@ -188,7 +188,7 @@ def judge(program: Program, traj: np.ndarray, params: np.ndarray, slack: float =
             for label, cond, bad_when in ([(f"safe {_text(c)}", c, False) for c in program.safe]
                                           + [(f"unsafe {_text(c)}", c, True) for c in program.unsafe]):
                 broken = holds(cond, env, params, -slack if bad_when else slack) == bad_when
-                for i in np.nonzero(broken & ~done & np.array([f is None for f in found]))[0]:
+                for i in np.nonzero(broken & ~done & np.array([f is None for f in found], dtype=bool))[0]:
                     found[i] = (t, label)
             if program.goal and (program.within or t == steps):
                 at_goal = np.all([holds(c, env, params, slack) for c in program.goal], axis=0)
@@ -196,7 +196,7 @@ def judge(program: Program, traj: np.ndarray, params: np.ndarray, slack: float =
                     end = np.where(at_goal & ~done, t, end)
                     done |= at_goal
                 if t == steps:
-                    for i in np.nonzero(~at_goal & ~done & np.array([f is None for f in found]))[0]:
+                    for i in np.nonzero(~at_goal & ~done & np.array([f is None for f in found], dtype=bool))[0]:
                         found[i] = (t, "goal " + ", ".join(_text(c) for c in program.goal))
     return found, end
 
@@ -242,8 +242,12 @@ class Violation:
 
 @dataclass
 class Report:
+    """What the checks covered: runs followed to the horizon, values compared with a reach box,
+    runs left out because the oracle's run is not finite (a flow that blows up, an overflow)."""
+
     runs: int = 0
     box_checks: int = 0
+    diverged: int = 0
     violations: list = field(default_factory=list)
 
 
@@ -261,6 +265,7 @@ def check(program: Program, simulator: Simulator, result, runs: int, rng: np.ran
         finite = np.isfinite(traj).all(axis=(1, 2))
         traj, x0, params = traj[finite], x0[finite], params[finite]
         report.runs += len(traj)
+        report.diverged += int(np.count_nonzero(~finite))
         found, end = judge(program, traj, params, -ODE_TOLERANCE if program.continuous else 0.0)
         if cell.boxes:
             _check_boxes(program, k, cell, traj, params, end, report)

@@ -191,6 +191,11 @@ class Program:
         return list(self.states) + list(self.reward)
 
     @property
+    def start(self) -> dict:
+        """The initial box over :attr:`all_states` (accumulators start at 0)."""
+        return {**self.init, **{r: (0.0, 0.0) for r in self.reward}}
+
+    @property
     def env_names(self) -> list:
         return list(self.states) + [n for s in self.stages for n in s.names]
 
