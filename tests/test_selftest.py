@@ -31,7 +31,7 @@ def test_ci_campaign_finds_no_violation():
     assert tally.programs == CI_PROGRAMS and tally.runs >= 100_000, tally.line()
     # The campaign reached every outcome, with boxes to check in most programs.
     assert min(tally.verdicts[v] for v in ("verified", "unknown", "falsified")) >= 30, tally.line()
-    assert tally.box_checks >= 10 * tally.runs, tally.line()
+    assert tally.box_checks >= 3 * tally.runs, tally.line()
 
 
 def _ids(namespace, program):
@@ -142,7 +142,7 @@ def test_the_oracle_catches_a_counterexample_that_does_not_replay():
 def _issue_24() -> Program:
     """The reproducer of issue 24 as a program: c gains where(sin(1000 x) <= 0, 1, 0) + where(sin(1000 y) <= 0, 0, 1)."""
     x, y, c = Var("x"), Var("y"), Var("c")
-    wave = lambda v: Cond(Unary("sin", Binary("*", Const(1000.0), v)), "<=", Const(0.0))  # noqa: E731
+    wave = lambda v: Cond(Unary("sin", Binary("*", Const(1000.0), v)), "<=", Const(0.0))
     gain = Binary("+", Where(wave(x), Const(1.0), Const(0.0)), Where(wave(y), Const(0.0), Const(1.0)))
     return Program(["x", "y", "c"], {"x": (0.0031, 0.0131), "y": (0.0031, 0.0131), "c": (0.0, 0.0)},
                    {"x": x, "y": y, "c": Binary("+", c, gain)}, safe=[Cond(c, "<=", Const(1.5))])

@@ -10,4 +10,4 @@ runnable reproducer. See docs/selftest.md.
 from percver.selftest.campaign import Finding, Tally, reproducer, run, run_campaign
 from percver.selftest.generator import generate
 
-__all__ = ["run_campaign", "generate", "reproducer", "run", "Finding", "Tally"]
+__all__ = ["Finding", "Tally", "generate", "reproducer", "run", "run_campaign"]

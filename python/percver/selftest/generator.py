@@ -7,7 +7,7 @@ are about different quantities (``sin(1000 x)`` and ``sin(1000 y)`` over wide bo
 parameters with equal ranges; the init and parameter boxes are drawn from short lists so that
 ranges repeat), saturations (clip, min, max, ReLU), uncertain parameters, network stages (chained
 in one stage, or consecutive and fused by the compiler) with output maps, accumulators, and the
-verify options that change how a cell is split or enclosed. The property's thresholds come from
+verify options that change how a cell is split or enclosed (``state_symbols`` too). The property's thresholds come from
 pilot runs of the oracle, so that some programs hold with a wide margin, some barely, and some
 not at all.
 """
@@ -17,7 +17,7 @@ from __future__ import annotations
 import numpy as np
 
 from percver.selftest.oracle import Simulator, evaluate
-from percver.selftest.program import Binary, Clip, Cond, Const, Net, Param, Pow, Program, Stage, Unary, Var, Where, names_in, params_in, walk
+from percver.selftest.program import COMPARISONS, UNARY, Binary, Clip, Cond, Const, Net, Param, Pow, Program, Stage, Unary, Var, Where, names_in, params_in, walk
 
 STATE_RANGES = [(0.0031, 0.0131), (-0.5, 0.5), (0.0, 1.0), (0.9, 1.1), (-1.0, -0.8), (0.2, 0.25), (0.5, 0.5)]
 PARAM_RANGES = [(-1.0, 1.0), (0.0, 1.0), (-0.5, 0.5), (0.9, 1.1)]
@@ -38,7 +38,7 @@ class _Draw:
         self.params: list = []
         # Most of a program's conditions use one comparison: conditions about different quantities
         # then often look alike to the engine (same operator, same threshold, equal models).
-        self.comparison = self.pick(["<=", "<", ">=", ">"])
+        self.comparison = self.pick(COMPARISONS)
         self.made: list = []  # the conditions drawn so far: later ones repeat them or their siblings
 
     def pick(self, options, weights=None):
@@ -80,11 +80,15 @@ class _Draw:
         kinds = ["unary", "arith", "minmax", "div", "pow", "where", "clip"]
         weights = [0.18, 0.27, 0.07, 0.03, 0.04, 0.0 if smooth else 0.3, 0.1]
         kind = self.pick(kinds, weights)
-        sub = lambda: self.expr(depth - 1, names, prefer, smooth)  # noqa: E731
+        sub = lambda: self.expr(depth - 1, names, prefer, smooth)
         if kind == "unary":
-            fn = self.pick(["sin", "cos", "tanh", "sigmoid", "atan", "exp", "abs"])
+            fn = self.pick(UNARY)
             arg = sub()
-            return Unary(fn, Clip(arg, -2.0, 2.0) if fn == "exp" else arg)  # exp of a bounded argument
+            if fn == "exp":  # of a bounded argument
+                arg = Clip(arg, -2.0, 2.0)
+            elif fn in ("sqrt", "log"):  # of a positive one
+                arg = Binary("+", Const(self.number(0.1, 1)), Pow(arg, 2))
+            return Unary(fn, arg)
         if kind == "arith":
             return Binary(self.pick(["+", "-", "*"]), sub(), sub())
         if kind == "minmax":
@@ -94,7 +98,7 @@ class _Draw:
         if kind == "pow":
             return Pow(sub(), int(self.pick([2, 3])))
         if kind == "where":
-            branch = lambda: Const(float(self.pick([0.0, 1.0, -1.0]))) if self.chance(0.4) else sub()  # noqa: E731
+            branch = lambda: Const(float(self.pick([0.0, 1.0, -1.0]))) if self.chance(0.4) else sub()
             return Where(self.condition(depth - 1, names, prefer), branch(), branch())
         lo = self.number(-1.5, 0.5)
         return Clip(sub(), lo, _round(lo + self.rng.uniform(0.1, 2)))
@@ -103,8 +107,9 @@ class _Draw:
         """A condition likely to hold on part of a cell: an earlier condition again or its
         sibling (see :meth:`sibling`), or one on a fast atom or a parameter (against 0 or near the
         middle), on a state (inside its init range), or on any expression (against 0)."""
-        if self.made and self.chance(0.35):
-            earlier = self.made[int(self.rng.integers(len(self.made)))]
+        known = [c for c in self.made if names_in(c) <= set(names)]  # those this scope can read
+        if known and self.chance(0.35):
+            earlier = known[int(self.rng.integers(len(known)))]
             return earlier if self.chance(0.3) else self.sibling(earlier, names)
         cond = self.fresh_condition(depth, names, prefer)
         self.made.append(cond)
@@ -129,7 +134,7 @@ class _Draw:
         return Cond(lhs, cond.op, cond.rhs)
 
     def fresh_condition(self, depth: int, names: list, prefer: list) -> Cond:
-        op = self.comparison if self.chance(0.7) else self.pick(["<=", "<", ">=", ">"])
+        op = self.comparison if self.chance(0.7) else self.pick(COMPARISONS)
         kind = self.pick(["fast", "param", "var", "expr"], [0.3, 0.25 if self.params else 0.0, 0.25, 0.2])
         if kind == "fast":
             return Cond(self.fast_atom(names), op, Const(float(self.pick([0.0, 0.0, 0.0, 0.3, -0.5]))))
@@ -251,6 +256,8 @@ class _Draw:
         nets = program.nets()
         if nets and not any("relu" in net.activations for net in nets) and self.chance(0.25):
             opts["method"] = "verisig"
+        elif not program.continuous and self.chance(0.1):
+            opts["state_symbols"] = True  # Taylor method, discrete plants
         program.options = opts
 
     def property(self, program: Program):

@@ -34,7 +34,8 @@ ODE_TOLERANCE = 1e-8
 # its own tolerances and evaluates in another order, so a margin can differ in the last digits.
 REPLAY_SLACK = {"discrete": 1e-12, "continuous": 1e-6}
 
-FUNCTIONS = {"sin": np.sin, "cos": np.cos, "tanh": np.tanh, "sigmoid": expit, "atan": np.arctan, "exp": np.exp, "abs": np.abs}
+FUNCTIONS = {"sin": np.sin, "cos": np.cos, "tanh": np.tanh, "sigmoid": expit, "atan": np.arctan, "exp": np.exp, "abs": np.abs,
+             "sqrt": np.sqrt, "log": np.log}
 OPERATORS = {"+": np.add, "-": np.subtract, "*": np.multiply, "/": np.divide, "min": np.minimum, "max": np.maximum}
 
 

@@ -15,8 +15,7 @@ from typing import Optional, Union
 
 import numpy as np
 
-UNARY = ("sin", "cos", "tanh", "sigmoid", "atan", "exp", "abs")
-BINARY = ("+", "-", "*", "/", "min", "max")
+UNARY = ("sin", "cos", "tanh", "sigmoid", "atan", "exp", "abs", "sqrt", "log")
 COMPARISONS = ("<=", "<", ">=", ">")
 
 

@@ -6,10 +6,12 @@ budget is spent."""
 from __future__ import annotations
 
 import time
+from collections.abc import Iterator
 from dataclasses import fields, is_dataclass, replace
-from typing import Callable, Iterator, Optional
+from typing import Callable, Optional
 
 from percver.selftest.program import Cond, Const, Param, Program, Var, Where, children, names_in
+
 
 def shrink(program: Program, violation, fails: Callable[[Program], Optional[object]], seconds: float):
     """The smallest variant found within ``seconds`` and its violation (``fails`` returns one, or None)."""
@@ -46,7 +48,7 @@ def variants(p: Program) -> Iterator[Program]:
     for s in p.states:
         yield from _without_state(p, s)
     for i, (lo, hi) in enumerate(p.params):
-        yield _substituted(p, lambda node, i=i: Const(0.5 * (lo + hi)) if node == Param(i) else None)
+        yield _substituted(p, lambda node, i=i, mid=0.5 * (lo + hi): Const(mid) if node == Param(i) else None)
     for s, (lo, hi) in p.init.items():
         if hi - lo > 1e-3:  # a narrower box would not be simpler to read
             mid = 0.5 * (lo + hi)
@@ -86,7 +88,7 @@ def _without_state(p: Program, name: str) -> Iterator[Program]:
     others = [e for s, e in p.update.items() if s != name] + list(p.reward.values()) + [e for s in p.stages for e in s.exprs or []]
     if len(p.states) == 1 or any(name in names_in(e) for e in others) or any(name in s.inputs for s in p.stages):
         return
-    keep = lambda conds: [c for c in conds if name not in names_in(c)]  # noqa: E731
+    keep = lambda conds: [c for c in conds if name not in names_in(c)]
     q = replace(p, states=[s for s in p.states if s != name], init={s: b for s, b in p.init.items() if s != name},
                 update={s: e for s, e in p.update.items() if s != name}, safe=keep(p.safe), unsafe=keep(p.unsafe), goal=keep(p.goal),
                 options={k: ({s: v for s, v in o.items() if s != name} if isinstance(o, dict) else o) for k, o in p.options.items()})
