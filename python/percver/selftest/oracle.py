@@ -26,7 +26,7 @@ from typing import Optional
 import numpy as np
 from scipy.special import expit
 
-from percver.selftest.program import Binary, Clip, Cond, Const, Param, Pow, Program, Unary, Var, Where
+from percver.selftest.program import Binary, Clip, Cond, Const, Param, Pow, Program, Unary, Var, Where, source_of
 
 # Relative error allowed for the integrator (rtol 1e-10 per period, a few periods, through networks).
 ODE_TOLERANCE = 1e-8
@@ -186,8 +186,8 @@ def judge(program: Program, traj: np.ndarray, params: np.ndarray, slack: float =
     for t in range(steps + 1):
         env = {s: traj[:, t, j] for j, s in enumerate(names)}
         with np.errstate(all="ignore"):
-            for label, cond, bad_when in ([(f"safe {_text(c)}", c, False) for c in program.safe]
-                                          + [(f"unsafe {_text(c)}", c, True) for c in program.unsafe]):
+            for label, cond, bad_when in ([(f"safe {source_of(c)}", c, False) for c in program.safe]
+                                          + [(f"unsafe {source_of(c)}", c, True) for c in program.unsafe]):
                 broken = holds(cond, env, params, -slack if bad_when else slack) == bad_when
                 for i in np.nonzero(broken & ~done & np.array([f is None for f in found], dtype=bool))[0]:
                     found[i] = (t, label)
@@ -198,14 +198,8 @@ def judge(program: Program, traj: np.ndarray, params: np.ndarray, slack: float =
                     done |= at_goal
                 if t == steps:
                     for i in np.nonzero(~at_goal & ~done & np.array([f is None for f in found], dtype=bool))[0]:
-                        found[i] = (t, "goal " + ", ".join(_text(c) for c in program.goal))
+                        found[i] = (t, "goal " + ", ".join(source_of(c) for c in program.goal))
     return found, end
-
-
-def _text(cond: Cond) -> str:
-    from percver.selftest.program import source_of
-
-    return source_of(cond)
 
 
 def sample(program: Program, cell: dict, n: int, rng: np.random.Generator):
