@@ -23,7 +23,7 @@ def register(sub) -> None:
     parser.add_argument("--runs", type=int, default=350, help="oracle runs sampled per program (default: %(default)s)")
     parser.add_argument("--keep-going", action="store_true", help="report every violation, not just the first")
     parser.add_argument("--no-shrink", action="store_true", help="print the reproducer of the program as generated")
-    parser.add_argument("--shrink-seconds", type=float, default=120.0, help="time spent shrinking a violation (default: %(default)s)")
+    parser.add_argument("--shrink-seconds", type=float, default=120.0, help="CPU seconds spent shrinking a violation (default: %(default)s)")
     parser.add_argument("--no-progress", action="store_true", help="hide the progress bar")
     parser.set_defaults(func=run)
 

@@ -17,7 +17,7 @@ from __future__ import annotations
 import numpy as np
 
 from percver.selftest.oracle import Simulator, evaluate
-from percver.selftest.program import COMPARISONS, UNARY, Binary, Clip, Cond, Const, Net, Param, Pow, Program, Stage, Unary, Var, Where, names_in, params_in, walk
+from percver.selftest.program import COMPARISONS, SIMPLEST, UNARY, Binary, Clip, Cond, Const, Net, Param, Pow, Program, Stage, Unary, Var, Where, names_in, params_in, walk
 
 STATE_RANGES = [(0.0031, 0.0131), (-0.5, 0.5), (0.0, 1.0), (0.9, 1.1), (-1.0, -0.8), (0.2, 0.25), (0.5, 0.5)]
 PARAM_RANGES = [(-1.0, 1.0), (0.0, 1.0), (-0.5, 0.5), (0.9, 1.1)]
@@ -240,13 +240,20 @@ class _Draw:
         return program
 
     def options(self, program: Program):
+        """How cells are made and enclosed. Every program bounds its cells (a grid, a bisection
+        down to a quarter of the initial set, an adaptive splitter with a few runs): the default
+        adaptive splitter may run the engine a thousand times on one program."""
         opts = {}
         free = [s for s in program.states if program.init[s][1] > program.init[s][0]]
-        if free and self.chance(0.3):
+        cells = self.pick(["split", "refine", "adaptive", "grid"], [0.3, 0.15, 0.3, 0.25] if free else [0, 0, 0.5, 0.5])
+        if cells == "split":
             opts["split"] = {self.pick(free): int(self.pick([2, 3]))}
-        if free and self.chance(0.15):
+        elif cells == "refine":
             opts["refine"] = True
             opts["min_width"] = {s: _round((program.init[s][1] - program.init[s][0]) / 4) for s in free}
+        else:
+            opts["splitter"] = (("Adaptive", {"start": int(self.pick([1, 2])), "max_cells": int(self.pick([4, 8]))})
+                                if cells == "adaptive" else SIMPLEST["splitter"])
         if self.chance(0.4):
             opts["max_splits"] = int(self.pick([0, 2, 4]))
         if self.chance(0.3):

@@ -17,6 +17,10 @@ import numpy as np
 
 UNARY = ("sin", "cos", "tanh", "sigmoid", "atan", "exp", "abs", "sqrt", "log")
 COMPARISONS = ("<=", "<", ">=", ">")
+# The plainest verify options: the initial set as one cell, never split again. (Without any, the
+# adaptive splitter may run the engine up to a thousand times.) A splitter option is written as
+# (class name, keyword arguments): ``pv.Grid()``, ``pv.Adaptive(max_cells=8)``.
+SIMPLEST = {"splitter": ("Grid", {})}
 
 
 @dataclass(frozen=True)
@@ -304,7 +308,13 @@ def loop_source(program: Program) -> str:
             args.append(f"{what}={_conditions(conds)}")
     if program.within:
         args.append("within=True")
-    args += [f"{k}={v!r}" for k, v in program.options.items()]
+    for key, value in program.options.items():
+        if key == "splitter":
+            name, keywords = value
+            value = f"pv.{name}({', '.join(f'{k}={v!r}' for k, v in keywords.items())})"
+        else:
+            value = repr(value)
+        args.append(f"{key}={value}")
     lines.append(f"kwargs = dict({', '.join(args)})")
     return "\n".join(lines) + "\n"
 

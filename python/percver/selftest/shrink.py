@@ -10,18 +10,21 @@ from collections.abc import Iterator
 from dataclasses import fields, is_dataclass, replace
 from typing import Callable, Optional
 
-from percver.selftest.program import Cond, Const, Param, Program, Var, Where, children, names_in
+from percver.selftest.program import SIMPLEST, Cond, Const, Param, Program, Var, Where, children, names_in, params_in
 
 
 def shrink(program: Program, violation, fails: Callable[[Program], Optional[object]], seconds: float):
-    """The smallest variant found within ``seconds`` and its violation (``fails`` returns one, or None)."""
-    deadline = time.monotonic() + seconds
+    """The smallest variant found within ``seconds`` of CPU time and its violation (``fails``
+    returns one, or None)."""
+    deadline = time.process_time() + seconds  # CPU time: on a busy machine wall time buys little
     improved = True
-    while improved and time.monotonic() < deadline:
+    while improved and time.process_time() < deadline:
         improved = False
         for candidate in variants(program):
-            if time.monotonic() >= deadline:
+            if time.process_time() >= deadline:
                 break
+            if candidate == program:  # a substitution that found nothing to substitute
+                continue
             found = fails(candidate)
             if found is not None:
                 program, violation, improved = candidate, found, True
@@ -34,11 +37,13 @@ def variants(p: Program) -> Iterator[Program]:
     for steps in sorted({1, p.steps - 1}):
         if 1 <= steps < p.steps:
             yield replace(p, steps=steps)
-    if p.options:
-        yield replace(p, options={})
+    if p.options != SIMPLEST:
+        yield replace(p, options=SIMPLEST)
     for key in p.options:
-        if key != "min_width":
-            yield replace(p, options={k: v for k, v in p.options.items() if k != key and not (key == "refine" and k == "min_width")})
+        if key not in ("min_width", "splitter"):
+            rest = {k: v for k, v in p.options.items() if k != key and not (key == "refine" and k == "min_width")}
+            cells = {"split", "refine", "min_width", "splitter"} & set(rest)
+            yield replace(p, options=rest if cells else {**rest, **SIMPLEST})
     yield from _fewer_conditions(p)
     for k in range(len(p.stages)):
         yield from _without_stage(p, k)
@@ -49,6 +54,11 @@ def variants(p: Program) -> Iterator[Program]:
         yield from _without_state(p, s)
     for i, (lo, hi) in enumerate(p.params):
         yield _substituted(p, lambda node, i=i, mid=0.5 * (lo + hi): Const(mid) if node == Param(i) else None)
+    used = sorted(set().union(*(params_in(e) for e in p.expressions())))
+    if len(used) < len(p.params):
+        renumber = {i: Param(k) for k, i in enumerate(used)}
+        yield replace(_substituted(p, lambda node: renumber.get(node.index) if isinstance(node, Param) else None),
+                      params=[p.params[i] for i in used])
     for s, (lo, hi) in p.init.items():
         if hi - lo > 1e-3:  # a narrower box would not be simpler to read
             mid = 0.5 * (lo + hi)
