@@ -20,6 +20,7 @@ def register(sub) -> None:
     parser.add_argument("--minutes", type=float, help="stop after this long (default: 1 unless --programs is given)")
     parser.add_argument("--seed", type=int, default=0, help="campaign seed: program k of seed s is always the same (default: %(default)s)")
     parser.add_argument("--programs", type=int, help="stop after this many programs")
+    parser.add_argument("--start", type=int, default=0, help="first program (e.g. the one a report names; default: %(default)s)")
     parser.add_argument("--runs", type=int, default=350, help="oracle runs sampled per program (default: %(default)s)")
     parser.add_argument("--keep-going", action="store_true", help="report every violation, not just the first")
     parser.add_argument("--no-shrink", action="store_true", help="print the reproducer of the program as generated")
@@ -31,19 +32,21 @@ def register(sub) -> None:
 def run(args) -> int:
     from percver.selftest import run_campaign
 
-    if args.minutes is not None and args.minutes <= 0 or args.programs is not None and args.programs <= 0 or args.runs <= 0:
-        print("percver selftest: error: --minutes, --programs and --runs must be positive", file=sys.stderr)
+    if args.minutes is not None and args.minutes <= 0 or args.programs is not None and args.programs <= 0 or args.runs <= 0 \
+            or args.start < 0:
+        print("percver selftest: error: --minutes, --programs and --runs must be positive, --start not negative", file=sys.stderr)
         return 2
     minutes = args.minutes if args.minutes is not None or args.programs is not None else 1.0
 
     def show(finding):
         v = finding.shrunk_violation
         print(f"\nVIOLATION in program {finding.index} ({finding.violation.kind}): {finding.violation.message}", flush=True)
-        if finding.shrunk is not finding.program:
+        if finding.shrunk != finding.program:
             print(f"shrunk: {v.message}")
         print(f"reproducer:\n{'-' * 72}\n{finding.reproducer}{'-' * 72}", flush=True)
 
-    tally = run_campaign(args.seed, programs=args.programs, minutes=minutes, runs=args.runs, shrink_seconds=0.0 if args.no_shrink else args.shrink_seconds,
-                     keep_going=args.keep_going, progress=not args.no_progress, on_finding=show)
+    tally = run_campaign(args.seed, programs=args.programs, minutes=minutes, runs=args.runs, start=args.start,
+                         shrink_seconds=0.0 if args.no_shrink else args.shrink_seconds, keep_going=args.keep_going,
+                         progress=not args.no_progress, on_finding=show)
     print(f"percver selftest: {tally.line()}")
     return 1 if tally.findings else 0

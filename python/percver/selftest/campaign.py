@@ -123,9 +123,9 @@ class Tally:
 
 
 def run_campaign(seed: int = 0, *, programs: Optional[int] = None, minutes: Optional[float] = None, runs: int = 350,
-             shrink_seconds: float = 120.0, keep_going: bool = False, progress: bool = False,
+             start: int = 0, shrink_seconds: float = 120.0, keep_going: bool = False, progress: bool = False,
              on_finding: Optional[Callable] = None) -> Tally:
-    """Programs 0, 1, ... of ``seed`` until ``programs`` are done or ``minutes`` have passed (the
+    """Programs ``start``, ``start + 1``, ... of ``seed`` until ``programs`` are done or ``minutes`` have passed (the
     first that comes), each checked with ``runs`` oracle runs. Stops at the first violation unless
     ``keep_going``; each violation is shrunk for up to ``shrink_seconds`` (0: not at all) and
     passed to ``on_finding``."""
@@ -138,8 +138,8 @@ def run_campaign(seed: int = 0, *, programs: Optional[int] = None, minutes: Opti
     deadline = started + 60 * minutes if minutes is not None else None
     bar = tqdm(total=programs, unit="program", desc="selftest", disable=not progress)
     try:
-        index = 0
-        while (programs is None or index < programs) and (deadline is None or time.monotonic() < deadline):
+        index = start
+        while (programs is None or index < start + programs) and (deadline is None or time.monotonic() < deadline):
             program = generate(seed, index)
             outcome = run(program, runs, seed)
             tally.programs += 1
