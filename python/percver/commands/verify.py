@@ -69,6 +69,7 @@ OPTIONS = {
                  "or a table with kind and their keywords (instead of [split], refine, min_width)"),
     "journal": ("verify", str, '"run.jsonl"', "append finished cells here, skip them on a rerun (--journal overrides)"),
     "progress": ("verify", bool, "true", "the progress bar (--no-progress turns it off)"),
+    "strict": ("verify", bool, "false", "a set leaving a network's training domain is an error, not a warning"),
 }
 # Section -> key -> accepted types (None: any key, checked later); anything else is a typo worth an error.
 SCHEMA = {
