@@ -70,7 +70,6 @@ OPTIONS = {
     "strict": ("verify", bool, "false", "an initial or reach set leaving a network's input domain is an error (else a warning)"),
     "journal": ("verify", str, '"run.jsonl"', "append finished cells here, skip them on a rerun (--journal overrides)"),
     "progress": ("verify", bool, "true", "the progress bar (--no-progress turns it off)"),
-    "strict": ("verify", bool, "false", "a set leaving a network's training domain is an error, not a warning"),
 }
 # Section -> key -> accepted types (None: any key, checked later); anything else is a typo worth an error.
 SCHEMA = {
