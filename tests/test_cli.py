@@ -25,3 +25,4 @@ def test_demo_verifies_a_slice_with_the_shipped_networks(tmp_path):
     assert doc["init"]["p"] == [-0.5, -0.4995] and doc["init"]["dc"] == [1.5, 1.6]
     assert doc["row"]["intervals"] == 2 and doc["row"]["avg_seconds"] > 0
     assert out.stat().st_size > 5000
+    assert json.loads(out.with_suffix(".json").read_text())["verdict"] == "verified"

@@ -181,7 +181,7 @@ def _widths(text: str | None, option: str) -> dict | None:
 
 def _mc_verify(args) -> int:
     from percver.cases.mountain_car import verification
-    from percver.commands.verify import EXIT
+    from percver.commands import EXIT, unknown_lines
 
     options = {k: v for k, v in (("split", _widths(args.split, "--split")), ("min_width", _widths(args.min_width, "--min-width")),
                                  ("timeout_per_cell", args.timeout_per_cell), ("workers", args.workers), ("max_splits", args.max_splits),
@@ -194,8 +194,8 @@ def _mc_verify(args) -> int:
         print(json.dumps(record))
     else:
         print(verification.format_row(args.noise, record["row"], record["paper"]))
-        for variable, first, last, n in record["reasons"]:
-            print(f"unknown: {n} cells, the enclosure of '{variable}' blew up at steps {first}-{last}")
+        for line in unknown_lines(record["reasons"]):
+            print(line)
         cex = result.counterexample
         if cex is not None:
             print(f"falsified: from p0 = {cex.initial['p']:.9g}: {cex.violated} fails at step {cex.step}")
@@ -371,7 +371,7 @@ def _f1_evaluate(args) -> int:
 
 def _f1_verify(args) -> int:
     from percver.cases.f1tenth import verification
-    from percver.commands.verify import EXIT
+    from percver.commands import EXIT
 
     result = verification.verify(tuple(args.y1), args.networks, noise_model=not args.canonical, cell=args.cell,
                                  mode=args.mode, data=args.data, max_splits=args.max_splits, workers=args.workers,

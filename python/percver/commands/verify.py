@@ -47,13 +47,16 @@ import argparse
 import re
 import runpy
 import sys
-import tomllib
 import warnings
 from pathlib import Path
 
+from percver.commands import EXIT
 from percver.errors import InputError, MissingFileError, PercverError
 
-EXIT = {"verified": 0, "unknown": 3, "falsified": 4}
+if sys.version_info >= (3, 11):
+    import tomllib
+else:  # the same parser, from PyPI (a dependency on these Pythons)
+    import tomli as tomllib
 
 # Section -> key -> accepted types (None: any key, checked later); anything else is a typo worth an error.
 NUMBER = (int, float)
