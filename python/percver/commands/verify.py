@@ -44,6 +44,7 @@ Expressions use the Flow* syntax (``^`` for powers). Exit status: 0 verified, 3 
 from __future__ import annotations
 
 import argparse
+import math
 import re
 import runpy
 import sys
@@ -104,7 +105,7 @@ def run(args) -> int:
     out = Path(args.out) if args.out else config.written("[output] json", config.section("output").get("json"))
     with warnings.catch_warnings():
         warnings.showwarning = lambda message, *_a, **_k: print(f"percver verify: warning: {message}", file=sys.stderr)
-        result = verify(config.target(), progress=not args.no_progress and not args.json, **kwargs)
+        result = verify(config.checked(config.target(), kwargs), progress=not args.no_progress and not args.json, **kwargs)
     result.to_json(str(out))
     if args.json:
         print(result.to_json())
@@ -216,6 +217,15 @@ class Config:
             raise self.error("[plant] period", "Verisig models carry their own control period")
         return formats.load_verisig(str(model), networks=nets)
 
+    def checked(self, target, kwargs: dict):
+        """``target`` if there is a property to verify: the config's, or the model file's own."""
+        own = getattr(target, "defaults", {})
+        given = [source.get(k) for source in (kwargs, own) for k in ("goal", "safe", "unsafe")]
+        if all(v is None or (isinstance(v, list) and not v) for v in given):
+            raise self.error("[property]", 'nothing to verify: give goal = "...", safe = [...] or unsafe = [...] '
+                                           '(e.g. goal = "p >= 0.45")')
+        return target
+
     def verify_kwargs(self) -> dict:
         """pv.verify's keyword arguments from [init], [split], [property], [verify]."""
         from percver.systems import condition
@@ -225,6 +235,11 @@ class Config:
             for name, value in self.section("init").items():
                 if not _number(value) and not (isinstance(value, list) and len(value) == 2 and all(map(_number, value))):
                     raise self.error(f"[init] {name}", f"expected [lo, hi] or a number, got {value!r}")
+                lo, hi = value if isinstance(value, list) else (value, value)
+                if not (math.isfinite(lo) and math.isfinite(hi)):
+                    raise self.error(f"[init] {name}", f"the bounds must be finite numbers, got {value!r}")
+                if lo > hi:
+                    raise self.error(f"[init] {name}", f"lower bound {lo!r} is above upper bound {hi!r}; write [{hi!r}, {lo!r}]")
             kwargs["init"] = self.section("init")
         if "split" in self.doc:
             split = self.section("split")
