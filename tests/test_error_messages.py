@@ -103,3 +103,32 @@ def test_truncated_measurement_file_says_corrupt(tmp_path):
     assert not zipfile.is_zipfile(bad)
     with pytest.raises(pv.MeasurementError, match="corrupt or not a percver measurement file"):
         pv.Measurements.load(bad)
+
+
+def _without_shared(tmp_path, *args):
+    import os
+
+    empty = tmp_path / "empty"
+    empty.mkdir(exist_ok=True)
+    env = {k: v for k, v in os.environ.items() if k not in ("PERCVER_SHARED", "PERCVER_F1TENTH_DATA")}
+    return subprocess.run([sys.executable, "-m", "percver.cli", *args], capture_output=True, text=True, timeout=300,
+                          cwd=tmp_path, env={**env, "PERCVER_SHARED": str(empty)})
+
+
+def test_commands_that_need_the_shared_data_say_where_it_goes(tmp_path):
+    """Without the authors' data, each command says what it is, where it sits and how to point to it."""
+    mc = _without_shared(tmp_path, "cases", "mountain-car", "verify", "--networks", "paper", "--p0", "-0.5", "-0.4995")
+    assert mc.returncode == 1
+    assert "../shared/data" in mc.stderr and "PERCVER_SHARED" in mc.stderr and "--networks ours" in mc.stderr
+    f1 = _without_shared(tmp_path, "cases", "f1tenth", "verify", "--y1", "0.65", "0.6501", "--no-progress")
+    assert f1.returncode == 1
+    assert "PERCVER_SHARED" in f1.stderr and "f1tenth" in f1.stderr
+
+
+def test_mountain_car_commands_share_their_network_default():
+    from percver.cli import build_parser
+
+    parser = build_parser()
+    verify = parser.parse_args(["cases", "mountain-car", "verify"])
+    evaluate = parser.parse_args(["cases", "mountain-car", "evaluate"])
+    assert verify.networks == evaluate.networks == "ours"

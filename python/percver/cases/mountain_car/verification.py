@@ -379,13 +379,13 @@ def published(noise: str, *, shared=None) -> dict:
 
 def read_published(name: str, *, shared=None) -> dict:
     """Summary of one of the authors' per-interval logs: verdict counts, p0 and noise ranges covered, times."""
-    from percver.cases.mountain_car.networks import default_shared
+    from percver.cases.mountain_car.networks import SHARED_HINT, default_shared
 
     base = Path(shared) if shared is not None else default_shared()
     path = next((f for f in (base / name, base / "mountain_car" / "published_results" / name,
                              base / "data" / "mountain_car" / "published_results" / name) if f.is_file()), None)
     if path is None:
-        raise MissingFileError(f"the authors' log {name} is not under {base} (mountain_car/published_results)")
+        raise MissingFileError(f"the authors' log {name} is not under {base} (mountain_car/published_results): {SHARED_HINT}")
     rows = []
     for line in path.read_text().splitlines()[1:]:
         fields = [f.strip() for f in line.split(",")]
