@@ -5,7 +5,7 @@ The networks percver ships (generator, contrast model, estimator and controller,
 initial positions under a range of contrast; the demo verifies that every run reaches the goal
 with reward > 90, prints the row in the paper's Table 1 format, writes the result as JSON and,
 where matplotlib is installed, draws the reach tube of p over simulated runs.
-``percver cases mountain-car verify`` runs the full rows.
+``percver cases mountain-car verify --networks paper`` runs the paper's full rows.
 """
 
 from __future__ import annotations
@@ -30,7 +30,7 @@ writes the result as JSON next to the figure (OUT with .json) and, with matplotl
 the figure OUT: the reach tube of p over simulated runs and the reward.
 
 Exit status: 0 verified, 3 unknown, 4 falsified, 1 bad input.
-'percver cases mountain-car verify' runs the paper's full rows."""
+'percver cases mountain-car verify --networks paper' runs the paper's full rows."""
 
 
 def register(sub) -> None:
