@@ -26,6 +26,7 @@ def test_demo_verifies_a_slice_with_the_shipped_networks(tmp_path):
     assert doc["row"]["intervals"] == 2 and doc["row"]["avg_seconds"] > 0
     assert out.stat().st_size > 5000
     assert doc["domain_exits"] == [] and "DomainWarning" not in r.stderr
+    assert json.loads(out.with_suffix(".json").read_text())["verdict"] == "verified"
 
 
 def test_demo_warns_outside_the_training_range_of_the_contrast_model(tmp_path):

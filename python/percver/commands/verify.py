@@ -26,16 +26,20 @@ Expressions use the Flow* syntax (``^`` for powers). Exit status: 0 verified, 3 
 from __future__ import annotations
 
 import argparse
+import math
 import re
 import runpy
 import sys
-import tomllib
 import warnings
 from pathlib import Path
 
+from percver.commands import EXIT
 from percver.errors import InputError, MissingFileError, PercverError
 
-EXIT = {"verified": 0, "unknown": 3, "falsified": 4}
+if sys.version_info >= (3, 11):
+    import tomllib
+else:  # the same parser, from PyPI (a dependency on these Pythons)
+    import tomli as tomllib
 
 # pv.verify's keywords as config keys: (table, accepted TOML types, example value, meaning). The one
 # source of the [property] and [verify] tables, of the example in ``--help`` and of the reference
@@ -150,7 +154,7 @@ def run(args) -> int:
     with warnings.catch_warnings():
         warnings.showwarning = lambda message, *_a, **_k: print(f"percver verify: warning: {message}", file=sys.stderr)
         kwargs["progress"] = kwargs.get("progress", True) and not args.no_progress and not args.json
-        result = verify(config.target(), **kwargs)
+        result = verify(config.checked(config.target(), kwargs), **kwargs)
     result.to_json(str(out))
     if args.json:
         print(result.to_json())
@@ -262,6 +266,15 @@ class Config:
             raise self.error("[plant] period", "Verisig models carry their own control period")
         return formats.load_verisig(str(model), networks=nets)
 
+    def checked(self, target, kwargs: dict):
+        """``target`` if there is a property to verify: the config's, or the model file's own."""
+        own = getattr(target, "defaults", {})
+        given = [source.get(k) for source in (kwargs, own) for k in ("goal", "safe", "unsafe")]
+        if all(v is None or (isinstance(v, list) and not v) for v in given):
+            raise self.error("[property]", 'nothing to verify: give goal = "...", safe = [...] or unsafe = [...] '
+                                           '(e.g. goal = "p >= 0.45")')
+        return target
+
     def verify_kwargs(self) -> dict:
         """pv.verify's keyword arguments from [init], [split], [property], [verify]."""
         from percver.systems import condition
@@ -271,6 +284,11 @@ class Config:
             for name, value in self.section("init").items():
                 if not _number(value) and not (isinstance(value, list) and len(value) == 2 and all(map(_number, value))):
                     raise self.error(f"[init] {name}", f"expected [lo, hi] or a number, got {value!r}")
+                lo, hi = value if isinstance(value, list) else (value, value)
+                if not (math.isfinite(lo) and math.isfinite(hi)):
+                    raise self.error(f"[init] {name}", f"the bounds must be finite numbers, got {value!r}")
+                if lo > hi:
+                    raise self.error(f"[init] {name}", f"lower bound {lo!r} is above upper bound {hi!r}; write [{hi!r}, {lo!r}]")
             kwargs["init"] = self.section("init")
         if "split" in self.doc:
             split = self.section("split")

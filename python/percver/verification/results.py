@@ -143,7 +143,9 @@ class Result:
         for c in self.cells:
             if c.boxes:
                 b = np.asarray(c.boxes)
-                ax.fill_between(np.arange(len(b)), b[:, j, 0], b[:, j, 1], color=colours[c.verdict], alpha=0.3, linewidth=0)
+                # Edges drawn too: a band narrower than a pixel (a 5e-5 cell) still shows as a line.
+                ax.fill_between(np.arange(len(b)), b[:, j, 0], b[:, j, 1], facecolor=colours[c.verdict], alpha=0.3, linewidth=0)
+                ax.plot(np.arange(len(b)), b[:, j, :], color=colours[c.verdict], linewidth=0.8)
         if loop is not None:
             box = Box.coerce(self.init, self.states)
             traj = loop.simulate(box.sample(samples, seed), self.settings.get("steps", 1))

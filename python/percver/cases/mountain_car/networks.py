@@ -54,17 +54,25 @@ def training_domain(role: str) -> list:
     return domains[role]
 
 
+# The authors' data (their networks, published logs, the F1/10 study's files) is research data under
+# its own licences: percver never ships it. The project keeps it read-only beside the repository.
+SHARED_HINT = ("the authors' data is not part of the percver package: it sits read-only beside the repository as "
+               "../shared/data; set PERCVER_SHARED=/path/to/shared/data, or pass shared=PATH (CLI: --shared PATH)")
+
+
 def default_shared() -> Path:
     """The shared data: ``$PERCVER_SHARED``, else the first ``shared/data`` beside the working
-    directory or one of its parents (a checkout next to ``../shared``), else beside the
-    repository this package was installed from (editable installs)."""
+    directory or one of its parents (a checkout next to ``../shared``), else beside the source tree
+    this package runs from (editable installs); else ``../shared/data`` from the working directory,
+    which does not exist (the callers' errors then say where they looked and :data:`SHARED_HINT`)."""
     if os.environ.get("PERCVER_SHARED"):
         return Path(os.environ["PERCVER_SHARED"])
-    for folder in (Path.cwd(), *Path.cwd().parents):
+    here = Path(__file__).resolve()
+    for folder in (Path.cwd(), *Path.cwd().parents, *here.parents):
         for candidate in (folder / "shared" / "data", folder.parent / "shared" / "data"):
             if (candidate / "mountain_car" / "networks" / PAPER_FILES["generator"]).is_file():
                 return candidate
-    return Path(__file__).resolve().parents[4].parent / "shared" / "data"
+    return Path.cwd().parent / "shared" / "data"
 
 
 def paper_dir(shared=None) -> Path:
@@ -75,8 +83,8 @@ def paper_dir(shared=None) -> Path:
             return folder
     raise MissingFileError(
         f"the authors' Mountain Car networks are not in {base} (looked for {PAPER_FILES['generator']} there, "
-        "in mountain_car/networks and in data/mountain_car/networks); pass shared=PATH (CLI: --shared PATH) "
-        "pointing to the shared data, or use networks='ours'"
+        f"in mountain_car/networks and in data/mountain_car/networks): {SHARED_HINT}; "
+        "or use percver's shipped networks: networks='ours' (CLI: --networks ours)"
     )
 
 
