@@ -6,7 +6,7 @@ import pytest
 
 import percver as pv
 from figures import blank_axes
-from percver.verify import Cell
+from percver.verification import Cell
 
 
 def _cells(width: float) -> list:

@@ -128,7 +128,7 @@ def test_demo_exit_status_is_the_verdict(verdict, code, monkeypatch, tmp_path, c
     import percver as pv
     from percver.cases.mountain_car import verification
     from percver.cli import main
-    from percver.verify import Cell
+    from percver.verification import Cell
 
     box = {"p": (-0.5, -0.4995), "v": (0.0, 0.0), "dc": (1.5, 1.6), "r": (0.0, 0.0)}
     reason = "step 92: goal 'p >= 0.45' holds on part of the set only since step 89" if verdict == "unknown" else None

@@ -4,7 +4,7 @@
 # Errors are raised as percver.errors classes (InputError, DomainError, ParseError, BlowUpError,
 # NetworkFormatError), mapped in crates/percver-py/src/error.rs.
 
-from typing import Any, Callable, Optional, Sequence, Tuple, Union
+from typing import Any, Callable, Mapping, Optional, Sequence, Tuple, Union
 
 import numpy as np
 from numpy.typing import NDArray
@@ -66,6 +66,8 @@ class Expr:
     def variables(self) -> list[str]: ...
     def name(self) -> Optional[str]:
         """The variable's name if this expression is a bare variable."""
+    def parameters(self) -> list[Tuple[int, float, float]]:
+        """The uncertain parameters the expression reads, as (id, lo, hi), each once."""
     def structural_hash(self) -> int:
         """Structural hash (each shared node once): for fingerprints of large expression DAGs."""
     def __add__(self, o: Operand) -> Expr: ...
@@ -189,7 +191,8 @@ class Network:
         """The output Taylor models over a box (or over earlier models), to propagate further."""
 
 # A condition for the engine: (margin, op, label) meaning ``margin op 0`` over the state.
-EngineCondition = Tuple[Expr, str, str]
+# (margin, op, label, step window or None): ``margin op 0`` must hold (in the window).
+EngineCondition = Tuple[Expr, str, str, Optional[Tuple[float, float]]]
 # A discrete plant: next-state expressions over env_names. A continuous plant: (right-hand sides,
 # ODE variable names = states then inputs, input indices in the environment, control period,
 # integration step, remainder estimate).
@@ -213,8 +216,11 @@ class ClosedLoop:
         steps: int,
     ) -> None: ...
 
-def eval_float(exprs: Sequence[Expr], names: Sequence[str], points: NDArray[np.float64]) -> NDArray[np.float64]:
-    """Float evaluation of ``exprs`` on the rows of ``points`` (N x len(names)) -> N x len(exprs)."""
+def eval_float(
+    exprs: Sequence[Expr], names: Sequence[str], points: NDArray[np.float64], parameters: Optional[Mapping[int, Sequence[float]]] = None
+) -> NDArray[np.float64]:
+    """Float evaluation of ``exprs`` on the rows of ``points`` (N x len(names)) -> N x len(exprs);
+    ``parameters`` maps a parameter's id to its value in each row (others take their midpoint)."""
 
 def eval_interval(exprs: Sequence[Expr], names: Sequence[str], bounds: Bounds) -> list[Tuple[float, float]]:
     """Interval evaluation over a box."""
@@ -242,21 +248,60 @@ def flowpipe(
     """A validated flowpipe of ``d names / dt = rhs`` from ``init`` to ``t_end``; ``step`` fixed or
     (min, max) adaptive, ``order`` fixed or (min, max) adaptive."""
 
+class CellSettings:
+    """How each cell is verified; every keyword left out takes the engine's default (Rust's
+    ``CellSettings::default()``, the one source of them)."""
+
+    def __init__(
+        self,
+        *,
+        order: Optional[int] = None,
+        cutoff: Optional[float] = None,
+        method: Optional[str] = None,
+        timeout: Optional[float] = None,
+        nn_order: Optional[int] = None,
+        blow_up_width: Optional[float] = None,
+        max_splits: Optional[int] = None,
+        rebox: Optional[bool] = None,
+        state_symbols: Optional[bool] = None,
+    ) -> None: ...
+    @property
+    def order(self) -> int: ...
+    @property
+    def cutoff(self) -> float: ...
+    @property
+    def method(self) -> str: ...
+    @property
+    def timeout(self) -> Optional[float]: ...
+    @property
+    def nn_order(self) -> int: ...
+    @property
+    def blow_up_width(self) -> float: ...
+    @property
+    def max_splits(self) -> int: ...
+    @property
+    def rebox(self) -> bool: ...
+    @property
+    def state_symbols(self) -> bool: ...
+
+def _cell_settings(kwargs: Mapping[str, Any]) -> CellSettings:
+    """``CellSettings(**kwargs)`` for unpickling."""
+
+class StepCounter:
+    """The deepest step of the cells running with it, readable while they run."""
+
+    def __init__(self) -> None: ...
+    def get(self) -> int: ...
+    def reset(self) -> None: ...
+
 def verify_cells(
     problem: ClosedLoop,
     cells: Sequence[Bounds],
     done: Callable[[int, dict[str, Any]], Optional[bool]],
-    order: int = 5,
-    cutoff: float = 1e-12,
-    method: str = "taylor",
-    timeout: Optional[float] = None,
+    settings: Optional[CellSettings] = None,
     workers: Optional[int] = None,
-    nn_order: Optional[int] = None,
-    blow_up_width: float = 1e6,
-    max_splits: int = 16,
-    rebox: bool = False,
-    state_symbols: bool = False,
+    progress: Optional[StepCounter] = None,
 ) -> None:
-    """Runs ``cells`` ((lo, hi) per state variable); ``done(index, outcome)`` is called as each cell
-    finishes (outcome keys: verdict, reason, steps_done, boxes, seconds, nn_seconds, branches,
-    split); returning False (or raising) stops starting new cells."""
+    """Runs ``cells`` ((lo, hi) per state variable) with ``settings``; ``done(index, outcome)`` is
+    called as each cell finishes (outcome keys: verdict, reason, steps_done, deepest_step, boxes,
+    seconds, nn_seconds, branches, split); returning False (or raising) stops starting new cells."""
