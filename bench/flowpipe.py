@@ -40,7 +40,7 @@ ROWS = {
     "brusselator": ("tb_brusselator", {}, 16, 7.0, {"x": 3.57e-3, "y": 8.52e-3}),
     "roessler": ("tb_roessler", {}, 16, 4.5, {"x": 3.16, "y": 4.00, "z": 4.12e-3}),
     "spring_pendulum": ("tb_spring_pendulum", {}, 16, 10.5, {"r": 0.105, "theta": 0.0208, "dr": 0.0956, "dtheta": 0.0386}),
-    "quadrotor": ("tb_quadrotor", {"symbolic_queue": 200}, 4, 16.2, {"x3": 4.61e-3}),
+    "quadrotor": ("tb_quadrotor", {}, 4, 16.2, {"x3": 4.61e-3}),
     "lorenz": ("tb_lorenz", {}, 16, 24.3, {"x": 6.80, "y": 7.82, "z": 8.49}),
     "laubloomis": ("tb_laubloomis", {"order": 5, "step": 0.025}, 3, 34.7, {"x4": 0.262}),
 }

@@ -72,12 +72,22 @@ impl SymbolicRemainder {
             self.terms.push((identity(self.n), j));
         }
         if self.terms.len() > self.capacity {
-            // Box the older half into one term: sound, and bounds the cost per step.
-            let half = self.terms.len() / 2;
-            let merged = self.terms.drain(..half).fold(vec![Interval::ZERO; self.n], |acc, (m, j)| {
-                acc.iter().zip(point_mat_vec(&m, &j, self.n)).map(|(a, b)| *a + b).collect()
+            // Box the half of the terms whose images are smallest into one term: sound, bounds
+            // the cost per step, and boxing small terms wraps least (Girard's order reduction
+            // of zonotopes picks generators the same way).
+            let n = self.n;
+            let images: Vec<Vec<Interval>> = self.terms.iter().map(|(m, j)| point_mat_vec(m, j, n)).collect();
+            let mut order: Vec<usize> = (0..self.terms.len()).collect();
+            let size = |v: &Vec<Interval>| v.iter().map(|x| x.mag()).sum::<f64>();
+            order.sort_by(|&a, &b| size(&images[a]).total_cmp(&size(&images[b])));
+            let boxed: std::collections::HashSet<usize> = order[..self.terms.len() / 2].iter().copied().collect();
+            let merged = boxed.iter().fold(vec![Interval::ZERO; n], |acc, &i| acc.iter().zip(&images[i]).map(|(a, b)| *a + *b).collect());
+            let mut k = 0;
+            self.terms.retain(|_| {
+                k += 1;
+                !boxed.contains(&(k - 1))
             });
-            self.terms.insert(0, (identity(self.n), merged));
+            self.terms.insert(0, (identity(n), merged));
         }
     }
 
