@@ -205,7 +205,7 @@ def flowpipe(
 
     ``step`` is fixed, or give ``adaptive=(min, max)``; ``order`` is an int or (min, max) for
     adaptive orders. ``symbolic_queue`` is the number of past step remainders kept symbolically
-    (linear images of boxes, boxed only when read) before older ones are merged. If the enclosure blows up, :class:`BlowUpError` says when (its
+    (linear images of boxes, boxed only when read) before the smallest half is boxed into one. If the enclosure blows up, :class:`BlowUpError` says when (its
     ``partial`` attribute holds the sound part computed so far) unless ``on_failure="return"``.
     """
     names = [name_of(k) for k in ode]
