@@ -31,9 +31,40 @@ class Flowpipe:
         self.stats = dict(raw.stats)
         self.settings = settings
 
-    def final_box(self) -> dict:
-        """Box of the state at ``time_reached`` (LDB-refined range of the final Taylor models)."""
-        return {n: tuple(b) for n, b in zip(self.names, self._raw.final_box)}
+    def final_box(self, bounder: Optional[str] = None, split: Optional[int] = None) -> dict:
+        """Box of the state at ``time_reached``: the range of the final Taylor models.
+
+        ``bounder`` trades time for tightness: ``"dominated"`` (default, linear dominated
+        bounder), ``"interval"`` (monomial-wise interval evaluation, what Flow* prints),
+        ``"subdivision"`` (the initial set cut into ``split`` pieces per variable, each piece
+        re-expanded and bounded; ``split=k`` alone selects it) or ``"bernstein"`` (refused
+        when the models have too many Bernstein coefficients). All are sound enclosures.
+        """
+        if bounder is None:
+            bounder = "subdivision" if split is not None else "dominated"
+        if bounder == "dominated" and split is None:
+            bounds = self._raw.final_box
+        else:
+            if split is not None and (not isinstance(split, int) or split < 1):
+                raise InputError(f"split must be a positive number of pieces per variable, got {split!r}")
+            bounds = self._raw.final_bound(bounder, 4 if split is None else split)
+        return {n: tuple(b) for n, b in zip(self.names, bounds)}
+
+    def final_models(self) -> list:
+        """The state at ``time_reached`` as one :class:`FinalModel` per variable: a polynomial
+        over the normalised initial set plus an interval remainder."""
+        names = self.names
+        centre_radius = self._raw.initial_map()
+        return [FinalModel(name, names, dict((tuple(int(e) for e in exps), c) for exps, c in terms), tuple(rem), centre_radius, self._raw, i)
+                for i, (name, (terms, rem)) in enumerate(zip(names, self._raw.final_models()))]
+
+    def final_enclose(self, points: np.ndarray) -> np.ndarray:
+        """Rigorous enclosures (N, n, 2) of the states reached at ``time_reached`` from initial
+        points (N, n) of the initial box."""
+        pts = np.atleast_2d(np.asarray(points, dtype=float))
+        if pts.shape[1] != len(self.names):
+            raise InputError(f"points need {len(self.names)} columns ({', '.join(self.names)}), got {pts.shape[1]}")
+        return np.asarray(self._raw.final_enclose(pts.tolist()))
 
     def boxes(self) -> list:
         """Per-step boxes as dicts ``{"t": (t0, t1), name: (lo, hi), ...}``."""
@@ -122,6 +153,47 @@ class Flowpipe:
         return ax
 
 
+class FinalModel:
+    """One state variable at the final time: ``x(t_end) in p(z) + remainder`` for every start
+    ``x0 = centre + radius * z`` of the initial box (z in [-1, 1]^n; a zero radius marks a
+    point-valued variable, whose z is 0).
+
+    ``coefficients`` maps exponent tuples of (z_1, ..., z_n) to float coefficients.
+    """
+
+    def __init__(self, name, names, coefficients, remainder, centre_radius, raw, index):
+        self.name = name
+        self.variables = list(names)
+        self.coefficients = coefficients
+        self.remainder = remainder
+        self.centre_radius = list(centre_radius)
+        self._raw = raw
+        self._index = index
+
+    def normalise(self, points: np.ndarray) -> np.ndarray:
+        """z of initial points (float, approximate: use :meth:`enclose` for rigorous bounds)."""
+        pts = np.atleast_2d(np.asarray(points, dtype=float))
+        c = np.array([cr[0] for cr in self.centre_radius])
+        r = np.array([cr[1] for cr in self.centre_radius])
+        return np.where(r > 0, (pts - c) / np.where(r > 0, r, 1.0), 0.0)
+
+    def polynomial(self, points: np.ndarray) -> np.ndarray:
+        """Float value of the polynomial part at initial points (not rigorous)."""
+        z = self.normalise(points)
+        out = np.zeros(len(z))
+        for exps, c in self.coefficients.items():
+            out += c * np.prod(z ** np.array(exps), axis=1)
+        return out
+
+    def enclose(self, points: np.ndarray) -> np.ndarray:
+        """Rigorous (N, 2) bounds on this variable at the final time from initial points (N, n)."""
+        pts = np.atleast_2d(np.asarray(points, dtype=float))
+        return np.asarray(self._raw.final_enclose(pts.tolist()))[:, self._index, :]
+
+    def __repr__(self):
+        return f"FinalModel({self.name}: {len(self.coefficients)} terms, remainder {self.remainder})"
+
+
 def flowpipe(
     ode: Mapping[Union[str, object], ExprLike],
     init: BoxLike,
@@ -142,7 +214,7 @@ def flowpipe(
 
     ``step`` is fixed, or give ``adaptive=(min, max)``; ``order`` is an int or (min, max) for
     adaptive orders. ``symbolic_queue`` is the number of past step remainders kept symbolically
-    (linear images of boxes, boxed only when read) before older ones are merged. If the enclosure blows up, :class:`BlowUpError` says when (its
+    (linear images of boxes, boxed only when read) before the smallest half is boxed into one. If the enclosure blows up, :class:`BlowUpError` says when (its
     ``partial`` attribute holds the sound part computed so far) unless ``on_failure="return"``.
     """
     names = [name_of(k) for k in ode]

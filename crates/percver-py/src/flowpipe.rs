@@ -4,10 +4,13 @@ use crate::expr::{to_intervals, PyExpr};
 use numpy::{PyArray2, PyArray3, ToPyArray};
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
-use taylor::{reach, Flowpipe, Ode, OrderPolicy, Precondition, Settings, StepSize};
+use taylor::bound::Bounder;
+use taylor::flowpipe::normalise_initial_point;
+use taylor::{reach, Flowpipe, Interval, Ode, OrderPolicy, Precondition, Settings, StepSize};
 
 #[pyclass(name = "FlowpipeResult", module = "percver._core", frozen)]
-pub struct PyFlowpipe(pub Flowpipe);
+/// The flowpipe and the initial box its final models are normalised over.
+pub struct PyFlowpipe(pub Flowpipe, pub Vec<Interval>);
 
 /// Step: a float (fixed) or (min, max) (adaptive). Order: an int or (min, max).
 #[derive(FromPyObject)]
@@ -89,7 +92,7 @@ pub fn flowpipe(
     if let Some(e) = interrupted {
         return Err(e);
     }
-    Ok(PyFlowpipe(result.py_err()?))
+    Ok(PyFlowpipe(result.py_err()?, init))
 }
 
 #[pymethods]
@@ -147,5 +150,62 @@ impl PyFlowpipe {
         d.set_item("validation_seconds", s.validation_seconds)?;
         d.set_item("composition_seconds", s.composition_seconds)?;
         Ok(d)
+    }
+    /// The final state's Taylor models over the normalised initial set z in [-1, 1]^n
+    /// (x0_i = c_i + r_i z_i): per variable, ([(exponents of z_1..z_n, coefficient)], (rem lo, hi)).
+    fn final_models(&self) -> Vec<(Vec<(Vec<u8>, f64)>, (f64, f64))> {
+        let fp = &self.0;
+        let n = fp.names.len();
+        fp.final_state
+            .iter()
+            .map(|m| {
+                let terms = m.coef.iter().enumerate().filter(|(_, c)| **c != 0.0).map(|(i, &c)| (fp.space.exponents(i)[1..=n].to_vec(), c)).collect();
+                (terms, (m.rem.lo(), m.rem.hi()))
+            })
+            .collect()
+    }
+    /// (c_i, r_i) of the map x0_i = c_i + r_i z_i from the normalised initial set.
+    fn initial_map(&self) -> Vec<(f64, f64)> {
+        self.1.iter().map(|iv| if iv.lo() == iv.hi() { (iv.lo(), 0.0) } else { let m = iv.mid(); (m, (iv.hi() - m).max(m - iv.lo()).next_up()) }).collect()
+    }
+    /// The final box with a chosen bounder: "dominated", "interval", "subdivision" (split
+    /// pieces per variable) or "bernstein".
+    #[pyo3(signature = (bounder="dominated", split=4))]
+    fn final_bound(&self, py: Python<'_>, bounder: &str, split: usize) -> PyResult<Vec<(f64, f64)>> {
+        let b = match bounder.to_ascii_lowercase().as_str() {
+            "dominated" | "ldb" => Bounder::Dominated,
+            "interval" => Bounder::Interval,
+            "subdivision" => Bounder::Subdivision(split),
+            "bernstein" => Bounder::Bernstein,
+            other => {
+                return Err(crate::error::to_py(taylor::TaylorError::input(format!(
+                    "unknown bounder '{other}' (use 'dominated', 'interval', 'subdivision' or 'bernstein')"
+                ))))
+            }
+        };
+        let boxes = py.allow_threads(|| self.0.final_bound(b)).py_err()?;
+        Ok(boxes.iter().map(|i| (i.lo(), i.hi())).collect())
+    }
+    /// Rigorous enclosures of the final state reached from each initial point (N x n), as
+    /// (N, n, 2) bounds: the final models evaluated in interval arithmetic at the point.
+    fn final_enclose<'py>(&self, py: Python<'py>, points: Vec<Vec<f64>>) -> PyResult<Bound<'py, PyArray3<f64>>> {
+        let fp = &self.0;
+        let n = fp.names.len();
+        let mut out = numpy::ndarray::Array3::<f64>::zeros((points.len(), n, 2));
+        for (p, x) in points.iter().enumerate() {
+            let Some(z) = normalise_initial_point(&self.1, x) else {
+                return Err(crate::error::to_py(taylor::TaylorError::input(format!(
+                    "initial point {x:?} is not in the initial box (one value per state variable, each inside its interval)"
+                ))));
+            };
+            let mut args = vec![Interval::ZERO; fp.space.nvars];
+            args[1..=n].copy_from_slice(&z);
+            for (v, m) in fp.final_state.iter().enumerate() {
+                let e = m.eval_interval(&fp.space, &args);
+                out[[p, v, 0]] = e.lo();
+                out[[p, v, 1]] = e.hi();
+            }
+        }
+        Ok(out.to_pyarray(py))
     }
 }

@@ -13,6 +13,7 @@
 //! Adaptive step halves on failure and grows by 1.1 after success, as in Flow*. Adaptive order
 //! raises the order on failure and keeps it: lowering it after each success (Flow*'s policy)
 //! was measured to let low-order truncation errors pile up until no order can recover.
+use crate::bound::{bound_all, Bounder};
 use crate::error::{Result, TaylorError};
 use crate::expr::{Expr, Program, TaylorModels};
 use crate::interval::Interval;
@@ -135,7 +136,7 @@ pub struct Stats {
     pub composition_seconds: f64,
 }
 
-#[derive(Clone, Debug)]
+#[derive(Clone)]
 pub struct Flowpipe {
     pub names: Vec<String>,
     pub segments: Vec<Segment>,
@@ -146,6 +147,55 @@ pub struct Flowpipe {
     /// Why the computation stopped before `t_end`, if it did. Segments so far stay valid.
     pub failure: Option<TaylorError>,
     pub stats: Stats,
+    /// The space of `final_state` (variable 0 is time, unused by the final models).
+    pub space: Arc<Space>,
+}
+
+impl std::fmt::Debug for Flowpipe {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Flowpipe")
+            .field("names", &self.names)
+            .field("segments", &self.segments.len())
+            .field("final_box", &self.final_box)
+            .field("time_reached", &self.time_reached)
+            .field("failure", &self.failure)
+            .finish()
+    }
+}
+
+impl Flowpipe {
+    /// The final state's box with the chosen bounder (`final_box` is the dominated one).
+    pub fn final_bound(&self, bounder: Bounder) -> Result<Vec<Interval>> {
+        bound_all(&self.final_state, &self.space, bounder)
+    }
+}
+
+/// x = c + r z maps z in [-1, 1] onto a box side (r rounded up, so the image covers it).
+fn initial_affine(iv: &Interval) -> (f64, f64) {
+    let m = iv.mid();
+    (m, (iv.hi() - m).max(m - iv.lo()).next_up())
+}
+
+/// The normalised coordinates z (as intervals holding the exact values) of a point of the
+/// initial box `init`, as [`reach`] defines them: the arguments at which the final models
+/// enclose the state reached from that point. None if the point lies outside the box.
+pub fn normalise_initial_point(init: &[Interval], x: &[f64]) -> Option<Vec<Interval>> {
+    if x.len() != init.len() || init.iter().zip(x).any(|(iv, &v)| !iv.contains(v)) {
+        return None;
+    }
+    Some(
+        init.iter()
+            .zip(x)
+            .map(|(iv, &v)| {
+                if iv.lo() == iv.hi() {
+                    return Interval::ZERO;
+                }
+                let (c, r) = initial_affine(iv);
+                let z = (Interval::point(v) - Interval::point(c)) * Interval::point(r).recip().expect("r > 0");
+                z.intersect(&Interval::SYMMETRIC)
+            })
+            .collect(),
+    )
 }
 
 /// Computes the flowpipe from the box `init`. `observer(t)` is told the time after every
@@ -168,8 +218,7 @@ pub fn reach(ode: &Ode, init: &[Interval], settings: &Settings, observer: &mut d
         .iter()
         .enumerate()
         .map(|(i, iv)| {
-            let m = iv.mid();
-            let r = (iv.hi() - m).max(m - iv.lo()).next_up();
+            let (m, r) = initial_affine(iv);
             if iv.lo() == iv.hi() {
                 TaylorModel::constant(m)
             } else {
@@ -292,10 +341,11 @@ fn flow_from(
         let a: Vec<Interval> = (0..n * n).map(|ij| Interval::point(ends[ij / n].linear_coefficient(&space, ij % n + 1))).collect();
         symbolic.transform(&mat_mul(&a, &pre.to_normalised, n));
         let mut entering = Vec::with_capacity(n);
+        let composed = compose_all(&ends, &args, &ctx);
         state = ends
             .iter()
-            .map(|m| {
-                let mut x = m.compose(&args, &ctx);
+            .zip(composed)
+            .map(|(m, mut x)| {
                 entering.push(x.rem + Interval::symmetric(gradient_dot(m, &space, &shift, 2)));
                 x.rem = Interval::ZERO;
                 x
@@ -322,7 +372,41 @@ fn flow_from(
     }
     let final_box = state.iter().map(|m| bounder(m, &space)).collect();
     stats.seconds = started.elapsed().as_secs_f64();
-    Ok(Flowpipe { names: ode.names.clone(), segments, final_state: state, final_box, time_reached: t, failure, stats })
+    Ok(Flowpipe { names: ode.names.clone(), segments, final_state: state, final_box, time_reached: t, failure, stats, space })
+}
+
+/// `models[i](args)` for every i, as [`TaylorModel::compose`] computes it, but building the
+/// monomials of the arguments once for all models (they share them; composing each model on
+/// its own rebuilt every monomial n times, most of a step's time on Laub-Loomis).
+pub(crate) fn compose_all(models: &[TaylorModel], args: &[TaylorModel], ctx: &Ctx) -> Vec<TaylorModel> {
+    let space = &ctx.space;
+    let len = models.iter().map(|m| m.coef.len()).max().unwrap_or(0);
+    let mut acc = vec![TaylorModel::zero(); models.len()];
+    let mut monomials: Vec<TaylorModel> = Vec::with_capacity(len);
+    for i in 0..len {
+        let m = if i == 0 {
+            TaylorModel::constant(1.0)
+        } else {
+            let (j, v) = space.parent(i);
+            if j == 0 {
+                args[v].clone()
+            } else {
+                monomials[j].mul(&args[v], ctx)
+            }
+        };
+        for (a, model) in acc.iter_mut().zip(models) {
+            let ci = model.coef.get(i).copied().unwrap_or(0.0);
+            if ci != 0.0 {
+                *a = a.add(&m.scale(ci));
+            }
+        }
+        monomials.push(m);
+    }
+    for (a, model) in acc.iter_mut().zip(models) {
+        a.rem = a.rem + model.rem;
+        a.sweep(ctx);
+    }
+    acc
 }
 
 /// The time grid of a flowpipe to `t_end`: the float spacing just below t_end. Multiples of it
