@@ -134,6 +134,15 @@ class FlowpipeResult:
     def orders(self) -> list[int]: ...
     @property
     def stats(self) -> dict[str, Any]: ...
+    def final_models(self) -> list[Tuple[list[Tuple[list[int], float]], Tuple[float, float]]]:
+        """The final state's Taylor models over the normalised initial set z in [-1, 1]^n: per
+        variable, ([(exponents of z_1..z_n, coefficient)], (remainder lo, hi))."""
+    def initial_map(self) -> list[Tuple[float, float]]:
+        """(c_i, r_i) of the map x0_i = c_i + r_i z_i from the normalised initial set."""
+    def final_bound(self, bounder: str = "dominated", split: int = 4) -> list[Tuple[float, float]]:
+        """The final box with a chosen bounder: "dominated", "interval", "subdivision" or "bernstein"."""
+    def final_enclose(self, points: Sequence[Sequence[float]]) -> NDArray[np.float64]:
+        """Rigorous (N, n, 2) enclosures of the final state reached from each initial point."""
 
 class NetworkModels:
     """Taylor models of a network's outputs (or inputs), ready to be propagated further."""
