@@ -29,6 +29,7 @@ from percver.expr import (
     minimum,
     parse,
     sigmoid,
+    sign,
     sin,
     sqrt,
     tan,
@@ -44,6 +45,7 @@ from percver.verify import Part, Result, verify, verify_parts
 
 min = minimum  # noqa: A001 - the design's names pv.min / pv.max, like numpy's
 max = maximum  # noqa: A001
+abs = abs_  # noqa: A001 - pv.abs, like numpy's
 from percver.networks import Network, chain, load_network
 
 from percver import noise, sensors, validate
