@@ -96,6 +96,8 @@ class Result:
     cells: list
     seconds: float = 0.0
     settings: dict = field(default_factory=dict)
+    # Whether the reach sets stay where the model was validated (percver.validate.verifiable.validity).
+    validity: Optional[str] = None
 
     @property
     def verdict(self) -> str:
@@ -429,6 +431,7 @@ def verify(
     falsify: int = 32,
     progress: bool = True,
     seed: int = 0,
+    validated=None,
 ) -> Result:
     """Prove ``loop`` satisfies the property from every state of ``init`` (see module doc).
 
@@ -462,7 +465,7 @@ def verify(
     return verify_parts(loop, [part], steps=steps, goal=goal, safe=safe, unsafe=unsafe, within=within, reward=reward,
                         refine=refine, min_width=min_width, method=method, rebox=rebox, state_symbols=state_symbols,
                         workers=workers, executor=executor, batch=batch, timeout_per_cell=timeout_per_cell,
-                        falsify=falsify, progress=progress, seed=seed)[0]
+                        falsify=falsify, progress=progress, seed=seed, validated=validated)[0]
 
 
 def verify_parts(
@@ -487,6 +490,7 @@ def verify_parts(
     falsify: int = 32,
     progress: bool = True,
     seed: int = 0,
+    validated=None,
 ) -> list:
     """:func:`verify` on several :class:`Part` s of an initial set (regions that need different
     cell widths or orders), one :class:`Result` per part, each with the whole call's wall time.
@@ -563,7 +567,10 @@ def verify_parts(
             runner.close()
         bar.close()
     seconds = time.time() - started
-    return [Result(loop.states, box.to_dict(), campaign.cells, seconds, settings) for box, (campaign, settings, _, _) in zip(boxes, jobs)]
+    results = [Result(loop.states, box.to_dict(), campaign.cells, seconds, settings) for box, (campaign, settings, _, _) in zip(boxes, jobs)]
+    from percver.validate.verifiable import validity
+
+    return validity(loop, results, validated)
 
 
 def _grid(box: Box, split: dict):

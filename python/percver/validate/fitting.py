@@ -333,3 +333,33 @@ def rank(
             progress.update(1)
     items.sort(key=lambda c: (not c.claimed, c.stochastic, -c.gain))
     return Ranking(items, min_gain)
+
+
+def parameter_intervals(model, evaluation, *, level: float = 0.95, draws: int = 100, seed: int = 0) -> dict:
+    """Bootstrap confidence intervals of the fitted parameters: ``{effect index: {parameter: (lo, hi)}}``.
+
+    Each draw resamples the resampling units (whole trajectories when there are any) with
+    replacement and refits every effect from the fitted values; the interval is the central
+    ``level`` of the refitted values. Parameters that are not fitted (a drag's state) are left out.
+    """
+    if not 0 < level < 1:
+        raise MeasurementError(f"level must be in (0, 1), e.g. 0.95; got {level}")
+    rng = np.random.default_rng(seed)
+    units, _ = folds_of(evaluation, 2, rng)
+    order = np.argsort(units, kind="stable")
+    starts = np.searchsorted(units[order], np.arange(units.max() + 2))
+    members = [order[starts[u]:starts[u + 1]] for u in range(units.max() + 1)]
+    names = [[n for n in e.bounds if isinstance(e.params.get(n), (float, int, np.floating))] for e in model.effects]
+    values = [{n: [] for n in ns} for ns in names]
+    for _ in range(draws):
+        picked = rng.integers(0, len(members), len(members))
+        fitted = refit(model, evaluation.subset(np.concatenate([members[u] for u in picked])))
+        for i, effect in enumerate(fitted.effects):
+            for n in names[i]:
+                values[i][n].append(effect.params[n])
+    tail = 50 * (1 - level)
+    return {
+        i: {n: (float(np.percentile(v, tail)), float(np.percentile(v, 100 - tail))) for n, v in per.items()}
+        for i, per in enumerate(values)
+        if per
+    }
