@@ -208,3 +208,58 @@ def _fake_continuous(model):
     data = pv.Measurements(states, controls=rng.uniform(-1, 1, (20, 1)), next_states=states, state_names=["x", "w"],
                            control_names=["u"])
     return pv.diagnose(model, data, effects=[], max_steps=0)
+
+
+LIDAR_EFFECTS = [
+    [effects.get("range_scale", scale=1.02)],
+    [effects.get("range_bias", bias=0.05), effects.get("range_scale", scale=0.97)],
+    [effects.get("angle_offset", yaw_deg=3.0), effects.get("position_offset", forward=0.2, left=-0.1)],
+    [effects.get("max_range", limit=4.0), effects.get("range_bias", bias=-0.1)],
+]
+
+
+def _lidar_diagnosis(stack, poses):
+    model = pv.sensors.lidar.canonical()
+    for effect in stack:
+        model = model.with_effect(effect)
+    data = pv.Measurements(poses, model.predict(poses), state_names=["x", "y", "theta"])
+    return pv.diagnose(model, data, effects=[], max_steps=0), model
+
+
+@pytest.mark.parametrize("stack", LIDAR_EFFECTS, ids=["+".join(e.name for e in s) for s in LIDAR_EFFECTS])
+def test_diagnosed_lidar_is_a_stage_whose_rays_equal_the_float_model(stack):
+    poses = hidden_world.poses(300, seed=3)
+    diagnosis, model = _lidar_diagnosis(stack, poses)
+    rays = diagnosis.model
+    assert rays.inputs == ("x", "y", "theta") and len(rays) == 21
+    x, y, theta = pv.variables("x y theta")
+    stage = pv.Stage(rays, inputs=[x, y, theta], output="scan")
+    assert stage.width == 21
+    values = pv.evaluate(list(rays), {"x": poses[:, 0], "y": poses[:, 1], "theta": poses[:, 2]})
+    np.testing.assert_allclose(values, model.predict(poses), atol=1e-9)
+    # Sound on sets: small pose boxes enclose the float scans of sampled poses.
+    rng = np.random.default_rng(4)
+    for pose in poses[:6]:
+        box = {"x": (pose[0] - 0.02, pose[0] + 0.02), "y": (pose[1] - 0.02, pose[1] + 0.02),
+               "theta": (pose[2] - 0.005, pose[2] + 0.005)}
+        enclosure = np.array(pv.bounds(list(rays), box, method="interval"))
+        inside = rng.uniform([b[0] for b in box.values()], [b[1] for b in box.values()], (200, 3))
+        scans = model.predict(inside)
+        assert np.all(scans >= enclosure[:, 0] - 1e-9) and np.all(scans <= enclosure[:, 1] + 1e-9)
+
+
+def test_lidar_dropout_is_an_adversarial_knockout_and_noise_is_refused():
+    poses = hidden_world.poses(200, seed=5)
+    diagnosis, model = _lidar_diagnosis([effects.get("range_scale", scale=1.02), effects.get("dropout", rate=0.05)], poses)
+    rays = diagnosis.model
+    assert "knock-out" in str(rays.validation)
+    pose = np.array([[0.7, 10.0, np.pi / 2]])  # ray 0 points east-south-east, at the inner wall 0.9 m away
+    echo = model.predict(pose)[0, 0]
+    lo, hi = pv.bounds(rays[0], dict(zip(["x", "y", "theta"], [(c, c) for c in pose[0]])), method="interval")
+    assert echo < 1.0 and lo == pytest.approx(echo) and hi == pytest.approx(model.range_limit())
+    # Simulated with the parameters at their midpoints, no ray is knocked out.
+    values = pv.evaluate(list(rays), {"x": poses[:, 0], "y": poses[:, 1], "theta": poses[:, 2]})
+    np.testing.assert_allclose(values, model.predict(poses), atol=1e-9)
+    noisy, _ = _lidar_diagnosis([effects.get("gaussian_noise", sigma=0.01)], poses)
+    with pytest.raises(NoSetSemanticsError, match="gaussian_noise.*residual"):
+        noisy.model
