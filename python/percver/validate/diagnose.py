@@ -12,6 +12,7 @@ from percver.validate.fitting import parameter_intervals, plain, rank, refit
 from percver.validate.learned import check_learn
 from percver.validate.learned import learn as learned_step
 from percver.validate.models import as_model
+from percver.validate.regions import missing_pattern
 from percver.validate.report import compare, json_default
 
 
@@ -54,6 +55,9 @@ class Diagnosis:
             {"kind": "region", "where": r.describe(), "bounds": r.bounds, "share": r.share, "lift": r.lift}
             for r in where.significant_regions
         ] + [{"kind": "dimension", "where": d.name, "share": d.share} for d in where.significant_dimensions]
+        missing = missing_pattern(final.model, final.predicted, final.evaluation.measured)
+        if missing is not None:
+            self.unexplained.append(missing)
 
     @property
     def baseline_error(self) -> float:
@@ -143,7 +147,8 @@ class Diagnosis:
             a = self.learned
             lines.append(f"learned_{a.kind} not kept: held-out gain {a.gain:.1%} [{a.ci[0]:.1%}, {a.ci[1]:.1%}]")
         for u in self.unexplained[:UNEXPLAINED_LINES]:
-            lines.append(f"unexplained {u['kind']}: {u['where']} ({u['share']:.1%} of the remaining error)")
+            of = "of the lost echoes" if u["kind"] == "missing" else "of the remaining error"
+            lines.append(f"unexplained {u['kind']}: {u['where']} ({u['share']:.1%} {of})")
         if len(self.unexplained) > UNEXPLAINED_LINES:
             lines.append(f"... and {len(self.unexplained) - UNEXPLAINED_LINES} more unexplained regions or dimensions")
         return "\n".join(lines)

@@ -17,7 +17,7 @@ from scipy.optimize import least_squares
 from percver.errors import MeasurementError
 from percver.validate.effects import Effect, candidates
 from percver.validate.effects.base import robust_sigma
-from percver.validate.regions import feature_table, split_regions, standout
+from percver.validate.regions import feature_table, missing_pattern, split_regions, standout
 
 # Random effects are not claimed when their events crowd into a region this many times denser
 # than on average (with SIGNIFICANCE standard errors): then they have a cause to find.
@@ -168,10 +168,13 @@ def refit(model, evaluation):
 
 
 def _crowded(model, evaluation) -> bool:
-    """Whether the entries a random effect explains concentrate in a region of state space."""
+    """Whether the entries a random effect explains concentrate in a region of state space, or
+    (lost echoes) in a range of the measurement or on some rays."""
     predicted = model.predict_inputs(evaluation.inputs)
+    if missing_pattern(model, predicted, evaluation.measured) is not None:
+        return True
     events = model.accounted(predicted, evaluation.measured).sum(axis=1).astype(float)
-    _, table, known = feature_table(model, evaluation.states)
+    _, table, known = feature_table(model, evaluation)
     rows = np.flatnonzero(known)
     if events[rows].sum() == 0:
         return False

@@ -55,6 +55,8 @@ def residual_map(report, path=None, where=None):
         from matplotlib.patches import Rectangle
 
         for region in where.significant_regions:
+            if names[0] not in region.bounds or names[1] not in region.bounds:
+                continue  # a region of other variables (the first step of each run)
             (x0, x1), (y0, y1) = region.bounds[names[0]], region.bounds[names[1]]
             axes.add_patch(Rectangle((x0, y0), x1 - x0, y1 - y0, fill=False, edgecolor="cyan", linewidth=2))
             axes.text(x0, y1, f"{region.share:.0%}", color="cyan", va="bottom")

@@ -193,9 +193,9 @@ def unexplained_rows(report) -> np.ndarray:
     where = report.where()
     if not where.significant_regions:
         return np.ones(len(report.evaluation), dtype=bool)
-    by, table, known = feature_table(report.model, report.evaluation.states, where.variables)
-    inside = np.zeros(len(table), dtype=bool)
+    inside = np.zeros(len(report.evaluation), dtype=bool)
     for region in where.significant_regions:
+        by, table, known = feature_table(report.model, report.evaluation, tuple(region.bounds))
         box = known.copy()
         for j, name in enumerate(by):
             lo, hi = region.bounds[name]

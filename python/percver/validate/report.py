@@ -39,7 +39,15 @@ class Region:
     significant: bool
 
     def describe(self) -> str:
-        return ", ".join(f"{name} in [{lo:.3g}, {hi:.3g}]" for name, (lo, hi) in self.bounds.items())
+        return ", ".join(_describe(name, lo, hi) for name, (lo, hi) in self.bounds.items())
+
+
+def _describe(name, lo, hi) -> str:
+    if name == "step_in_run" and hi < 1:
+        return "the first step of each run (its earlier controls were not measured)"
+    if name == "step_in_run":
+        return f"steps {lo:.0f}..{hi:.0f} of each run"
+    return f"{name} in [{lo:.3g}, {hi:.3g}]"
 
 
 @dataclass
@@ -147,7 +155,7 @@ class Report:
 
     # ---------------------------------------------------------------- where
     def features(self) -> dict:
-        return self.model.features(self.evaluation.states)
+        return {**self.model.features(self.evaluation.states), **self.evaluation.row_features}
 
     def where(self, by=None, *, max_regions: int = 8, min_count: int | None = None) -> Where:
         """Regions of state space (adaptive bins over ``by``, the model's region variables by
@@ -155,7 +163,7 @@ class Report:
         key = (tuple(by or ()), max_regions, min_count)
         if key in self._where:
             return self._where[key]
-        by, table, known = feature_table(self.model, self.evaluation.states, by)
+        by, table, known = feature_table(self.model, self.evaluation, by)
         errors = self.row_errors
         total = float(errors.sum()) or 1.0
         rows = np.flatnonzero(known)
@@ -178,10 +186,26 @@ class Report:
                     ),
                 )
             )
-        regions.sort(key=lambda r: -r.share)
+        start = self._run_start(errors, total)
+        regions = ([start] if start is not None else []) + sorted(regions, key=lambda r: -r.share)
         result = Where(by, regions, self._dimensions(), outside=int((~known).sum()), report=self)
         self._where[key] = result
         return result
+
+    def _run_start(self, errors, total):
+        """The first step of each run as a region of its own when its error stands out: there the
+        controls before the run were not measured, so a delay's input is unknown. Too few rows
+        for the tree's bins (one per run), so it is tested directly; it overlaps the tree's regions."""
+        steps = self.evaluation.row_features.get("step_in_run")
+        if steps is None:
+            return None
+        inside = steps == 0
+        lift, t = standout(inside, errors)
+        if not inside.any() or not t > SIGNIFICANCE or not lift > LIFT:
+            return None
+        mean = errors[inside].mean()
+        return Region(bounds={"step_in_run": (0.0, 0.0)}, count=int(inside.sum()), share=float(errors[inside].sum() / total),
+                      lift=float(lift), rmse=float(np.sqrt(mean)), significant=bool(mean > EXCESS * self.noise_floor.mean()))
 
     def _dimensions(self) -> list:
         squared = (np.where(self.explained, 0.0, self.residuals) * self.evaluation.weights) ** 2
