@@ -99,7 +99,7 @@ def run(args) -> int:
         return 0
     if diagnosis.rankings:
         print("candidate effects (held-out share of the baseline error removed):")
-        print(diagnosis.rankings[0].table())
+        print(diagnosis.rankings[0].table(added=diagnosis.effects))
         print()
     print(diagnosis.table())
     print(f"report: {page}")

@@ -245,7 +245,9 @@ def diagnose(
     final = compare(current, data, metric=metric)
     attempt = None
     if learn and (final.where().significant_regions or final.where().significant_dimensions):
-        learned, attempt = learned_step(current, evaluation, final, learn, learn_options, folds=folds,
+        # With progress on, training shows a bar over its epochs with the time left.
+        options = {"progress": True, **(learn_options or {})} if progress else learn_options
+        learned, attempt = learned_step(current, evaluation, final, learn, options, folds=folds,
                                         bootstrap=bootstrap, min_gain=min_gain, seed=seed)
         if learned is not None:
             after = compare(learned, data, metric=metric)

@@ -241,11 +241,18 @@ class Ranking(list):
     def claimed(self) -> list:
         return [c for c in self if c.claimed]
 
-    def table(self) -> str:
-        lines = [f"{'effect':<22} {'gain':>7} {'95% interval':>18} {'claimed':>7}  parameters"]
-        for c in self:
+    def verdicts(self, added=None) -> list:
+        """Per candidate "yes"/"no", or given the effects a diagnosis ``added``: "added", "stand-in"
+        (it helps alone, but the error it removes is another added effect's) or "no"."""
+        if added is None:
+            return ["yes" if c.claimed else "no" for c in self]
+        return ["added" if c.name in added else "stand-in" if c.claimed else "no" for c in self]
+
+    def table(self, added=None) -> str:
+        lines = [f"{'effect':<22} {'gain':>7} {'95% interval':>18} {'claimed':>8}  parameters"]
+        for c, verdict in zip(self, self.verdicts(added)):
             params = ", ".join(f"{k}={_format(v)}" for k, v in c.params.items())
-            lines.append(f"{c.name:<22} {c.gain:>7.3f} [{c.ci[0]:>7.3f}, {c.ci[1]:>7.3f}] {'yes' if c.claimed else 'no':>7}  {params}")
+            lines.append(f"{c.name:<22} {c.gain:>7.3f} [{c.ci[0]:>7.3f}, {c.ci[1]:>7.3f}] {verdict:>8}  {params}")
         return "\n".join(lines)
 
     def __str__(self) -> str:

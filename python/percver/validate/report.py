@@ -15,6 +15,11 @@ from percver.validate.models import as_model
 from percver.validate.regions import feature_table, split_regions, standout
 
 METRICS = ("rmse", "mae", "max")
+UNITS = {
+    "lidar": "m",
+    "image": "grey level (0 black, 1 white)",
+    "dynamics": "normalised: each state's residual over the standard deviation of its measured one-step change",
+}
 
 # A region or dimension "carries significant error" when its mean error is this many standard
 # errors above the rest, at least LIFT times the overall mean, and EXCESS times the noise floor.
@@ -110,6 +115,8 @@ class Report:
     """Residuals of a model on data, with errors, localisation and candidate effects.
 
     ``residuals`` are measured minus predicted (rows x dimensions, in measurement units).
+    ``unit`` says in what the errors are given. ``noise_floor`` is, per dimension, the RMS
+    residual that noise alone explains (robust spread), in the units of ``error``.
     ``error`` is the chosen metric (RMSE by default) of the weighted residuals over all
     entries, where entries that a stochastic effect of the model explains (a dropped ray)
     count as explained. ``downstream`` holds the paper's control and state-estimation errors
@@ -135,23 +142,32 @@ class Report:
         unexplained = np.where(self.explained, 0.0, self.residuals)
         self.per_dimension = dict(zip(model.measurement_names, np.sqrt(np.mean(unexplained**2, axis=0)).tolist()))
         self.downstream = dict(downstream or {})
-        self.noise_floor = self._noise_floor(weighted)
+        self._noise = self._noise_variance(weighted)
+        # RMS per dimension in the units of ``error`` (weighted), never above the dimension's own error.
+        self.noise_floor = np.sqrt(np.minimum(self._noise, np.mean(weighted**2, axis=0)))
         self._where = {}
         self._explain = {}
+
+    @property
+    def unit(self) -> str:
+        """What the errors (``error``, ``rmse``, ``mae``, ``max``, ``noise_floor``) are measured in."""
+        return UNITS.get(self.model.kind, "the measurements' units")
 
     def __repr__(self) -> str:
         extra = "".join(f", {k}={v:.4g}" for k, v in self.downstream.items())
         return f"Report({self.metric}={self.error:.4g}, rows={len(self.evaluation)}{extra})"
 
-    def _noise_floor(self, weighted) -> np.ndarray:
+    def _noise_variance(self, weighted) -> np.ndarray:
         """Squared (weighted) residual that noise alone explains, per dimension.
 
         Robust spreads ignore the few large residuals of a failure; the pooled spread is a
-        floor for dimensions whose own spread collapses (pixels clipped at black).
+        floor for dimensions whose own spread collapses (pixels clipped at black). A dimension's
+        own spread counts only up to the upper quartile of all of them: a systematic error
+        spread over every row of a few dimensions (rays 8-12 reading long) is no noise level.
         """
         pooled = robust_sigma(weighted[~self.explained]) ** 2
         own = np.array([robust_sigma(weighted[~self.explained[:, j], j]) ** 2 for j in range(weighted.shape[1])])
-        return np.maximum(own, pooled)
+        return np.maximum(pooled, np.minimum(own, np.quantile(own, 0.75)))
 
     # ---------------------------------------------------------------- where
     def features(self) -> dict:
@@ -182,7 +198,7 @@ class Report:
                     lift=float(lift),
                     rmse=float(np.sqrt(errors[members].mean())),
                     significant=bool(
-                        t > SIGNIFICANCE and lift > LIFT and errors[members].mean() > EXCESS * self.noise_floor.mean()
+                        t > SIGNIFICANCE and lift > LIFT and errors[members].mean() > EXCESS * self._noise.mean()
                     ),
                 )
             )
@@ -205,7 +221,7 @@ class Report:
             return None
         mean = errors[inside].mean()
         return Region(bounds={"step_in_run": (0.0, 0.0)}, count=int(inside.sum()), share=float(errors[inside].sum() / total),
-                      lift=float(lift), rmse=float(np.sqrt(mean)), significant=bool(mean > EXCESS * self.noise_floor.mean()))
+                      lift=float(lift), rmse=float(np.sqrt(mean)), significant=bool(mean > EXCESS * self._noise.mean()))
 
     def _dimensions(self) -> list:
         squared = (np.where(self.explained, 0.0, self.residuals) * self.evaluation.weights) ** 2
@@ -220,7 +236,7 @@ class Report:
                     name=name,
                     share=share,
                     rmse=float(np.sqrt(per_dim[j]) / self.evaluation.weights[j]),
-                    significant=bool(share > fair and per_dim[j] > EXCESS * self.noise_floor[j]),
+                    significant=bool(share > fair and per_dim[j] > EXCESS * self._noise[j]),
                 )
             )
         dims.sort(key=lambda d: -d.share)
