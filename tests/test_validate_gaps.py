@@ -59,3 +59,25 @@ def test_first_step_of_each_run_is_named_after_a_delay():
     clean = pv.Measurements(states, controls=controls, trajectory=trajectory, time=time, state_names=["p", "v"],
                             control_names=["u"])
     assert not any("first step" in u["where"] for u in pv.diagnose(model, clean, effects=["actuator_delay"]).unexplained)
+
+
+def test_report_marks_every_ray_that_reads_long_and_states_its_unit(tmp_path):
+    model = pv.sensors.lidar.canonical()
+    rng = np.random.default_rng(6)
+    scans = model.predict(POSES)
+    scans[:, 8:13] *= 1.03  # rays 8-12 read 3% long: an error that varies with the range
+    scans += rng.normal(0, 0.01, scans.shape)
+    report = pv.compare(model, pv.Measurements(POSES, np.minimum(scans, 5.0), state_names=["x", "y", "theta"]))
+    significant = {d.name for d in report.where().dimensions if d.significant}
+    assert significant == {f"ray{i}" for i in range(8, 13)}
+    floor = report.noise_floor
+    assert np.all(floor <= np.array(list(report.per_dimension.values())) + 1e-12) and np.median(floor) < 0.02
+    assert report.unit == "m"
+    page = report.to_html(tmp_path, explain=False).read_text()
+    assert page.count("<td>rmse</td>") == 0 and "error (rmse" in page and "unit of the errors" in page
+
+
+def test_effect_causes_read_as_plain_text():
+    from percver.validate.effects import library
+
+    assert all("``" not in cls.cause() for cls in library())
