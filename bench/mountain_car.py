@@ -22,7 +22,7 @@ import time
 from pathlib import Path
 
 from percver.cases.mountain_car import verification
-from percver.verify import Cell
+from percver.verification import Cell
 
 ROOT = Path(__file__).resolve().parent
 SURVEY_SPLITS = 4  # in-cell splits per cell of a --survey: enough for the easy cells, cheap on the hard ones

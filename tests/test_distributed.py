@@ -20,7 +20,8 @@ import percver as pv
 from percver import _core
 from percver.executors import MISSING, dumps, run_batch
 from percver.networks import Layer, Network
-from percver.verify import JournalWarning, _Property
+from percver.verification import JournalWarning
+from percver.verification.property import Property
 from test_verify import mountain_car
 
 MC = dict(init={"p": (-0.55, -0.45), "v": (0, 0)}, steps=150, within=True, progress=False)
@@ -83,7 +84,7 @@ def test_process_pool_ships_the_problem_once_and_matches_rayon(tmp_path):
 
     # The protocol on one worker process: without the problem it answers MISSING; once given, it
     # keeps it, and later batches carry only the fingerprint.
-    prop = _Property(loop, None, None, p >= 0.45, True, 150)
+    prop = Property(loop, None, None, p >= 0.45, True, 150)
     safe, goal = prop.rust()
     payload = dumps((loop, safe, goal, True, 150))
     cells = [[(-0.5, -0.499), (0.0, 0.0)]]

@@ -170,7 +170,7 @@ def test_unknown_cells_are_grouped_by_cause():
         "timeout after 60 s at step 40": "timeout",
     }
     assert {r: verification.cause(r) for r in reasons} == reasons
-    from percver.verify import Cell
+    from percver.verification import Cell
 
     box = {"p": (-0.5, -0.49), "v": (0.0, 0.0)}
     cells = [Cell(box, "unknown", reason=r) for r in reasons] + [Cell(box, "unknown", reason="step 80: the enclosure of 'v' blew up")]

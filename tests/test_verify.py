@@ -1,6 +1,5 @@
 """Closed-loop verification: sampling oracle, falsification, journal resume, bad input."""
 
-import importlib
 import json
 import os
 import signal
@@ -16,7 +15,8 @@ import pytest
 
 import percver as pv
 
-verify_module = importlib.import_module("percver.verify")  # the module (pv.verify is the function)
+from percver.verification import campaign
+from percver.verification.splitters import bisect
 
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
 CONTROLLER = DATA / "mountain_car" / "networks" / "ControllerSigmoid16x16.yml"
@@ -102,13 +102,13 @@ def test_cells_the_engine_cannot_verify_are_sampled_and_verified_ones_are_not(mo
     x = pv.variables("x")
     loop = pv.ClosedLoop(pv.Discrete({x: x + 10.0}))
     sampled = []
-    falsify = verify_module._falsify
+    falsify = campaign.falsify
 
     def spy(loop_, prop, cells, steps, samples, seed, probe=True):
         sampled.extend((c.bounds[0], samples, probe) for c in cells)
         return falsify(loop_, prop, cells, steps, samples, seed, probe)
 
-    monkeypatch.setattr(verify_module, "_falsify", spy)
+    monkeypatch.setattr(campaign, "falsify", spy)
     res = pv.verify(loop, init={"x": (0.0, 5.0)}, split={"x": 5}, steps=3, safe=(x - 0.3) ** 2 >= 0.01, workers=1,
                     progress=False)
     verdicts = {c.box["x"]: c.verdict for c in res.cells}
@@ -208,7 +208,7 @@ def test_an_error_in_a_pool_thread_reaches_the_caller_and_closes_the_journals(tm
         calls.append(threading.current_thread().name)
         raise RuntimeError("simulation failed")
 
-    monkeypatch.setattr(verify_module, "_falsify", broken)
+    monkeypatch.setattr(campaign, "falsify", broken)
     parts = [pv.Part({"x": (0.0, 1.0)}, split={"x": 40}, journal=str(tmp_path / f"{k}.jsonl")) for k in range(2)]
     with pytest.raises(RuntimeError, match="simulation failed"):
         pv.verify_parts(loop, parts, steps=3, safe=x <= 100.0, workers=2, progress=False)
@@ -243,7 +243,8 @@ def test_a_wall_hit_at_different_steps_forks_the_plant():
     # five steps. The hull of both sides of the wall loses the cell; forking the plant's guard
     # (one branch per side, both `where`s on it take the same side) keeps every branch precise.
     loop, p, v = mountain_car()
-    kwargs = dict(init={"p": (-0.41, -0.40), "v": (0, 0)}, steps=150, goal=p >= 0.45, within=True, progress=False)
+    kwargs = dict(init={"p": (-0.41, -0.40), "v": (0, 0)}, steps=150, goal=p >= 0.45, within=True, progress=False,
+                  splitter=pv.Grid())  # one cell: the engine's own forks and splits are under test
     hull = pv.verify(loop, max_splits=0, **kwargs)
     forked = pv.verify(loop, max_splits=8, **kwargs)
     assert hull.verdict == "unknown" and forked.verdict == "verified"
@@ -262,9 +263,9 @@ def test_a_wall_hit_at_different_steps_forks_the_plant():
 def test_bisection_hint_yields_to_min_width():
     init = pv.Box.coerce({"p": (0.0, 1.0), "w": (0.0, 1.0)}, ["p", "w"])
     cell = pv.Box.coerce({"p": (0.0, 0.01), "w": (0.0, 0.5)}, ["p", "w"])
-    halves = verify_module._bisect(cell, init, {"p": 0.005}, hint="p")
+    halves = bisect(cell, init, {"p": 0.005}, hint="p")
     assert [h.bounds for h in halves] == [((0.0, 0.01), (0.0, 0.25)), ((0.0, 0.01), (0.25, 0.5))]
-    halves = verify_module._bisect(cell, init, {"p": 0.001}, hint="p")
+    halves = bisect(cell, init, {"p": 0.001}, hint="p")
     assert [h.bounds for h in halves] == [((0.0, 0.005), (0.0, 0.5)), ((0.005, 0.01), (0.0, 0.5))]
 
 

@@ -58,7 +58,7 @@ def dumps(problem) -> bytes:
 
 def run_batch(fingerprint: str, payload: Optional[bytes], cells: list, options: dict):
     """On a worker: the outcomes of ``cells`` (lists of (lo, hi)), or MISSING."""
-    from percver.verify import _run_cells
+    from percver.verification.campaign import run_cells
 
     problem = _PROBLEMS.get(fingerprint)
     if problem is None:
@@ -70,7 +70,7 @@ def run_batch(fingerprint: str, payload: Optional[bytes], cells: list, options: 
         while len(_PROBLEMS) > _KEPT:
             _PROBLEMS.popitem(last=False)
     out = [None] * len(cells)
-    _run_cells(problem, cells, out.__setitem__, options, workers=1)
+    run_cells(problem, cells, out.__setitem__, options, workers=1)
     return out
 
 

@@ -325,7 +325,8 @@ class ClosedLoop:
                                   InputRangeWarning, stacklevel=3)
         return box
 
-    def _stage_float(self, k: int, env: np.ndarray, parameters: Optional[dict]) -> np.ndarray:
+    def stage_float(self, k: int, env: np.ndarray, parameters: Optional[dict] = None) -> np.ndarray:
+        """Stage k's outputs for a batch of environments (columns: the signals computed so far)."""
         stage = self.stages[k]
         x = env[:, self._float_inputs[k]]
         if stage.is_network:
@@ -354,7 +355,7 @@ class ClosedLoop:
         for k in range(len(self.stages)):
             start = self.signals[self.stages[k].output][0]
             width = len(self.signals[self.stages[k].output])
-            env[:, start: start + width] = self._stage_float(k, env, parameters)
+            env[:, start: start + width] = self.stage_float(k, env, parameters)
         if isinstance(self.plant, Continuous):
             u = env[:, [self.signals[i][0] for i in self.plant.inputs]]
             return self.plant.advance(env[:, : len(self.states)], u, parameters)

@@ -56,3 +56,20 @@ impl<T> IntoPy<T> for Result<T, nn2hybrid::NetworkError> {
         self.map_err(network_to_py)
     }
 }
+
+/// Closed-loop errors: a malformed loop or cell is an input error; the rest are the networks' or
+/// the Taylor models' own.
+pub fn reach_to_py(error: closed_loop::ReachError) -> PyErr {
+    use closed_loop::ReachError;
+    match error {
+        ReachError::Input(m) => Python::with_gil(|py| percver_error(py, "InputError", m)),
+        ReachError::Network(e) => network_to_py(e),
+        ReachError::Taylor(e) => to_py(e),
+    }
+}
+
+impl<T> IntoPy<T> for Result<T, closed_loop::ReachError> {
+    fn py_err(self) -> PyResult<T> {
+        self.map_err(reach_to_py)
+    }
+}

@@ -2,12 +2,12 @@
 //! errors mapped in `error.rs`; no algorithm lives here.
 use pyo3::prelude::*;
 
+mod closed_loop;
 mod error;
 mod expr;
 mod flowpipe;
 mod interval;
 mod network;
-mod verify;
 
 #[pymodule]
 fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
@@ -24,7 +24,9 @@ fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(flowpipe::flowpipe, m)?)?;
     m.add_class::<network::PyNetwork>()?;
     m.add_class::<network::PyNetworkModels>()?;
-    m.add_class::<verify::PyClosedLoop>()?;
-    m.add_function(wrap_pyfunction!(verify::verify_cells, m)?)?;
+    m.add_class::<closed_loop::PyClosedLoop>()?;
+    m.add_class::<closed_loop::PyCellSettings>()?;
+    m.add_function(wrap_pyfunction!(closed_loop::verify_cells, m)?)?;
+    m.add_function(wrap_pyfunction!(closed_loop::_cell_settings, m)?)?;
     Ok(())
 }

@@ -88,7 +88,7 @@ def register(sub) -> None:
 
 
 def run(args) -> int:
-    from percver.verify import verify
+    from percver.verification import verify
 
     config = Config(args.config)
     kwargs = config.verify_kwargs()

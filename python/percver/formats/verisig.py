@@ -614,7 +614,7 @@ class VerisigProblem:
 
     def verify(self, **kwargs):
         """``pv.verify`` with this file's initial set, horizon and property as defaults."""
-        from percver.verify import verify
+        from percver.verification import verify
 
         return verify(self, **kwargs)
 

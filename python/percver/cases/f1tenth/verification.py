@@ -27,7 +27,6 @@ Two ways to run it (``mode``):
 
 from __future__ import annotations
 
-import importlib
 import json
 import time
 from pathlib import Path
@@ -39,6 +38,11 @@ from percver.cases.f1tenth import data as f1data
 from percver.cases.f1tenth import dynamics, noise, world
 from percver.errors import InputError
 from percver.sets import Box
+from percver.verification.splitters import grid as cell_grid
+from percver.verification.falsify import falsify as falsify_cells
+from percver.verification.journal import Journal, cell_key, fingerprint
+from percver.verification.property import Property, holds
+from percver.verification.results import Cell, Result
 
 MARGIN = 0.15
 INNER = world.WIDTH - MARGIN
@@ -145,7 +149,7 @@ def knockout_cases(control, classifier, denoiser, *, max_rays: int = 2, near: fl
         rng = np.random.default_rng(0)
         env = b[:, 0] + (b[:, 1] - b[:, 0]) * np.vstack([np.zeros(len(b)), np.ones(len(b)), rng.random((samples, len(b)))])
         for k in range(upto):
-            env = np.concatenate([env, base._stage_float(k, env)], axis=1)
+            env = np.concatenate([env, base.stage_float(k, env)], axis=1)
         margin = env[:, columns] - classifier.thresholds
         close = (margin.min(0) < near) & (margin.max(0) > -near)
         rays = sorted(np.flatnonzero(close), key=lambda i: np.abs(margin[:, i]).min())[:max_rays]
@@ -244,26 +248,25 @@ def stepwise(loop, init, *, steps: int, split: dict, safe=None, goal=None, withi
     from percver import _core
     from percver.expr import bounds as expr_bounds
 
-    pvv = importlib.import_module("percver.verify")  # the module (``percver.verify`` is the function)
     box = loop.initial_box(init)
-    prop = pvv._Property(loop, safe, None, goal, within, steps)
+    prop = Property(loop, safe, None, goal, within, steps)
     if prop.goal is None:
         raise InputError("stepwise verification needs a goal (the box of a part that reached it stops)")
     safe_r, _ = prop.rust()
     plain = loop.compile(safe=safe_r, goal=None, within=False, steps=1)
     settings = {"steps": steps, "method": method, "order": order, "max_splits": max_splits, "within": within,
                 "mode": "stepwise", "step_splits": step_splits, "growth": growth, "cases": cases is not None}
-    journal_ = pvv._Journal(journal, pvv._fingerprint(loop, prop, settings))
+    journal_ = Journal(journal, fingerprint(loop, prop, settings))
     names, margin, op = loop.states, prop.goal.margin(), prop.goal.op
     weights = np.array([float((scale or {}).get(n, 1.0)) for n in names])
     started = time.time()
     if cells is None:
-        grid, count = pvv._grid(box, split)
+        grid, count = cell_grid(box, split)
         cells = list(grid)
     else:
         cells = [loop.initial_box(c) for c in cells]
         count = len(cells)
-    done = {k: journal_.done[key] for k, c in enumerate(cells) if (key := pvv._key(c.to_dict())) in journal_.done}
+    done = {k: journal_.done[key] for k, c in enumerate(cells) if (key := cell_key(c.to_dict())) in journal_.done}
     fresh = [k for k in range(len(cells)) if k not in done]
     live: dict = {}
     bar = None
@@ -284,7 +287,7 @@ def stepwise(loop, init, *, steps: int, split: dict, safe=None, goal=None, withi
                 return True
 
             _core.verify_cells(problem, [list(map(tuple, problems_boxes[i][1])) for i in index], collect,
-                               workers=workers, order=order, method=method, max_splits=step_splits)
+                               _core.CellSettings(order=order, method=method, max_splits=step_splits), workers=workers)
         return outcomes
 
     problems_of: dict = {}
@@ -319,7 +322,7 @@ def stepwise(loop, init, *, steps: int, split: dict, safe=None, goal=None, withi
     def finish(k, verdict, reason=None):
         rec = live.pop(k)
         boxes = [b.tolist() for b in rec["boxes"]]
-        done[k] = pvv.Cell(cells[k].to_dict(), verdict, rec["seconds"], rec["nn"], rec["splits"], len(boxes) - 1,
+        done[k] = Cell(cells[k].to_dict(), verdict, rec["seconds"], rec["nn"], rec["splits"], len(boxes) - 1,
                            reason, None, boxes)
         journal_.write(done[k])
         if bar is not None:
@@ -328,12 +331,12 @@ def stepwise(loop, init, *, steps: int, split: dict, safe=None, goal=None, withi
     try:
         for at in range(0, len(fresh), chunk):
             batch = fresh[at: at + chunk]
-            found = pvv._falsify(loop, prop, [cells[k] for k in batch], steps, falsify, seed) if falsify else [None] * len(batch)
+            found = falsify_cells(loop, prop, [cells[k] for k in batch], steps, falsify, seed) if falsify else [None] * len(batch)
             for k, cex in zip(batch, found):
                 if cex is None:
                     live[k] = {"seconds": 0.0, "nn": 0.0, "splits": 0, "boxes": [np.array(cells[k].bounds)]}
                     continue
-                done[k] = pvv.Cell(cells[k].to_dict(), "falsified", counterexample=cex,
+                done[k] = Cell(cells[k].to_dict(), "falsified", counterexample=cex,
                                    reason=f"simulation violates {cex.violated} at step {cex.step}")
                 journal_.write(done[k])
                 if bar is not None:
@@ -344,7 +347,7 @@ def stepwise(loop, init, *, steps: int, split: dict, safe=None, goal=None, withi
                 for k, step, b in pieces:
                     if k not in live:
                         continue
-                    if pvv._holds(op, np.array(expr_bounds(margin, Box(tuple(names), tuple(map(tuple, b))), method="interval"))).all():
+                    if holds(op, np.array(expr_bounds(margin, Box(tuple(names), tuple(map(tuple, b))), method="interval"))).all():
                         continue  # this part has arrived
                     if step == steps:
                         finish(k, "unknown", f"step {step}: goal {prop.goal} not reached by the whole box")
@@ -397,7 +400,7 @@ def stepwise(loop, init, *, steps: int, split: dict, safe=None, goal=None, withi
         if bar is not None:
             bar.close()
         journal_.close()
-    return pvv.Result(names, box.to_dict(), [done[k] for k in sorted(done)], time.time() - started, settings)
+    return Result(names, box.to_dict(), [done[k] for k in sorted(done)], time.time() - started, settings)
 
 
 def published(data=None) -> dict:

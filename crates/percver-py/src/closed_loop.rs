@@ -1,11 +1,10 @@
-//! `percver._core.ClosedLoop` and `verify_cells`: closed-loop cells verified in parallel with
-//! the GIL released; each finished cell is handed to a Python callback (journal, progress).
-use crate::error::{network_to_py, IntoPy};
+//! `percver._core.ClosedLoop`, `CellSettings` and `verify_cells` (crate `closed_loop`): cells
+//! verified in parallel with the GIL released; each finished cell is handed to a Python callback
+//! (journal, progress) as a dict.
+use crate::error::{reach_to_py, IntoPy};
 use crate::expr::{compile, PyExpr};
 use crate::network::PyNetwork;
-use nn2hybrid::closed_loop::{self, CellOutcome, CellSettings, ClosedLoop, Component, Condition, Method, Plant, Stage, Verdict};
-use nn2hybrid::propagate::Settings as NnSettings;
-use nn2hybrid::NetworkError;
+use closed_loop::{CellOutcome, CellSettings, ClosedLoop, Component, Condition, Method, Plant, ReachError, Stage, Verdict};
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
 use std::sync::{Arc, Mutex};
@@ -31,7 +30,7 @@ pub enum ComponentArg<'py> {
 }
 
 fn input_error(message: String) -> PyErr {
-    network_to_py(NetworkError::input(message))
+    reach_to_py(ReachError::input(message))
 }
 
 fn cmp(op: &str) -> PyResult<Cmp> {
@@ -77,18 +76,8 @@ impl PyClosedLoop {
         let plant = match plant {
             PlantArg::Discrete(update) => Plant::Discrete(Arc::new(compile(&update, &env_names)?)),
             PlantArg::Continuous((rhs, names, inputs, period, step, remainder)) => {
-                let ode = taylor::Ode::new(names.clone(), rhs.into_iter().map(|e| e.0).collect()).py_err()?;
-                let flow = taylor::Settings {
-                    step: taylor::StepSize::Fixed(step),
-                    order: taylor::OrderPolicy::Fixed(1),
-                    t_end: period,
-                    cutoff: 1e-12,
-                    remainder_estimate: vec![remainder; names.len()],
-                    precondition: taylor::Precondition::Identity,
-                    refinements: 30,
-                    symbolic_queue: 100,
-                };
-                Plant::Continuous { ode: Arc::new(ode), inputs, period, flow }
+                let ode = taylor::Ode::new(names, rhs.into_iter().map(|e| e.0).collect()).py_err()?;
+                Plant::continuous(ode, inputs, period, step, remainder)
             }
         };
         let lp = ClosedLoop {
@@ -126,32 +115,144 @@ fn outcome_dict<'py>(py: Python<'py>, o: &CellOutcome) -> PyResult<Bound<'py, Py
     Ok(d)
 }
 
-/// Runs `cells` (lists of (lo, hi) per state variable); `done(index, outcome: dict) -> bool`
-/// is called as each cell finishes; returning False (or raising) stops starting new cells.
+/// How each cell is verified; every keyword left out takes the engine's default (Rust's
+/// `CellSettings::default()`, the one source of them).
+#[pyclass(name = "CellSettings", module = "percver._core", frozen)]
+#[derive(Clone)]
+pub struct PyCellSettings(pub CellSettings);
+
+#[pymethods]
+impl PyCellSettings {
+    #[new]
+    #[pyo3(signature = (*, order=None, cutoff=None, method=None, timeout=None, nn_order=None, blow_up_width=None, max_splits=None, rebox=None, state_symbols=None))]
+    #[allow(clippy::too_many_arguments)]
+    fn new(
+        order: Option<usize>,
+        cutoff: Option<f64>,
+        method: Option<&str>,
+        timeout: Option<f64>,
+        nn_order: Option<usize>,
+        blow_up_width: Option<f64>,
+        max_splits: Option<usize>,
+        rebox: Option<bool>,
+        state_symbols: Option<bool>,
+    ) -> PyResult<Self> {
+        let d = CellSettings::default();
+        let settings = CellSettings {
+            order: order.unwrap_or(d.order),
+            cutoff: cutoff.unwrap_or(d.cutoff),
+            method: method.map(Method::from_name).transpose().py_err()?.unwrap_or(d.method),
+            timeout: timeout.or(d.timeout),
+            blow_up_width: blow_up_width.unwrap_or(d.blow_up_width),
+            max_splits: max_splits.unwrap_or(d.max_splits),
+            rebox: rebox.unwrap_or(d.rebox),
+            state_symbols: state_symbols.unwrap_or(d.state_symbols),
+            nn: d.nn,
+        };
+        Ok(PyCellSettings(settings.with_network_order(nn_order).py_err()?))
+    }
+    #[getter]
+    fn order(&self) -> usize {
+        self.0.order
+    }
+    #[getter]
+    fn cutoff(&self) -> f64 {
+        self.0.cutoff
+    }
+    #[getter]
+    fn method(&self) -> &'static str {
+        self.0.method.name()
+    }
+    #[getter]
+    fn timeout(&self) -> Option<f64> {
+        self.0.timeout
+    }
+    #[getter]
+    fn nn_order(&self) -> usize {
+        self.0.nn.order
+    }
+    #[getter]
+    fn blow_up_width(&self) -> f64 {
+        self.0.blow_up_width
+    }
+    #[getter]
+    fn max_splits(&self) -> usize {
+        self.0.max_splits
+    }
+    #[getter]
+    fn rebox(&self) -> bool {
+        self.0.rebox
+    }
+    #[getter]
+    fn state_symbols(&self) -> bool {
+        self.0.state_symbols
+    }
+    fn __repr__(&self) -> String {
+        let s = &self.0;
+        format!(
+            "CellSettings(order={}, cutoff={:e}, method='{}', timeout={:?}, nn_order={}, blow_up_width={:e}, max_splits={}, rebox={}, state_symbols={})",
+            s.order,
+            s.cutoff,
+            s.method.name(),
+            s.timeout,
+            s.nn.order,
+            s.blow_up_width,
+            s.max_splits,
+            s.rebox,
+            s.state_symbols
+        )
+    }
+    /// Pickling (Dask, process pools): the keywords that rebuild it.
+    #[allow(clippy::type_complexity)]
+    fn __reduce__<'py>(slf: &Bound<'py, Self>) -> PyResult<(Bound<'py, PyAny>, (Bound<'py, PyAny>,))> {
+        let s = &slf.get().0;
+        let py = slf.py();
+        let kwargs = PyDict::new(py);
+        kwargs.set_item("order", s.order)?;
+        kwargs.set_item("cutoff", s.cutoff)?;
+        kwargs.set_item("method", s.method.name())?;
+        kwargs.set_item("timeout", s.timeout)?;
+        kwargs.set_item("nn_order", s.nn.order)?;
+        kwargs.set_item("blow_up_width", s.blow_up_width)?;
+        kwargs.set_item("max_splits", s.max_splits)?;
+        kwargs.set_item("rebox", s.rebox)?;
+        kwargs.set_item("state_symbols", s.state_symbols)?;
+        let rebuild = py.import("percver._core")?.getattr("_cell_settings")?;
+        Ok((rebuild, (kwargs.into_any(),)))
+    }
+}
+
+/// `CellSettings(**kwargs)` for unpickling.
 #[pyfunction]
-#[pyo3(signature = (problem, cells, done, order=5, cutoff=1e-12, method="taylor", timeout=None, workers=None, nn_order=None, blow_up_width=1e6, max_splits=16, rebox=false, state_symbols=false))]
-#[allow(clippy::too_many_arguments)]
+pub fn _cell_settings(kwargs: &Bound<'_, PyDict>) -> PyResult<PyCellSettings> {
+    let get = |k: &str| kwargs.get_item(k).ok().flatten();
+    PyCellSettings::new(
+        get("order").map(|v| v.extract()).transpose()?,
+        get("cutoff").map(|v| v.extract()).transpose()?,
+        get("method").map(|v| v.extract::<String>()).transpose()?.as_deref(),
+        get("timeout").and_then(|v| v.extract().ok()),
+        get("nn_order").map(|v| v.extract()).transpose()?,
+        get("blow_up_width").map(|v| v.extract()).transpose()?,
+        get("max_splits").map(|v| v.extract()).transpose()?,
+        get("rebox").map(|v| v.extract()).transpose()?,
+        get("state_symbols").map(|v| v.extract()).transpose()?,
+    )
+}
+
+/// Runs `cells` (lists of (lo, hi) per state variable) with `settings` (the defaults when None);
+/// `done(index, outcome: dict) -> bool` is called as each cell finishes; returning False (or
+/// raising) stops starting new cells.
+#[pyfunction]
+#[pyo3(signature = (problem, cells, done, settings=None, workers=None))]
 pub fn verify_cells(
     py: Python<'_>,
     problem: &PyClosedLoop,
     cells: Vec<Vec<(f64, f64)>>,
     done: PyObject,
-    order: usize,
-    cutoff: f64,
-    method: &str,
-    timeout: Option<f64>,
+    settings: Option<PyCellSettings>,
     workers: Option<usize>,
-    nn_order: Option<usize>,
-    blow_up_width: f64,
-    max_splits: usize,
-    rebox: bool,
-    state_symbols: bool,
 ) -> PyResult<()> {
-    let method = match method {
-        "taylor" => Method::Taylor,
-        "verisig" => Method::Verisig,
-        other => return Err(input_error(format!("unknown method '{other}'; use 'taylor' or 'verisig'"))),
-    };
+    let settings = settings.map_or_else(CellSettings::default, |s| s.0);
     let n = problem.0.state_names.len();
     let boxes: Vec<Vec<Interval>> = cells
         .iter()
@@ -166,9 +267,6 @@ pub fn verify_cells(
                 .collect()
         })
         .collect::<PyResult<_>>()?;
-    let nn = NnSettings { order: nn_order.unwrap_or(order), cutoff, ..NnSettings::default() };
-    nn.validate().py_err()?;
-    let settings = CellSettings { order, cutoff, method, nn, timeout, blow_up_width, max_splits, rebox, state_symbols };
     let failure: Mutex<Option<PyErr>> = Mutex::new(None);
     let callback = |i: usize, o: &CellOutcome| -> bool {
         Python::with_gil(|py| {

@@ -1,0 +1,30 @@
+//! What verifying a cell found: its verdict, why, and the reach boxes per step.
+use taylor::Interval;
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Verdict {
+    /// Every state of the cell satisfies the property.
+    Verified,
+    /// The engine could not decide; `reason` says where.
+    Unknown,
+    /// Every state of the cell violates the property at some step (certain, set-level).
+    Violated,
+}
+
+#[derive(Clone, Debug)]
+pub struct CellOutcome {
+    pub verdict: Verdict,
+    pub reason: Option<String>,
+    /// Steps completed (the reach boxes cover steps 0..=steps_done).
+    pub steps_done: usize,
+    /// State box per step, step 0 first.
+    pub boxes: Vec<Vec<Interval>>,
+    pub seconds: f64,
+    pub nn_seconds: f64,
+    pub branches: usize,
+    /// Steps a piece replayed from another piece's tape instead of computing them ([`Tape`]).
+    pub replayed: usize,
+    /// The state the engine would have split next when it gave up (or split most often): a
+    /// caller that bisects the cell halves this one, not merely the widest.
+    pub split: Option<usize>,
+}

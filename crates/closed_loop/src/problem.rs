@@ -1,0 +1,131 @@
+//! The problem: a closed loop of stages (networks or expressions) and a plant, and the property
+//! its runs must satisfy. Everything is checked once ([`ClosedLoop::validate`]) before any work.
+use crate::error::{ReachError, Result};
+use nn2hybrid::Network;
+use std::sync::Arc;
+use taylor::flowpipe::{Ode, Settings as FlowSettings};
+use taylor::{Cmp, Program};
+
+#[derive(Clone, Debug)]
+pub enum Component {
+    Network(Arc<Network>),
+    Expr(Arc<Program>),
+}
+
+/// A stage reads signals at `inputs` (indices into the environment: the state first, then
+/// the outputs of earlier stages in order) and appends its outputs to the environment.
+#[derive(Clone, Debug)]
+pub struct Stage {
+    pub component: Component,
+    pub inputs: Vec<usize>,
+}
+
+impl Stage {
+    fn n_out(&self) -> usize {
+        match &self.component {
+            Component::Network(n) => n.n_out(),
+            Component::Expr(p) => p.outputs.len(),
+        }
+    }
+}
+
+/// `margin cmp 0` must hold; `margin` is a program over the state.
+#[derive(Clone, Debug)]
+pub struct Condition {
+    pub margin: Arc<Program>,
+    pub cmp: Cmp,
+    pub label: String,
+}
+
+/// How the state moves from one control step to the next.
+#[derive(Clone, Debug)]
+pub enum Plant {
+    /// Inputs: the whole environment; outputs: the next state, in state order.
+    Discrete(Arc<Program>),
+    /// x' = f(x, u) over one control period with u held: the ODE's variables are the states
+    /// followed by the inputs (whose right-hand sides are 0); `inputs` are their environment
+    /// indices. Safety is checked on every flowpipe segment of the period.
+    Continuous { ode: Arc<Ode>, inputs: Vec<usize>, period: f64, flow: FlowSettings },
+}
+
+impl Plant {
+    /// A continuous plant integrated with fixed steps of `step` over each period, each step's
+    /// remainder first estimated at `remainder` per variable (the cell's Taylor order is used).
+    pub fn continuous(ode: Ode, inputs: Vec<usize>, period: f64, step: f64, remainder: f64) -> Plant {
+        let flow = FlowSettings {
+            step: taylor::StepSize::Fixed(step),
+            order: taylor::OrderPolicy::Fixed(1),
+            t_end: period,
+            cutoff: 1e-12,
+            remainder_estimate: vec![remainder; ode.dim()],
+            precondition: taylor::Precondition::Identity,
+            refinements: 30,
+            symbolic_queue: 100,
+        };
+        Plant::Continuous { ode: Arc::new(ode), inputs, period, flow }
+    }
+}
+
+#[derive(Clone, Debug)]
+pub struct ClosedLoop {
+    pub state_names: Vec<String>,
+    pub stages: Vec<Stage>,
+    pub plant: Plant,
+    /// Must hold at step 0 and after every step.
+    pub safe: Vec<Condition>,
+    /// Must hold after the last step, or at some step if `goal_within`.
+    pub goal: Option<Condition>,
+    pub goal_within: bool,
+    pub steps: usize,
+}
+
+impl ClosedLoop {
+    /// Checks indices and widths once, before any work.
+    pub fn validate(&self) -> Result<()> {
+        let n = self.state_names.len();
+        if n == 0 {
+            return Err(ReachError::input("the closed loop has no state variables"));
+        }
+        let mut env = n;
+        for (k, stage) in self.stages.iter().enumerate() {
+            if let Some(&bad) = stage.inputs.iter().find(|&&i| i >= env) {
+                return Err(ReachError::input(format!("stage {}: input index {bad} is not computed before it", k + 1)));
+            }
+            let want = match &stage.component {
+                Component::Network(net) => net.n_in(),
+                Component::Expr(p) => p.inputs.len(),
+            };
+            if want != stage.inputs.len() {
+                return Err(ReachError::input(format!("stage {}: the component takes {want} inputs but {} are wired to it", k + 1, stage.inputs.len())));
+            }
+            env += stage.n_out();
+        }
+        match &self.plant {
+            Plant::Discrete(p) if p.inputs.len() != env || p.outputs.len() != n => {
+                return Err(ReachError::input(format!(
+                    "the plant must read the {env} signals of the loop and define all {n} states, got {} inputs and {} outputs",
+                    p.inputs.len(),
+                    p.outputs.len()
+                )));
+            }
+            Plant::Continuous { ode, inputs, period, .. } => {
+                if ode.dim() != n + inputs.len() || inputs.iter().any(|&i| i >= env) {
+                    return Err(ReachError::input(format!(
+                        "the continuous plant's ODE must have the {n} states then the {} inputs as variables",
+                        inputs.len()
+                    )));
+                }
+                if !(*period > 0.0) {
+                    return Err(ReachError::input(format!("the control period must be positive, got {period}")));
+                }
+            }
+            _ => {}
+        }
+        for c in self.safe.iter().chain(self.goal.iter()) {
+            if c.margin.inputs.len() != n || c.margin.outputs.len() != 1 {
+                return Err(ReachError::input(format!("property '{}' must be one expression over the state", c.label)));
+            }
+        }
+        Ok(())
+    }
+}

@@ -1,0 +1,270 @@
+"""A campaign: the cells of a part as they flow from the grid through the journal, the probe, the
+engine (a local pool of threads, or an executor) and falsification to their verdicts."""
+
+from __future__ import annotations
+
+import os
+import sys
+import threading
+from collections import deque
+from typing import Optional
+
+from percver import _core
+from percver.errors import InputError
+from percver.sets import Box
+from percver.verification.falsify import falsify
+from percver.verification.journal import cell_key
+from percver.verification.results import Cell, Counterexample
+
+
+class Campaign:
+    """The cells of one part of a verify() call as they flow: the lazy grid and sub-cells are
+    looked up in the journal, probed in batches (centre and corners simulated), and handed to a
+    backend (the local pool of :func:`run_local` or an executor) that returns outcomes in any
+    order; a cell the engine leaves unknown is sampled (``falsify`` random runs) before it is
+    settled, and unknown cells (with refine=True) and timed-out ones (always) are bisected down to
+    min_width and their halves queued. Memory is a batch plus the results.
+
+    Random runs come after the engine, not before: a verified cell needs none (its proof covers
+    every run), and on a row that verifies they were most of the simulation, which competes with
+    the engine for the same cores (Mountain Car's composite row: 41 runs per cell cost ~12% of
+    the engine's time). A falsified cell then also spent its engine run; its time is kept.
+
+    Outcomes may be recorded from one thread while another falsifies cells (``stock`` runs beside
+    the engine): the state is only touched under ``lock``, which no simulation holds."""
+
+    chunk = 128  # cells falsified together at most: one simulation batch, bounded trajectories
+
+    def __init__(self, loop, prop, init: Box, splitter, journal, bar, *, timeout, falsify: int, seed: int,
+                 lock: threading.RLock):
+        self.loop, self.prop, self.init, self.splitter, self.journal, self.bar = loop, prop, init, splitter, journal, bar
+        self.grid, self.left = splitter.initial(init)
+        self.timeout, self.falsify, self.seed = timeout, falsify, seed
+        self.queue: list = []  # sub-cells, last in first out: depth-first keeps the queue short
+        self.ready: deque = deque()  # falsification found nothing: to be run
+        self.cells: list = []
+        self.cell_seconds = [0.0, 0]  # engine seconds and cells so far, to size executor batches
+        self.lock = lock  # the parts of one call share it, with their progress bar
+
+    def remaining(self) -> int:
+        """Cells known to be still to run (sub-cells of running cells may add more)."""
+        with self.lock:
+            return self.left + len(self.queue) + len(self.ready)
+
+    def take(self, n: int, stock: int = 0) -> list:
+        """Up to n cells to run (falsifying up to max(n, stock) first); empty when none is left for
+        now. Threads may take and stock at once: cells are drawn under the lock, each by one thread."""
+        self.stock(max(n, stock))
+        with self.lock:
+            return [self.ready.popleft() for _ in range(min(n, len(self.ready)))]
+
+    def stock(self, n: int):
+        """Falsifies cells until n are ready to run or none is left for now."""
+        while True:
+            with self.lock:
+                if len(self.ready) >= n or not (self.queue or self.left):
+                    return
+                fresh = self._draw(min(self.chunk, max(n - len(self.ready), 8)))
+            found = falsify(self.loop, self.prop, fresh, self.prop.steps, 0, self.seed)
+            with self.lock:
+                for cell, cex in zip(fresh, found):
+                    if cex is None:
+                        self.ready.append(cell)
+                    else:
+                        c = Cell(cell.to_dict(), "falsified", counterexample=cex, reason=f"simulation violates {cex.violated} at step {cex.step}")
+                        self.journal.write(c)
+                        self._place(cell, c, None)
+
+    def _draw(self, want: int) -> list:
+        """Up to ``want`` cells not in the journal (the journal's are settled on the way)."""
+        fresh = []
+        while len(fresh) < want and (self.queue or self.left):
+            if self.queue:
+                cell = self.queue.pop()
+            else:
+                cell = next(self.grid)
+                self.left -= 1
+            known = self.journal.done.get(cell_key(cell.to_dict()))
+            if known is not None:
+                self._place(cell, known, self._again(cell, known))
+                continue
+            pieces = self.splitter.prepare(cell, self.init)
+            if len(pieces) > 1:
+                self.queue += pieces
+                self.bar.settled(None, more=len(pieces))
+            else:
+                fresh.append(cell)
+        return fresh
+
+    def record(self, cell: Box, outcome: dict):
+        """A cell's outcome from the engine (``run_cells``); one not verified is sampled first
+        (outside the lock: the simulation must not hold up other threads' outcomes)."""
+        cex = None
+        if outcome["verdict"] != "verified" and self.falsify > 0:
+            cex = falsify(self.loop, self.prop, [cell], self.prop.steps, self.falsify, self.seed, probe=False)[0]
+        with self.lock:
+            self._record(cell, outcome, cex)
+
+    def _record(self, cell: Box, outcome: dict, cex: Optional[Counterexample]):
+        verdict, reason = outcome["verdict"], outcome["reason"]
+        if cex is not None:
+            verdict, reason = "falsified", f"simulation violates {cex.violated} at step {cex.step}; the engine: {reason}"
+        elif verdict == "violated":
+            # The engine says every state violates, yet no simulation did: say unknown
+            # rather than claim a counterexample we do not have.
+            verdict = "unknown"
+        c = Cell(cell.to_dict(), verdict, outcome["seconds"], outcome["nn_seconds"], outcome["branches"],
+                 outcome["steps_done"], reason, cex, outcome["boxes"], outcome.get("peak_rss_mb"),
+                 None if outcome.get("split") is None else self.init.names[outcome["split"]])
+        self.cell_seconds[0] += c.seconds
+        self.cell_seconds[1] += 1
+        halves = self._again(cell, c)
+        if self._timed_out(c) and not halves:
+            c.reason += "; not split further: the cell is at its splitter's smallest width"
+        self.journal.write(c)
+        self._place(cell, c, halves)
+
+    def _timed_out(self, c: Cell) -> bool:
+        # The engine stops a cell between steps once it has run longer than the timeout.
+        return c.verdict == "unknown" and self.timeout is not None and c.seconds > self.timeout
+
+    def _again(self, cell: Box, c: Cell) -> Optional[list]:
+        return self.splitter.again(cell, c, self.init, self._timed_out(c))
+
+    def _place(self, cell: Box, c: Cell, halves: Optional[list]):
+        """A finished cell (fresh or from the journal) is a result, or replaced by its halves."""
+        self.splitter.learn(cell, c.verdict, self.init)
+        if halves:
+            self.queue += halves
+            self.bar.settled(None, more=len(halves))
+        else:
+            self.cells.append(c)
+            self.bar.settled(c.verdict)
+
+
+class Progress:
+    """The progress bar of a verify call (tqdm once started, else nothing), shared by its parts:
+    cells settled and the verdicts so far over all of them. Updated under the parts' lock."""
+
+    def __init__(self):
+        self.tqdm = None
+        self.counts = dict.fromkeys(("verified", "unknown", "falsified"), 0)
+
+    def start(self, total: int):
+        from tqdm import tqdm
+
+        self.tqdm = tqdm(total=total, unit="cell", desc="verify")
+
+    def settled(self, verdict: Optional[str], more: int = 0):
+        """A cell is settled with ``verdict``, or (None) replaced by ``more`` sub-cells."""
+        if verdict is not None:
+            self.counts[verdict] += 1
+        if self.tqdm is not None:
+            self.tqdm.total += more
+            self.tqdm.set_postfix(self.counts, refresh=False)
+            self.tqdm.update(1)
+
+    def close(self):
+        if self.tqdm is not None:
+            self.tqdm.close()
+
+
+_CLEAR: dict = {}  # pid -> descriptor of /proc/self/clear_refs (a forked child opens its own)
+
+
+def _reset_peak_rss():
+    """Restarts the process's peak RSS (Linux; elsewhere the peak stays the one since the start).
+    It takes the address-space lock, so once per batch, not per cell."""
+    pid = os.getpid()
+    if pid not in _CLEAR:
+        _CLEAR.clear()
+        try:
+            _CLEAR[pid] = os.open("/proc/self/clear_refs", os.O_WRONLY)
+        except OSError:
+            _CLEAR[pid] = None
+    if _CLEAR[pid] is not None:
+        os.pwrite(_CLEAR[pid], b"5", 0)
+
+
+def _peak_rss_mb() -> float:
+    import resource
+
+    peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+    return peak / 2**20 if sys.platform == "darwin" else peak / 1024
+
+
+def run_cells(problem, cells: list, done, options: dict, workers: Optional[int]):
+    """``_core.verify_cells`` on cells given as lists of (lo, hi), each outcome with the peak RSS
+    of this process from the batch's start to the cell's end; the one place cells run, locally
+    and on executor workers."""
+
+    def each(i, outcome):
+        outcome["peak_rss_mb"] = _peak_rss_mb()
+        return done(i, outcome)
+
+    _reset_peak_rss()
+    _core.verify_cells(problem, [list(c) for c in cells], each, _core.CellSettings(**options), workers=workers)
+
+
+def run_local(jobs: list, workers: Optional[int]):
+    """The cells of all ``jobs`` (campaign, problem, options) on this machine's cores: ``workers``
+    threads (the caller's among them) each take one cell at a time from the first campaign that
+    has one and run it alone (a rayon pool of one), so sub-cells join in as they are made and no
+    core waits for a batch's or a campaign's last cell. A thread that finds no cell ready
+    falsifies the next few (numpy, mostly without the GIL) while the others run the engine."""
+    if workers is not None and not (isinstance(workers, int) and workers >= 1):
+        raise InputError(f"workers must be a positive integer, got {workers!r}")
+    count = workers or os.cpu_count() or 1
+    idle = threading.Condition()
+    busy = [0]  # threads taking or running a cell: while any is, more cells may come
+    stop = threading.Event()
+    failures: list = []
+
+    def next_cell():
+        with idle:
+            busy[0] += 1
+        for campaign, problem, options in jobs:
+            cells = campaign.take(1, stock=STOCK)
+            if cells:
+                return campaign, problem, options, cells[0]
+        with idle:
+            busy[0] -= 1
+            if busy[0] == 0:
+                idle.notify_all()
+        return None
+
+    def work():
+        try:
+            while not stop.is_set():
+                got = next_cell()
+                if got is None:
+                    with idle:
+                        if busy[0] == 0 and not any(campaign.remaining() for campaign, _, _ in jobs):
+                            return
+                        idle.wait(0.1)  # a running cell may be bisected into more
+                    continue
+                campaign, problem, options, cell = got
+                try:
+                    run_cells(problem, [cell.bounds], lambda i, o: campaign.record(cell, o), options, 1)
+                finally:
+                    with idle:
+                        busy[0] -= 1
+                        idle.notify_all()
+        except BaseException as error:
+            failures.append(error)
+            stop.set()
+
+    helpers = [threading.Thread(target=work, name=f"percver-cells-{k}", daemon=True) for k in range(1, count)]
+    for t in helpers:
+        t.start()
+    try:
+        work()
+    finally:
+        stop.set()  # an interrupt or an error: the others stop after their current cell
+        for t in helpers:
+            t.join()
+    if failures:
+        raise failures[0]
+
+
+STOCK = 16  # cells falsified together when a thread finds none ready (one numpy batch)

@@ -1,0 +1,234 @@
+"""``pv.verify``: split the initial set into cells, probe each by simulation (its centre and
+corners), verify the rest in parallel, sample the cells the engine could not verify for a
+counterexample, refine what stays unknown, and journal every finished cell.
+
+Verdicts per cell: "verified" (the engine proved the property for every state of the cell),
+"falsified" (a simulated trajectory from the cell violates it; the counterexample replays),
+"unknown" (neither; the reason says at which step and on which variable precision was lost).
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from contextlib import ExitStack
+from dataclasses import dataclass, replace
+from typing import Optional, Sequence, Union
+
+from percver import _core
+from percver.errors import InputError
+from percver.expr import Condition
+from percver.sets import BoxLike
+from percver.systems import ClosedLoop
+from percver.verification.campaign import Campaign, Progress, run_local
+import copy
+
+from percver.verification.splitters import Adaptive, Bisection, Grid
+from percver.verification.journal import Journal
+from percver.verification.journal import fingerprint as fingerprint_of
+from percver.verification.property import Property
+from percver.verification.results import Result
+
+
+DEFAULTS = _core.CellSettings()  # the engine's defaults (one source: Rust), shown in signatures
+
+
+@dataclass(frozen=True)
+class Part:
+    """A region of the initial set verified with its own grid (``split``), Taylor ``order``,
+    in-cell ``max_splits`` and ``journal``: see :func:`verify_parts`."""
+
+    init: Optional[BoxLike] = None
+    split: Optional[dict] = None
+    order: int = DEFAULTS.order
+    max_splits: int = DEFAULTS.max_splits
+    journal: Optional[str] = None
+
+
+def verify(
+    loop: ClosedLoop,
+    init: Optional[BoxLike] = None,
+    *,
+    steps: Optional[int] = None,
+    goal: Optional[Condition] = None,
+    safe: Union[Condition, Sequence[Condition], None] = None,
+    unsafe: Union[Condition, Sequence[Condition], None] = None,
+    within: bool = False,
+    reward: Optional[dict] = None,
+    split: Optional[dict] = None,
+    refine: bool = False,
+    min_width: Optional[dict] = None,
+    splitter=None,
+    method: str = "taylor",
+    order: int = DEFAULTS.order,
+    max_splits: int = DEFAULTS.max_splits,
+    rebox: bool = False,
+    state_symbols: bool = False,
+    workers: Optional[int] = None,
+    executor=None,
+    batch: Optional[int] = None,
+    journal: Optional[str] = None,
+    timeout_per_cell: Optional[float] = None,
+    falsify: int = 32,
+    progress: bool = True,
+    seed: int = 0,
+    validated=None,
+) -> Result:
+    """Prove ``loop`` satisfies the property from every state of ``init`` (see module doc).
+
+    Cells run on this machine's cores (``workers`` threads, one cell each at a time) or, with
+    ``executor=``, on a ``dask.distributed.Client``, a scheduler address ``"tcp://host:8786"`` or
+    any ``concurrent.futures.Executor`` (``workers`` then caps the batches in flight; ``batch``
+    fixes the cells per task, else tasks are sized to about a quarter second). A cell still running
+    after ``timeout_per_cell`` seconds stops at the next step and is bisected down to
+    ``min_width`` (default 1/64 of the initial set per dimension), then reported unknown.
+
+    Each cell's centre and corners are simulated before the engine runs it (a violation there
+    saves the engine run); a cell the engine does not verify is simulated from ``falsify`` random
+    points of it before it is reported or bisected, so a falsified cell's counterexample can come
+    from either.
+
+    Inside a cell, a part whose enclosure degrades (or that reaches a ``within`` goal only in
+    part) is split where its enclosure was last precise and continued from there, and a condition
+    (``pv.where``, in a stage or a discrete plant, e.g. a wall that some runs hit at this step) that
+    holds on part of the set forks into one part per side, up to ``max_splits`` splits and forks
+    per cell (0: never; conditions then take the hull of both sides); they count as branches. An
+    unknown cell's reach boxes end at the last step every part reached. ``rebox=True`` restarts
+    a part from its box whenever a remainder is most of a state's enclosure (for loops whose
+    remainders feed back and grow, such as the F1/10 LiDAR loop; it loses the dependency on the
+    initial state, so it can be looser elsewhere). ``validated`` (a ``Domain``, e.g.
+    ``diagnosis.domain``; by default the plant's own when it comes from a diagnosis) makes
+    ``Result.validity`` say whether every reach box stays where the model was validated, or the
+    first step and state where one leaves. ``state_symbols=True`` (Taylor method, discrete
+    plants) keeps the remainders of the states that feed back as error symbols from step to step,
+    so that an error the controller corrects cancels instead of adding its magnitude again (the
+    wrapping effect of a stiff feedback); it pays where the loop's Jacobian varies little over a
+    cell, and is off by default because on Mountain Car's cells it does not (bench/README.md).
+    """
+    part = Part(init, split, order, max_splits, journal)
+    return verify_parts(loop, [part], steps=steps, goal=goal, safe=safe, unsafe=unsafe, within=within, reward=reward,
+                        refine=refine, min_width=min_width, splitter=splitter, method=method, rebox=rebox,
+                        state_symbols=state_symbols, workers=workers, executor=executor, batch=batch,
+                        timeout_per_cell=timeout_per_cell, falsify=falsify, progress=progress, seed=seed,
+                        validated=validated)[0]
+
+
+def verify_parts(
+    loop: ClosedLoop,
+    parts: Sequence[Part],
+    *,
+    steps: Optional[int] = None,
+    goal: Optional[Condition] = None,
+    safe: Union[Condition, Sequence[Condition], None] = None,
+    unsafe: Union[Condition, Sequence[Condition], None] = None,
+    within: bool = False,
+    reward: Optional[dict] = None,
+    refine: bool = False,
+    min_width: Optional[dict] = None,
+    splitter=None,
+    method: str = "taylor",
+    rebox: bool = False,
+    state_symbols: bool = False,
+    workers: Optional[int] = None,
+    executor=None,
+    batch: Optional[int] = None,
+    timeout_per_cell: Optional[float] = None,
+    falsify: int = 32,
+    progress: bool = True,
+    seed: int = 0,
+    validated=None,
+) -> list:
+    """:func:`verify` on several :class:`Part` s of an initial set (regions that need different
+    cell widths or orders), one :class:`Result` per part, each with the whole call's wall time.
+
+    Locally, all parts' cells share one pool of ``workers`` threads, each running one cell at a
+    time and taking the next from the first part that has one: no core waits for the last cell
+    of a batch or of a part (verifying the parts one after another left a core idle at each
+    part's end). On an executor the parts run one after another. The other keywords are
+    :func:`verify`'s, the same for every part."""
+    started = time.time()
+    if not isinstance(loop, ClosedLoop) and isinstance(getattr(loop, "loop", None), ClosedLoop):
+        # A loaded problem (e.g. pv.formats.load_verisig): its file's init, horizon and property fill what is not given.
+        d = loop.defaults
+        parts = [p if p.init is not None else replace(p, init=d["init"]) for p in parts]
+        steps = d["steps"] if steps is None else steps
+        if goal is None and safe is None and unsafe is None:
+            goal, safe, within = d.get("goal"), d.get("safe"), d.get("within", within)
+        loop = loop.loop
+    if not isinstance(loop, ClosedLoop):
+        raise InputError("verify() needs a pv.ClosedLoop")
+    if not parts:
+        raise InputError("verify_parts() needs at least one pv.Part")
+    for k, p in enumerate(parts):
+        if not isinstance(p, Part):
+            raise InputError(f"part {k} is a {type(p).__name__}; give pv.Part(init=..., split=..., order=..., max_splits=..., journal=...)")
+    if any(p.init is None for p in parts):
+        raise InputError("verify() needs init={state: (lo, hi), ...}")
+    if not (isinstance(steps, int) and steps >= 0):
+        raise InputError(f"steps must be a non-negative integer, got {steps!r}")
+    if method not in ("taylor", "verisig"):
+        raise InputError(f"unknown method '{method}'; use 'taylor' or 'verisig'")
+    for p in parts:
+        if not (isinstance(p.max_splits, int) and p.max_splits >= 0):
+            raise InputError(f"max_splits must be a non-negative integer, got {p.max_splits!r}")
+    if reward is not None:
+        loop = loop.with_accumulators(reward)  # sums as extra states: see ClosedLoop.with_accumulators
+    boxes = [loop.initial_box(p.init) for p in parts]
+    prop = Property(loop, safe, unsafe, goal, within, steps)
+    safe_r, goal_r = prop.rust()
+    problem = loop.compile(safe=safe_r, goal=goal_r, within=within, steps=steps)
+    runner = None
+    if executor is not None:
+        from percver.executors import Runner
+
+        runner = Runner(executor, slots=workers, batch=batch)  # checked (and connected) before any work
+    jobs, bar = [], Progress()
+    lock = threading.RLock()  # one for all parts: they share the progress bar
+    try:
+        with ExitStack() as journals:
+            for p, box in zip(parts, boxes):
+                settings = {"steps": steps, "method": method, "order": p.order, "max_splits": p.max_splits, "rebox": bool(rebox),
+                            "timeout_per_cell": timeout_per_cell, "within": within}
+                if state_symbols:  # only when on, so that journals written before the option still resume
+                    settings["state_symbols"] = True
+                fingerprint = fingerprint_of(loop, prop, settings)
+                options = {"order": p.order, "method": method, "timeout": timeout_per_cell, "max_splits": p.max_splits,
+                           "rebox": bool(rebox), "state_symbols": bool(state_symbols)}
+                journal = Journal(p.journal, fingerprint)
+                journals.callback(journal.close)
+                campaign = Campaign(loop, prop, box, _splitter_of(p, splitter, refine, min_width), journal, bar,
+                                    timeout=timeout_per_cell, falsify=falsify, seed=seed, lock=lock)
+                jobs.append((campaign, settings, fingerprint, options))
+            if progress:
+                bar.start(sum(campaign.left for campaign, *_ in jobs))
+            if runner is None:
+                run_local([(campaign, problem, options) for campaign, _, _, options in jobs], workers)
+            else:
+                for campaign, _, fingerprint, options in jobs:
+                    runner.run(campaign, (loop, safe_r, goal_r, within, steps), fingerprint, options)
+    finally:
+        if runner is not None:
+            runner.close()
+        bar.close()
+    seconds = time.time() - started
+    results = [Result(loop.states, box.to_dict(), campaign.cells, seconds, settings) for box, (campaign, settings, _, _) in zip(boxes, jobs)]
+    from percver.validate.verifiable import validity
+
+    return validity(loop, results, validated)
+
+
+def _splitter_of(part: Part, splitter, refine: bool, min_width: Optional[dict]):
+    """The part's own splitter (a fresh copy of ``splitter``: an adaptive one learns per part);
+    without one, ``split``/``refine``/``min_width`` name a grid or a bisection, and with none of
+    them the adaptive default applies."""
+    if splitter is not None:
+        if part.split or refine or min_width:
+            raise InputError("give splitter= or split=/refine=/min_width=, not both (a splitter carries its own grid and widths)")
+        if not all(hasattr(splitter, m) for m in ("initial", "prepare", "again", "learn")):
+            raise InputError(f"splitter= takes pv.Grid, pv.Bisection, pv.Adaptive or an object with their methods, got {splitter!r}")
+        return copy.deepcopy(splitter)
+    if refine:
+        return Bisection(part.split or {}, min_width or {})
+    if part.split or min_width:
+        return Grid(part.split or {}, min_width or {})
+    return Adaptive()
