@@ -15,6 +15,7 @@ COMMANDS = [
     ("percver.commands.cases", "register"),
     ("percver.commands.verify", "register"),
     ("percver.commands.import_verisig", "register"),
+    ("percver.commands.selftest", "register"),
 ]
 
 

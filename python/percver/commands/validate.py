@@ -111,7 +111,7 @@ def verify_diagnosed(diagnosis, args) -> int:
     with the config's initial set, property and settings; the result JSON goes into ``--out``."""
     from percver.commands.verify import EXIT, Config, report
     from percver.systems import ClosedLoop
-    from percver.verify import verify
+    from percver.verification import verify
 
     config = Config(args.verify)
     spec = config.section("plant").get("python")

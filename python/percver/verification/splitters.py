@@ -117,10 +117,11 @@ class Bisection(Grid):
 
 @dataclass
 class Adaptive(Bisection):
-    """The default: a coarse start (``start`` pieces along each state the initial set is wide in,
-    the first six of them), unknown cells halved down to ``min_width`` (default 1/1024 of the initial
-    set), at most ``max_cells`` engine runs in all (then what is left is reported unknown, with
-    its reason), and cells cut ahead of their run to the size their settled neighbours needed.
+    """The default: the initial set as it is (or ``start`` pieces along each state it is wide in,
+    the first six of them), so a set that verifies whole costs one run; unknown cells halved down
+    to ``min_width`` (default 1/1024 of the initial set); at most ``max_cells`` engine runs in all
+    (then what is left is reported unknown, with its reason); and cells cut ahead of their run to
+    the size their settled neighbours needed.
 
     Learning is by position: a cell that verified after its ancestors did not says that cells of
     its size are needed there; a cell about to run that touches one is cut to that size along the
@@ -128,7 +129,7 @@ class Adaptive(Bisection):
     own proof. Resuming from a journal settles the journal's cells in the order they come, so a
     resumed run may cut differently and run a few cells again (never fewer proofs)."""
 
-    start: int = 2
+    start: int = 1
     max_cells: int = 1024
     patience: int = 3
     needed: list = field(default_factory=list, repr=False)  # cells that verified below the top
