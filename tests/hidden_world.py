@@ -56,12 +56,13 @@ def _cast(px, py, angle):
 
 
 def scan(states, *, seed=0, yaw_deg=0.0, forward=0.0, left=0.0, bias=0.0, scale=1.0, panel=None, ghost=None,
-         dropout=0.0, noise=0.01, max_range=5.0):
+         dropout=0.0, dropout_far=None, noise=0.01, max_range=5.0):
     """21-ray scans with hidden effects.
 
     ``panel`` = (x_lo, x_hi, threshold_deg): a reflective stretch of the north outer wall
     (y = 20) where rays beyond the threshold incidence return nothing. ``ghost`` = (cx, cy, r):
-    a round obstacle the canonical model does not know.
+    a round obstacle the canonical model does not know. ``dropout_far`` = (near, far, rate): echoes
+    are lost with a probability rising linearly from 0 at ``near`` metres to ``rate`` at ``far``.
     """
     rng = np.random.default_rng(seed)
     x, y, th = states[:, 0:1], states[:, 1:2], states[:, 2:3]
@@ -84,7 +85,11 @@ def scan(states, *, seed=0, yaw_deg=0.0, forward=0.0, left=0.0, bias=0.0, scale=
         r = np.where((disc > 0) & (t > 0) & (t < r), t, r)
     echo = np.isfinite(r) & (r < max_range)
     r = np.where(echo, scale * r + bias + rng.normal(0, noise, r.shape), max_range)
-    r = np.where(rng.random(r.shape) < dropout, max_range, r)
+    lost = rng.random(r.shape) < dropout
+    if dropout_far is not None:
+        near, far, rate = dropout_far
+        lost |= echo & (rng.random(r.shape) < rate * np.clip((r - near) / (far - near), 0.0, 1.0))
+    r = np.where(lost, max_range, r)
     return np.clip(r, 0.0, max_range)
 
 

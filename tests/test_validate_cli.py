@@ -83,3 +83,33 @@ def test_bad_input_exits_non_zero_with_one_line(tmp_path):
     assert r.returncode == 1 and "FILE.py:NAME" in r.stderr
     r = run("--model", "lidar-f1tenth", "--data", str(tmp_path / "missing.npz"))
     assert r.returncode == 1 and "does not exist" in r.stderr
+
+
+def test_verify_runs_on_the_diagnosed_model(tmp_path):
+    examples = TESTS.parent / "examples"
+    sys.path.insert(0, str(examples))
+    try:
+        import measure_diagnose_verify as example
+    finally:
+        sys.path.remove(str(examples))
+    example.measure(runs=12, steps=80, seed=1).save(tmp_path / "runs.npz")
+    (tmp_path / "car.py").write_text(
+        "import sys\n"
+        f"sys.path.insert(0, {str(examples)!r})\n"
+        "import measure_diagnose_verify as example\n"
+        "plant = example.textbook\n"
+        "def loop(plant):\n"
+        "    return example.loop(plant, example.gentle())\n"
+    )
+    (tmp_path / "goal.toml").write_text(
+        '[plant]\npython = "car.py:loop"\n[init]\np = [-0.50, -0.48]\nv = 0.0\n[split]\np = 4\n'
+        '[property]\nsteps = 200\ngoal = "p >= 0.45"\nwithin = true\n'
+    )
+    r = run("--model", "car.py:plant", "--data", "runs.npz", "--out", "report", "--effects", "coulomb_friction,actuator_gain",
+            "--no-progress", "--verify", "goal.toml", cwd=tmp_path)
+    assert r.returncode == 4, r.stderr  # falsified: the textbook loop verifies, the diagnosed one does not
+    assert "coulomb_friction" in r.stdout and "95% bootstrap confidence intervals" in r.stdout
+    assert "counterexample: from p = " in r.stdout
+    assert json.loads((tmp_path / "report" / "verify.json").read_text())["verdict"] == "falsified"
+    r = run("--model", "car.py:plant", "--data", "runs.npz", "--json", "--verify", "goal.toml", cwd=tmp_path)
+    assert r.returncode == 1 and "--json" in r.stderr

@@ -30,6 +30,7 @@ from percver.expr import (
     minimum,
     parse,
     sigmoid,
+    sign,
     sin,
     sqrt,
     tan,
@@ -46,6 +47,7 @@ from percver.verification import Adaptive, Bisection, DomainWarning, Grid, Part,
 
 min = minimum  # noqa: A001 - the design's names pv.min / pv.max, like numpy's
 max = maximum  # noqa: A001
+abs = abs_  # noqa: A001 - pv.abs, like numpy's
 from percver.networks import Network, chain, load_network
 
 from percver import noise, sensors, validate

@@ -21,7 +21,7 @@ ExprLike = Union[Expr, Number, str]
 
 __all__ = [
     "Expr", "Condition", "variables", "as_expr", "parse", "name_of",
-    "sin", "cos", "tan", "atan", "exp", "log", "sqrt", "tanh", "sigmoid", "abs_",
+    "sin", "cos", "tan", "atan", "exp", "log", "sqrt", "tanh", "sigmoid", "abs_", "sign",
     "where", "clip", "minimum", "maximum", "uncertain", "evaluate", "bounds",
 ]
 
@@ -78,6 +78,15 @@ sqrt = _apply("sqrt")
 tanh = _apply("tanh")
 sigmoid = _apply("sigmoid")
 abs_ = _apply("abs")
+abs_.__doc__ = "|x| as an expression (``pv.abs``): on sets, the image of the side(s) of 0 the set covers."
+
+
+def sign(x: ExprLike) -> Expr:
+    """-1, 0 or 1 by the sign of ``x`` (``pv.sign``): two nested ``where``, so a set on one side
+    of 0 maps to that side's constant and a set that straddles 0 branches (or takes the hull
+    [-1, 1]), as every ``where`` does."""
+    x = as_expr(x)
+    return Expr.select(x > 0.0, Expr.constant(1.0), Expr.select(x < 0.0, Expr.constant(-1.0), Expr.constant(0.0)))
 
 
 def where(condition: Condition, then: ExprLike, otherwise: ExprLike) -> Expr:

@@ -198,7 +198,9 @@ class ClosedLoop:
 
     def __init__(self, plant: Union[Discrete, Continuous], stages: Sequence[Stage] = ()):
         if not isinstance(plant, (Discrete, Continuous)):
-            raise InputError("plant must be pv.Discrete(...) or pv.Continuous(...)")
+            hint = (" (a pv.diagnose result gives one: pv.ClosedLoop(diagnosis.model, ...), or diagnosis.system(uncertainty='ci95'))"
+                    if type(plant).__module__.startswith("percver.validate") else "")
+            raise InputError(f"plant must be pv.Discrete(...) or pv.Continuous(...){hint}")
         self.plant = plant
         self.states = list(plant.states)
         self.accumulators: list = []  # states added by with_accumulators (they start at 0)

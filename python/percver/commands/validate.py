@@ -39,6 +39,16 @@ def register(sub) -> None:
     parser.add_argument("--seed", type=int, default=0, help="seed of the folds and the bootstrap (default: %(default)s)")
     parser.add_argument("--no-progress", action="store_true", help="hide the progress bar")
     parser.add_argument("--json", action="store_true", help="print the diagnosis as JSON instead of tables")
+    parser.add_argument("--verify", metavar="CONFIG.toml",
+                        help="then verify the diagnosed model: the config of 'percver verify' whose [plant] python = "
+                        "\"FILE.py:NAME\" names a function taking the diagnosed plant (or sensor expressions) and "
+                        "returning the pv.ClosedLoop; exit status as 'percver verify' (0 verified, 3 unknown, 4 falsified)")
+    parser.add_argument("--uncertainty", default="ci95",
+                        help="with --verify: fitted parameters as their bootstrap confidence intervals (ci95, ci99, "
+                        "a level such as 0.9) or 'none' for the fitted values (default: %(default)s)")
+    parser.add_argument("--residual",
+                        help="with --verify: the unexplained residual as a bounded disturbance, 'max' (the largest "
+                        "measured) or a quantile such as 0.999 (statistical, not worst case); default: none")
     parser.set_defaults(func=run)
 
 
@@ -74,6 +84,8 @@ def run(args) -> int:
     from percver import validate
     from percver.measurements import Measurements
 
+    if args.verify is not None and args.json:
+        raise InputError("--json prints the diagnosis alone; drop it to run --verify (the result JSON goes into --out)")
     model = load_model(args.model)
     data = Measurements.load(args.data, dropna=args.dropna)
     effects = [name.strip() for name in args.effects.split(",")] if args.effects else None
@@ -87,8 +99,48 @@ def run(args) -> int:
         return 0
     if diagnosis.rankings:
         print("candidate effects (held-out share of the baseline error removed):")
-        print(diagnosis.rankings[0].table())
+        print(diagnosis.rankings[0].table(added=diagnosis.effects))
         print()
     print(diagnosis.table())
     print(f"report: {page}")
-    return 0
+    return 0 if args.verify is None else verify_diagnosed(diagnosis, args)
+
+
+def verify_diagnosed(diagnosis, args) -> int:
+    """``--verify CONFIG.toml``: the config's loop function applied to the diagnosed model, verified
+    with the config's initial set, property and settings; the result JSON goes into ``--out``."""
+    from percver.commands.verify import EXIT, Config, report
+    from percver.systems import ClosedLoop
+    from percver.verification import verify
+
+    config = Config(args.verify)
+    spec = config.section("plant").get("python")
+    path, colon, name = str(spec).rpartition(":")
+    if spec is None or not colon or not path.endswith(".py"):
+        raise config.error("[plant] python", "--verify needs python = \"FILE.py:NAME\", a function of the diagnosed model "
+                           "returning the pv.ClosedLoop (e.g. def loop(plant): return pv.ClosedLoop(plant, stages=[...]))")
+    namespace = runpy.run_path(str(config.file("[plant] python", path)))
+    function = namespace.get(name)
+    if not callable(function):
+        raise config.error("[plant] python", f"{path} defines no function '{name}' of the diagnosed model")
+    uncertainty = None if args.uncertainty == "none" else _number_or_text(args.uncertainty)
+    residual = None if args.residual is None else _number_or_text(args.residual)
+    model = diagnosis.system(uncertainty=uncertainty, residual=residual, seed=args.seed)
+    loop = function(model)
+    if not isinstance(loop, ClosedLoop):
+        raise config.error("[plant] python", f"{name}(model) returned a {type(loop).__name__}, not a pv.ClosedLoop")
+    print(f"\nverifying the diagnosed model ({config.path}):\n{model.validation}")
+    result = verify(loop, progress=not args.no_progress, **config.verify_kwargs())
+    out = Path(args.out) / "verify.json"
+    result.to_json(str(out))
+    print(report(result))
+    print(result.validity)
+    print(f"result: {out.resolve()}")
+    return EXIT[result.verdict]
+
+
+def _number_or_text(value: str):
+    try:
+        return float(value)
+    except ValueError:
+        return value

@@ -6,11 +6,13 @@ import json
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
+from percver.errors import InputError
 from percver.validate.effects import GaussianNoise
-from percver.validate.fitting import plain, rank, refit
+from percver.validate.fitting import parameter_intervals, plain, rank, refit
 from percver.validate.learned import check_learn
 from percver.validate.learned import learn as learned_step
 from percver.validate.models import as_model
+from percver.validate.regions import missing_pattern
 from percver.validate.report import compare, json_default
 
 
@@ -47,11 +49,15 @@ class Diagnosis:
         self.rankings = rankings
         self.noise_sigma = noise_sigma
         self.learned = learned
+        self._intervals = {}
         where = final.where()
         self.unexplained = [
             {"kind": "region", "where": r.describe(), "bounds": r.bounds, "share": r.share, "lift": r.lift}
             for r in where.significant_regions
         ] + [{"kind": "dimension", "where": d.name, "share": d.share} for d in where.significant_dimensions]
+        missing = missing_pattern(final.model, final.predicted, final.evaluation.measured)
+        if missing is not None:
+            self.unexplained.append(missing)
 
     @property
     def baseline_error(self) -> float:
@@ -69,6 +75,63 @@ class Diagnosis:
     def effects(self) -> list:
         return [step.effect for step in self.steps]
 
+    # ---------------------------------------------------------------- the model verify checks
+    @property
+    def model(self):
+        """The diagnosed model as ``verify`` takes it, with the fitted parameter values: for a plant
+        a ``pv.Discrete``/``pv.Continuous`` (``pv.ClosedLoop(diagnosis.model, stages=[...])``), for
+        a LiDAR the ray expressions a ``pv.Stage`` takes. ``system(...)`` adds the parameters'
+        confidence intervals and the residual."""
+        return self.system()
+
+    @property
+    def domain(self):
+        """Where the model was validated: per state, the range the measurements cover (a ``Domain``)."""
+        from percver.validate.verifiable import Domain
+
+        return Domain.of(self.final_model.state_names, self.final.evaluation.states)
+
+    def intervals(self, level: float = 0.95, *, draws: int = 100, seed: int = 0) -> dict:
+        """Bootstrap confidence intervals of the fitted parameters, ``{effect index: {parameter:
+        (lo, hi)}}`` in the order of ``final_model.effects`` (refits on resampled trajectories;
+        computed once per level, draws and seed)."""
+        key = (level, draws, seed)
+        if key not in self._intervals:
+            self._intervals[key] = parameter_intervals(self.final_model, self.final.evaluation, level=level,
+                                                       draws=draws, seed=seed)
+        return self._intervals[key]
+
+    def system(self, uncertainty=None, residual=None, *, draws: int = 100, seed: int = 0):
+        """The diagnosed model for verification (see ``percver.validate.verifiable``).
+
+        ``uncertainty="ci95"`` (or "ci99", or a level such as 0.9) turns every fitted parameter
+        into a ``pv.uncertain`` range, its bootstrap confidence interval, so that a proof holds
+        for every parameter the data allows; None keeps the fitted values. ``residual="max"``
+        adds the largest measured residual of each state (ray) as a bounded disturbance every
+        step, ``residual=0.999`` that quantile (a statistical bound, not a worst case). The
+        result's ``validation`` records all of it with the validated domain.
+        """
+        from percver.validate import verifiable
+
+        level = _level(uncertainty)
+        ranges = {} if level is None else self.intervals(level, draws=draws, seed=seed)
+        bounds, kind = (None, None) if residual is None else verifiable.residual_bounds(self.final, residual)
+        model = self.final_model
+        if self.learned is not None and self.learned.claimed:
+            raise verifiable.NoSetSemanticsError(
+                "the diagnosis ends with a learned noise model, which enters a loop as a network stage, not as an "
+                "expression: build the model from final_model without it, or use the network of diagnosis.learned"
+            )
+        if model.kind == "dynamics":
+            return verifiable.dynamics_system(model, ranges, bounds, kind, level, self.domain)
+        if model.kind == "lidar":
+            return verifiable.lidar_component(model, ranges, bounds, kind, level, self.domain)
+        raise verifiable.NoSetSemanticsError(
+            f"a diagnosed {model.kind} model ({type(model).__name__}) has no expression form: its prediction is a "
+            "Python function (a renderer, a simulator). Verify such a sensor through a network that stands for it "
+            "(e.g. a generator trained on its images, pv.load_network) with the diagnosed effects applied to its training data"
+        )
+
     def table(self) -> str:
         lines = [f"baseline {self.baseline.metric}: {self.baseline_error:.4g}"]
         for i, s in enumerate(self.steps, 1):
@@ -84,7 +147,8 @@ class Diagnosis:
             a = self.learned
             lines.append(f"learned_{a.kind} not kept: held-out gain {a.gain:.1%} [{a.ci[0]:.1%}, {a.ci[1]:.1%}]")
         for u in self.unexplained[:UNEXPLAINED_LINES]:
-            lines.append(f"unexplained {u['kind']}: {u['where']} ({u['share']:.1%} of the remaining error)")
+            of = "of the lost echoes" if u["kind"] == "missing" else "of the remaining error"
+            lines.append(f"unexplained {u['kind']}: {u['where']} ({u['share']:.1%} {of})")
         if len(self.unexplained) > UNEXPLAINED_LINES:
             lines.append(f"... and {len(self.unexplained) - UNEXPLAINED_LINES} more unexplained regions or dimensions")
         return "\n".join(lines)
@@ -181,7 +245,9 @@ def diagnose(
     final = compare(current, data, metric=metric)
     attempt = None
     if learn and (final.where().significant_regions or final.where().significant_dimensions):
-        learned, attempt = learned_step(current, evaluation, final, learn, learn_options, folds=folds,
+        # With progress on, training shows a bar over its epochs with the time left.
+        options = {"progress": True, **(learn_options or {})} if progress else learn_options
+        learned, attempt = learned_step(current, evaluation, final, learn, options, folds=folds,
                                         bootstrap=bootstrap, min_gain=min_gain, seed=seed)
         if learned is not None:
             after = compare(learned, data, metric=metric)
@@ -191,6 +257,21 @@ def diagnose(
     if current.kind in GaussianNoise.kinds:
         noise = GaussianNoise().fit_stochastic(current, evaluation, final.predicted).params["sigma"]
     return Diagnosis(baseline, steps, final, rankings, noise, attempt)
+
+
+def _level(uncertainty):
+    """``uncertainty=`` as a confidence level: None, "ci95"-style names or a number in (0, 1)."""
+    if uncertainty is None:
+        return None
+    if isinstance(uncertainty, str) and uncertainty.startswith("ci") and uncertainty[2:].isdigit():
+        level = int(uncertainty[2:]) / 100
+    elif isinstance(uncertainty, float):
+        level = uncertainty
+    else:
+        level = -1.0
+    if not 0 < level < 1:
+        raise InputError(f"uncertainty={uncertainty!r}: use None, 'ci95', 'ci99' or a confidence level in (0, 1)")
+    return level
 
 
 def _progress(enabled):

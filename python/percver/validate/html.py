@@ -55,6 +55,8 @@ def residual_map(report, path=None, where=None):
         from matplotlib.patches import Rectangle
 
         for region in where.significant_regions:
+            if names[0] not in region.bounds or names[1] not in region.bounds:
+                continue  # a region of other variables (the first step of each run)
             (x0, x1), (y0, y1) = region.bounds[names[0]], region.bounds[names[1]]
             axes.add_patch(Rectangle((x0, y0), x1 - x0, y1 - y0, fill=False, edgecolor="cyan", linewidth=2))
             axes.text(x0, y1, f"{region.share:.0%}", color="cyan", va="bottom")
@@ -110,11 +112,18 @@ def worst_examples(report, path=None, count=4):
     for axes, i in zip(grid, worst):
         axes.plot(x, measured[i], "o-", label="measured", markersize=3)
         axes.plot(x, predicted[i], "s--", label="predicted", markersize=3)
-        state = ", ".join(f"{n}={v:.3g}" for n, v in zip(model.state_names, report.evaluation.states[i]))
+        state = ", ".join(_state(n, v) for n, v in zip(model.state_names, report.evaluation.states[i]))
         axes.set_title(f"row {report.evaluation.rows[i]}: {state}", fontsize=8)
         axes.legend(fontsize=7)
     grid[-1].set_xlabel("ray angle (deg)" if model.kind == "lidar" else "dimension")
     return _save(figure, path)
+
+
+def _state(name, value) -> str:
+    """A state for a title; angles (theta, heading in radians) in degrees, as ray angles are."""
+    if name in ("theta", "heading", "yaw", "psi"):
+        return f"{name}={np.degrees(value):.3g} deg"
+    return f"{name}={value:.3g}"
 
 
 def error_fall(diagnosis, path=None):
@@ -127,10 +136,14 @@ def error_fall(diagnosis, path=None):
     for i, v in enumerate(values):
         axes.annotate(f"{v:.3g}", (i, v), textcoords="offset points", xytext=(0, 6), ha="center", fontsize=8)
     axes.set_xticks(range(len(values)), labels, rotation=20, ha="right")
-    axes.set_ylabel(diagnosis.final.metric)
+    axes.set_ylabel(f"{diagnosis.final.metric} ({_short_unit(diagnosis.final)})")
     axes.set_ylim(bottom=0)
     axes.set_title("error fall")
     return _save(figure, path)
+
+
+def _short_unit(report) -> str:
+    return report.unit.split(":")[0]
 
 
 # ------------------------------------------------------------------------------ pages
@@ -178,8 +191,10 @@ def _report_parts(report, directory, prefix) -> list:
     }
     for name, draw in plots.items():
         draw(report, directory / name)
-    summary = [("model", report.model.describe()), ("rows", len(report.evaluation)), (report.metric, report.error),
-               ("rmse", report.rmse), ("mae", report.mae), ("max", report.max_error)]
+    errors = {"rmse": report.rmse, "mae": report.mae, "max": report.max_error}
+    summary = [("model", report.model.describe()), ("rows", len(report.evaluation)), ("unit of the errors", report.unit),
+               (f"error ({report.metric}, the ranking's measure)", report.error)]
+    summary += [(name, value) for name, value in errors.items() if name != report.metric]
     summary += list(report.downstream.items())
     parts = [_table(("quantity", "value"), summary), "<h3>Where the error is</h3>",
              f"<img src='{prefix}residual_map.png' alt='residual map'>",
@@ -187,7 +202,7 @@ def _report_parts(report, directory, prefix) -> list:
                     [(f"{r.share:.1%}", r.lift, r.count, r.describe(), "yes" if r.significant else "")
                      for r in where.regions]),
              f"<img src='{prefix}dimensions.png' alt='error per dimension'>",
-             _table(("share", "rms", "dimension", "significant"),
+             _table(("share", "rms (the dimension's units)", "dimension", "significant"),
                     [(f"{d.share:.1%}", d.rmse, d.name, "yes" if d.significant else "") for d in where.dimensions[:12]]),
              "<h3>Worst samples</h3>", f"<img src='{prefix}worst.png' alt='worst samples'>"]
     ranking = report.explained_ranking()
@@ -196,11 +211,11 @@ def _report_parts(report, directory, prefix) -> list:
     return parts
 
 
-def _ranking_table(ranking) -> str:
+def _ranking_table(ranking, added=None) -> str:
     return _table(
         ("effect", "gain", "95% interval", "claimed", "parameters", "physical cause"),
-        [(c.name, c.gain, f"[{c.ci[0]:.3f}, {c.ci[1]:.3f}]", "yes" if c.claimed else "no", c.params, c.cause)
-         for c in ranking],
+        [(c.name, c.gain, f"[{c.ci[0]:.3f}, {c.ci[1]:.3f}]", verdict, c.params, c.cause)
+         for c, verdict in zip(ranking, ranking.verdicts(added))],
     )
 
 
@@ -239,7 +254,9 @@ def write_diagnosis(diagnosis, directory) -> Path:
         if len(diagnosis.unexplained) > len(shown):
             parts.append(f"<p>... and {len(diagnosis.unexplained) - len(shown)} more (see the JSON output)</p>")
     if diagnosis.rankings:
-        parts += ["<h3>First ranking of candidate effects</h3>", _ranking_table(diagnosis.rankings[0])]
+        parts += ["<h3>First ranking of candidate effects</h3>",
+                  "<p>added: in the final model; stand-in: helps alone, but another added effect explains the same error</p>",
+                  _ranking_table(diagnosis.rankings[0], diagnosis.effects)]
     parts += ["<h2>Baseline model</h2>"] + _report_parts(diagnosis.baseline, directory, "baseline_")
     parts += ["<h2>Final model</h2>"] + _report_parts(diagnosis.final, directory, "final_")
     return _page(directory, "percver model diagnosis", parts)

@@ -12,6 +12,7 @@ library's effects: it is kept only when it removes a significant share of the he
 
 from __future__ import annotations
 
+import sys
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -193,9 +194,9 @@ def unexplained_rows(report) -> np.ndarray:
     where = report.where()
     if not where.significant_regions:
         return np.ones(len(report.evaluation), dtype=bool)
-    by, table, known = feature_table(report.model, report.evaluation.states, where.variables)
-    inside = np.zeros(len(table), dtype=bool)
+    inside = np.zeros(len(report.evaluation), dtype=bool)
     for region in where.significant_regions:
+        by, table, known = feature_table(report.model, report.evaluation, tuple(region.bounds))
         box = known.copy()
         for j, name in enumerate(by):
             lo, hi = region.bounds[name]
@@ -279,6 +280,9 @@ def learn(model, evaluation, report, kind=True, options=None, *, folds=3, bootst
     names, fill = _numeric_features(model, train.states)
     features = _filled_features(model, train.states, names, fill)
     predicted = model.predict_inputs(train.inputs)
+    if common.get("progress"):
+        print(f"learning a {kind} noise model on {len(train_rows)} rows x {predicted.shape[1]} dimensions, "
+              f"{settings['epochs']} epochs (the bar estimates the time left after the first epoch)", file=sys.stderr)
     if kind == "knockout":
         trained, params = _train_knockout(predicted, train.measured, evaluation.weights, features, settings, common)
     else:

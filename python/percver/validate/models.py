@@ -14,7 +14,7 @@ one from a function; ``SystemPlant`` adapts the ``pv.Discrete`` and ``pv.Continu
 from __future__ import annotations
 
 import copy
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from typing import Callable, Protocol, Sequence
 
 import numpy as np
@@ -62,6 +62,9 @@ class Evaluation:
     weights: np.ndarray
     groups: np.ndarray | None
     has_history: bool = False
+    # Per-row quantities of the measurement (not of the state) in which failures are localised
+    # too, e.g. a row's step in its run.
+    row_features: dict = field(default_factory=dict)
 
     def __len__(self) -> int:
         return len(self.rows)
@@ -74,6 +77,7 @@ class Evaluation:
             inputs={key: value[index] for key, value in self.inputs.items()},
             measured=self.measured[index],
             groups=None if self.groups is None else self.groups[index],
+            row_features={key: value[index] for key, value in self.row_features.items()},
         )
 
 
@@ -401,6 +405,7 @@ class DynamicsModel(Model):
             weights=weights,
             groups=pairs.groups,
             has_history=pairs.has_history,
+            row_features={} if pairs.groups is None or not pairs.has_history else {"step_in_run": _step_in_run(pairs)},
         )
 
     def predict(self, states, controls, history=None) -> np.ndarray:
@@ -418,6 +423,14 @@ class DynamicsModel(Model):
             history = effect.actuate(history)
             states = effect.pre_step(states, self)
         return np.asarray(self.plant.step(states, history[:, 0, :]), dtype=float).reshape(states.shape)
+
+
+def _step_in_run(pairs) -> np.ndarray:
+    """Each pair's step in its run (0: the run's first pair, whose earlier controls were not measured)."""
+    first = {}
+    for group, row in zip(pairs.groups.tolist(), pairs.rows.tolist()):
+        first.setdefault(group, row)
+    return pairs.rows - np.array([first[g] for g in pairs.groups.tolist()])
 
 
 def _expression_function(model):

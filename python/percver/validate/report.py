@@ -15,6 +15,11 @@ from percver.validate.models import as_model
 from percver.validate.regions import feature_table, split_regions, standout
 
 METRICS = ("rmse", "mae", "max")
+UNITS = {
+    "lidar": "m",
+    "image": "grey level (0 black, 1 white)",
+    "dynamics": "normalised: each state's residual over the standard deviation of its measured one-step change",
+}
 
 # A region or dimension "carries significant error" when its mean error is this many standard
 # errors above the rest, at least LIFT times the overall mean, and EXCESS times the noise floor.
@@ -39,7 +44,15 @@ class Region:
     significant: bool
 
     def describe(self) -> str:
-        return ", ".join(f"{name} in [{lo:.3g}, {hi:.3g}]" for name, (lo, hi) in self.bounds.items())
+        return ", ".join(_describe(name, lo, hi) for name, (lo, hi) in self.bounds.items())
+
+
+def _describe(name, lo, hi) -> str:
+    if name == "step_in_run" and hi < 1:
+        return "the first step of each run (its earlier controls were not measured)"
+    if name == "step_in_run":
+        return f"steps {lo:.0f}..{hi:.0f} of each run"
+    return f"{name} in [{lo:.3g}, {hi:.3g}]"
 
 
 @dataclass
@@ -102,6 +115,8 @@ class Report:
     """Residuals of a model on data, with errors, localisation and candidate effects.
 
     ``residuals`` are measured minus predicted (rows x dimensions, in measurement units).
+    ``unit`` says in what the errors are given. ``noise_floor`` is, per dimension, the RMS
+    residual that noise alone explains (robust spread), in the units of ``error``.
     ``error`` is the chosen metric (RMSE by default) of the weighted residuals over all
     entries, where entries that a stochastic effect of the model explains (a dropped ray)
     count as explained. ``downstream`` holds the paper's control and state-estimation errors
@@ -127,27 +142,36 @@ class Report:
         unexplained = np.where(self.explained, 0.0, self.residuals)
         self.per_dimension = dict(zip(model.measurement_names, np.sqrt(np.mean(unexplained**2, axis=0)).tolist()))
         self.downstream = dict(downstream or {})
-        self.noise_floor = self._noise_floor(weighted)
+        self._noise = self._noise_variance(weighted)
+        # RMS per dimension in the units of ``error`` (weighted), never above the dimension's own error.
+        self.noise_floor = np.sqrt(np.minimum(self._noise, np.mean(weighted**2, axis=0)))
         self._where = {}
         self._explain = {}
+
+    @property
+    def unit(self) -> str:
+        """What the errors (``error``, ``rmse``, ``mae``, ``max``, ``noise_floor``) are measured in."""
+        return UNITS.get(self.model.kind, "the measurements' units")
 
     def __repr__(self) -> str:
         extra = "".join(f", {k}={v:.4g}" for k, v in self.downstream.items())
         return f"Report({self.metric}={self.error:.4g}, rows={len(self.evaluation)}{extra})"
 
-    def _noise_floor(self, weighted) -> np.ndarray:
+    def _noise_variance(self, weighted) -> np.ndarray:
         """Squared (weighted) residual that noise alone explains, per dimension.
 
         Robust spreads ignore the few large residuals of a failure; the pooled spread is a
-        floor for dimensions whose own spread collapses (pixels clipped at black).
+        floor for dimensions whose own spread collapses (pixels clipped at black). A dimension's
+        own spread counts only up to the upper quartile of all of them: a systematic error
+        spread over every row of a few dimensions (rays 8-12 reading long) is no noise level.
         """
         pooled = robust_sigma(weighted[~self.explained]) ** 2
         own = np.array([robust_sigma(weighted[~self.explained[:, j], j]) ** 2 for j in range(weighted.shape[1])])
-        return np.maximum(own, pooled)
+        return np.maximum(pooled, np.minimum(own, np.quantile(own, 0.75)))
 
     # ---------------------------------------------------------------- where
     def features(self) -> dict:
-        return self.model.features(self.evaluation.states)
+        return {**self.model.features(self.evaluation.states), **self.evaluation.row_features}
 
     def where(self, by=None, *, max_regions: int = 8, min_count: int | None = None) -> Where:
         """Regions of state space (adaptive bins over ``by``, the model's region variables by
@@ -155,7 +179,7 @@ class Report:
         key = (tuple(by or ()), max_regions, min_count)
         if key in self._where:
             return self._where[key]
-        by, table, known = feature_table(self.model, self.evaluation.states, by)
+        by, table, known = feature_table(self.model, self.evaluation, by)
         errors = self.row_errors
         total = float(errors.sum()) or 1.0
         rows = np.flatnonzero(known)
@@ -174,14 +198,30 @@ class Report:
                     lift=float(lift),
                     rmse=float(np.sqrt(errors[members].mean())),
                     significant=bool(
-                        t > SIGNIFICANCE and lift > LIFT and errors[members].mean() > EXCESS * self.noise_floor.mean()
+                        t > SIGNIFICANCE and lift > LIFT and errors[members].mean() > EXCESS * self._noise.mean()
                     ),
                 )
             )
-        regions.sort(key=lambda r: -r.share)
+        start = self._run_start(errors, total)
+        regions = ([start] if start is not None else []) + sorted(regions, key=lambda r: -r.share)
         result = Where(by, regions, self._dimensions(), outside=int((~known).sum()), report=self)
         self._where[key] = result
         return result
+
+    def _run_start(self, errors, total):
+        """The first step of each run as a region of its own when its error stands out: there the
+        controls before the run were not measured, so a delay's input is unknown. Too few rows
+        for the tree's bins (one per run), so it is tested directly; it overlaps the tree's regions."""
+        steps = self.evaluation.row_features.get("step_in_run")
+        if steps is None:
+            return None
+        inside = steps == 0
+        lift, t = standout(inside, errors)
+        if not inside.any() or not t > SIGNIFICANCE or not lift > LIFT:
+            return None
+        mean = errors[inside].mean()
+        return Region(bounds={"step_in_run": (0.0, 0.0)}, count=int(inside.sum()), share=float(errors[inside].sum() / total),
+                      lift=float(lift), rmse=float(np.sqrt(mean)), significant=bool(mean > EXCESS * self._noise.mean()))
 
     def _dimensions(self) -> list:
         squared = (np.where(self.explained, 0.0, self.residuals) * self.evaluation.weights) ** 2
@@ -196,7 +236,7 @@ class Report:
                     name=name,
                     share=share,
                     rmse=float(np.sqrt(per_dim[j]) / self.evaluation.weights[j]),
-                    significant=bool(share > fair and per_dim[j] > EXCESS * self.noise_floor[j]),
+                    significant=bool(share > fair and per_dim[j] > EXCESS * self._noise[j]),
                 )
             )
         dims.sort(key=lambda d: -d.share)

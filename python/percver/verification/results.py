@@ -77,6 +77,8 @@ class Result:
     # Where a network stage's input left the network's domain: one dict per (stage, input) with
     # the first step, the input's box over the cells leaving there, the domain and the cell count.
     domain_exits: list = field(default_factory=list)
+    # Whether the reach sets stay where the model was validated (percver.validate.verifiable.validity).
+    validity: Optional[str] = None
 
     @property
     def verdict(self) -> str:

@@ -76,6 +76,7 @@ def verify(
     progress: bool = True,
     seed: int = 0,
     strict: bool = False,
+    validated=None,
 ) -> Result:
     """Prove ``loop`` satisfies the property from every state of ``init`` (see module doc).
 
@@ -107,7 +108,10 @@ def verify(
     the progress bar shows the step each has reached (``steps=18/40 3/40``). ``rebox=True`` restarts
     a part from its box whenever a remainder is most of a state's enclosure (for loops whose
     remainders feed back and grow, such as the F1/10 LiDAR loop; it loses the dependency on the
-    initial state, so it can be looser elsewhere). ``state_symbols=True`` (Taylor method, discrete
+    initial state, so it can be looser elsewhere). ``validated`` (a ``Domain``, e.g.
+    ``diagnosis.domain``; by default the plant's own when it comes from a diagnosis) makes
+    ``Result.validity`` say whether every reach box stays where the model was validated, or the
+    first step and state where one leaves. ``state_symbols=True`` (Taylor method, discrete
     plants) keeps the remainders of the states that feed back as error symbols from step to step,
     so that an error the controller corrects cancels instead of adding its magnitude again (the
     wrapping effect of a stiff feedback); it pays where the loop's Jacobian varies little over a
@@ -125,7 +129,8 @@ def verify(
     return verify_parts(loop, [part], steps=steps, goal=goal, safe=safe, unsafe=unsafe, within=within, reward=reward,
                         refine=refine, min_width=min_width, splitter=splitter, method=method, rebox=rebox,
                         state_symbols=state_symbols, workers=workers, executor=executor, batch=batch,
-                        timeout_per_cell=timeout_per_cell, falsify=falsify, progress=progress, seed=seed, strict=strict)[0]
+                        timeout_per_cell=timeout_per_cell, falsify=falsify, progress=progress, seed=seed, strict=strict,
+                        validated=validated)[0]
 
 
 def verify_parts(
@@ -152,6 +157,7 @@ def verify_parts(
     progress: bool = True,
     seed: int = 0,
     strict: bool = False,
+    validated=None,
 ) -> list:
     """:func:`verify` on several :class:`Part` s of an initial set (regions that need different
     cell widths or orders), one :class:`Result` per part, each with the whole call's wall time.
@@ -238,7 +244,9 @@ def verify_parts(
                for box, (campaign, settings, _, _) in zip(boxes, jobs)]
     flagged = {(e["stage"], e["input"]) for e in initial_exits}
     flag_exits([e for r in results for e in r.domain_exits if (e["stage"], e["input"]) not in flagged], strict, results)
-    return results
+    from percver.validate.verifiable import validity
+
+    return validity(loop, results, validated)
 
 
 def _splitter_of(part: Part, splitter, refine: bool, min_width: Optional[dict]):

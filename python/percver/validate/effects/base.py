@@ -48,7 +48,7 @@ class Effect:
     @classmethod
     def cause(cls) -> str:
         """The physical cause this effect stands for (the first paragraph of its docstring)."""
-        return inspect.cleandoc(cls.__doc__ or "").split("\n\n")[0].replace("\n", " ")
+        return inspect.cleandoc(cls.__doc__ or "").split("\n\n")[0].replace("\n", " ").replace("``", "")
 
     @classmethod
     def variants(cls, model) -> list:

@@ -13,12 +13,30 @@ from percver.validate.effects.base import Effect
 
 
 class DynamicsEffect(Effect):
+    """Base of dynamics effects. ``actuate``/``pre_step`` act on float batches; ``actuate_expr``/
+    ``pre_step_expr`` are the same maps on expressions (``p`` holds the parameters as numbers or
+    ``pv.uncertain`` ranges), so a diagnosed plant is verified with what was fitted."""
+
     kinds = ("dynamics",)
+    # Parameters the expression form keeps at their fitted value (never an uncertain range).
+    fixed: tuple = ()
+
+    def lags(self) -> int:
+        """Earlier controls the expression form reads (kept as extra states of the plant)."""
+        return 0
 
     def actuate(self, history):
         return history
 
     def pre_step(self, states, model):
+        return states
+
+    def actuate_expr(self, history, p):
+        """``history``: per lag (current first) a list of control expressions."""
+        return history
+
+    def pre_step_expr(self, states, p):
+        """``states``: state name -> expression at the start of the period."""
         return states
 
 
@@ -42,7 +60,14 @@ class _Resistance(DynamicsEffect):
         states[:, column] = self.slow(states[:, column])
         return states
 
+    def pre_step_expr(self, states, p):
+        name = self.params["state"]
+        return {**states, name: self.slow_expr(states[name], p["coefficient"])}
+
     def slow(self, v):
+        raise NotImplementedError
+
+    def slow_expr(self, v, c):
         raise NotImplementedError
 
 
@@ -55,6 +80,9 @@ class LinearDrag(_Resistance):
 
     def slow(self, v):
         return v * (1.0 - self.params["coefficient"])
+
+    def slow_expr(self, v, c):
+        return v * (1.0 - c)
 
 
 class QuadraticDrag(_Resistance):
@@ -72,6 +100,11 @@ class QuadraticDrag(_Resistance):
 
     def slow(self, v):
         return v - self.params["coefficient"] * v * np.abs(v)
+
+    def slow_expr(self, v, c):
+        from percver.expr import abs_
+
+        return v - c * v * abs_(v)
 
 
 class CoulombFriction(_Resistance):
@@ -91,6 +124,13 @@ class CoulombFriction(_Resistance):
     def slow(self, v):
         return np.sign(v) * np.maximum(np.abs(v) - self.params["coefficient"], 0.0)
 
+    def slow_expr(self, v, c):
+        """``sign(v) max(|v| - c, 0)`` written as ``v - clip(v, -c, c)``: equal, and continuous,
+        so a set of speeds across 0 is not split by a ``sign`` branch."""
+        from percver.expr import clip
+
+        return v - clip(v, -c, c)
+
 
 def _control_scale(evaluation):
     scale = float(np.max(np.abs(evaluation.inputs["history"][:, 0])))
@@ -108,6 +148,9 @@ class ActuatorGain(DynamicsEffect):
     def actuate(self, history):
         return history * self.params["gain"]
 
+    def actuate_expr(self, history, p):
+        return [[u * p["gain"] for u in lag] for lag in history]
+
 
 class ActuatorBias(DynamicsEffect):
     """Actuator bias: a constant ``bias`` adds to every control (trim, steering offset)."""
@@ -123,6 +166,9 @@ class ActuatorBias(DynamicsEffect):
 
     def actuate(self, history):
         return history + self.params["bias"]
+
+    def actuate_expr(self, history, p):
+        return [[u + p["bias"] for u in lag] for lag in history]
 
 
 class ActuatorSaturation(DynamicsEffect):
@@ -145,12 +191,19 @@ class ActuatorSaturation(DynamicsEffect):
         limit = self.params["limit"]
         return np.clip(history, -limit, limit)
 
+    def actuate_expr(self, history, p):
+        from percver.expr import clip
+
+        limit = p["limit"]
+        return [[clip(u, -limit, limit) for u in lag] for lag in history]
+
 
 class ActuatorDelay(DynamicsEffect):
     """Actuator delay: the plant receives the control commanded ``periods`` control periods earlier
     (fractions blend the two neighbouring commands)."""
 
     name = "actuator_delay"
+    fixed = ("periods",)
     defaults = {"periods": 0.0}
     bounds = {"periods": (0.0, np.inf)}
     units = {"periods": "periods"}
@@ -162,6 +215,9 @@ class ActuatorDelay(DynamicsEffect):
     def search_bounds(self, model, evaluation):
         return {"periods": (0.0, evaluation.inputs["history"].shape[1] - 1.0)}
 
+    def lags(self):
+        return int(np.ceil(self.params["periods"]))
+
     def actuate(self, history):
         lags = history.shape[1]
         position = np.minimum(np.arange(lags) + self.params["periods"], lags - 1)
@@ -169,6 +225,17 @@ class ActuatorDelay(DynamicsEffect):
         above = np.minimum(below + 1, lags - 1)
         weight = (position - below)[None, :, None]
         return (1 - weight) * history[:, below] + weight * history[:, above]
+
+    def actuate_expr(self, history, p):
+        """The current control only (later effects see one lag): the delay is a fitted
+        number of periods (its interval would change the states the plant keeps)."""
+        periods = self.params["periods"]
+        below = min(int(np.floor(periods)), len(history) - 1)
+        above = min(below + 1, len(history) - 1)
+        weight = periods - np.floor(periods)
+        if weight == 0:
+            return [history[below]]
+        return [[(1 - weight) * a + weight * b for a, b in zip(history[below], history[above])]]
 
 
 EFFECTS = (LinearDrag, QuadraticDrag, CoulombFriction, ActuatorGain, ActuatorBias, ActuatorSaturation, ActuatorDelay)

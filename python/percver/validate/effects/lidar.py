@@ -17,9 +17,16 @@ def _no_echo(predicted, measured, limit):
 
 
 class LidarEffect(Effect):
-    """Base of LiDAR effects: hooks before the cast (``mount``), on ranges, on the limit."""
+    """Base of LiDAR effects: hooks before the cast (``mount``), on ranges, on the limit.
+
+    The ``*_expr`` hooks are the expression forms (``p``: parameters as numbers or
+    ``pv.uncertain`` ranges): the mounting on the pose, the range map as an affine map
+    ``a r + b`` of the echo distance, the limit. ``knockout`` effects (random or
+    hit-dependent lost echoes) enter a verified scan as an adversarial knock-out: any ray may
+    read the range limit at any step."""
 
     kinds = ("lidar",)
+    knockout = False
 
     def mount(self, x, y, theta):
         return x, y, theta
@@ -28,6 +35,15 @@ class LidarEffect(Effect):
         return ranges
 
     def limit(self, limit):
+        return limit
+
+    def mount_expr(self, x, y, theta, p):
+        return x, y, theta
+
+    def affine_expr(self, a, b, p):
+        return a, b
+
+    def limit_expr(self, limit, p):
         return limit
 
 
@@ -45,6 +61,9 @@ class RangeBias(LidarEffect):
     def ranges(self, ranges, hits, model):
         return ranges + self.params["bias"]
 
+    def affine_expr(self, a, b, p):
+        return a, b + p["bias"]
+
 
 class RangeScale(LidarEffect):
     """Range scale error: echoes read ``scale`` times the true distance (clock-rate error)."""
@@ -56,6 +75,9 @@ class RangeScale(LidarEffect):
 
     def ranges(self, ranges, hits, model):
         return ranges * self.params["scale"]
+
+    def affine_expr(self, a, b, p):
+        return a * p["scale"], b * p["scale"]
 
 
 class AngleOffset(LidarEffect):
@@ -69,6 +91,9 @@ class AngleOffset(LidarEffect):
 
     def mount(self, x, y, theta):
         return x, y, theta + np.radians(self.params["yaw_deg"])
+
+    def mount_expr(self, x, y, theta, p):
+        return x, y, theta + p["yaw_deg"] * (np.pi / 180.0)
 
 
 class PositionOffset(LidarEffect):
@@ -85,6 +110,13 @@ class PositionOffset(LidarEffect):
         f, l = self.params["forward"], self.params["left"]
         return x + f * c - l * s, y + f * s + l * c, theta
 
+    def mount_expr(self, x, y, theta, p):
+        from percver.expr import cos, sin
+
+        c, s = cos(theta), sin(theta)
+        f, l = p["forward"], p["left"]
+        return x + f * c - l * s, y + f * s + l * c, theta
+
 
 class MaxRange(LidarEffect):
     """A different range limit: echoes beyond ``limit`` metres are lost (weak returns, dark walls),
@@ -99,6 +131,9 @@ class MaxRange(LidarEffect):
 
     def limit(self, limit):
         return limit if self.params["limit"] is None else self.params["limit"]
+
+    def limit_expr(self, limit, p):
+        return limit if p["limit"] is None else p["limit"]
 
     def search_bounds(self, model, evaluation):
         nominal = model.lidar.max_range
@@ -125,6 +160,9 @@ class SpecularReflection(LidarEffect):
     units = {"start": "m", "end": "m", "threshold_deg": "deg"}
     smooth = False
     repeatable = True
+    # Which rays it mirrors depends on the hit point and the incidence; verified as a knock-out
+    # of any ray (sound, looser than the panel alone).
+    knockout = True
 
     def ranges(self, ranges, hits, model):
         where = hits.wall_coordinate(model.track)
@@ -180,6 +218,7 @@ class Dropout(LidarEffect):
     defaults = {"rate": 0.0}
     bounds = {"rate": (0.0, 1.0)}
     stochastic = True
+    knockout = True
 
     def fit_stochastic(self, model, evaluation, predicted):
         limit = model.range_limit()
