@@ -1,6 +1,8 @@
 """Image-based Mountain Car, end to end: data -> models -> state-estimation metric -> verification (paper, section 5.1).
 
-The defaults are small (about 100 s on this project's 2-core machine; --full about 10 minutes):
+The defaults are small (177 s measured on this project's 2-core machine at low load, issue 29);
+--full takes the paper's sizes (data set 20 s, training 2-5 min, evaluation 3-8 min on that
+machine, idle to loaded: percver/cases/mountain_car/README.md):
 
     python examples/mountain_car.py           # 400 positions x 10 noise levels, small batches, 100 runs per noise
     python examples/mountain_car.py --full    # the paper's D (82,000 images) and models, 1000 runs per noise
@@ -27,7 +29,7 @@ from percver.errors import MissingFileError
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--full", action="store_true", help="the paper's sizes (about 10 minutes in all)")
+    parser.add_argument("--full", action="store_true", help="the paper's sizes (6-14 minutes on 2 cores, idle to loaded)")
     parser.add_argument("--out", default="out/mountain_car", help="output directory (default: %(default)s)")
     parser.add_argument("--seed", type=int, default=0)
     args = parser.parse_args()

@@ -19,6 +19,19 @@ COMMANDS = [
 ]
 
 
+def version() -> str:
+    """The installed distribution's version (the wheel's metadata), else the core's (a source tree on PYTHONPATH)."""
+    from importlib.metadata import PackageNotFoundError
+    from importlib.metadata import version as installed
+
+    try:
+        return installed("percver")
+    except PackageNotFoundError:
+        from percver import _core
+
+        return _core.__version__
+
+
 def build_parser() -> argparse.ArgumentParser:
     import importlib
 
@@ -26,6 +39,7 @@ def build_parser() -> argparse.ArgumentParser:
         prog="percver",
         description="Data-driven modeling and formal verification of perception-based autonomous systems.",
     )
+    parser.add_argument("--version", action="version", version=f"percver {version()}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     for module, function in COMMANDS:
         getattr(importlib.import_module(module), function)(sub)

@@ -8,6 +8,7 @@ A ``Measurements`` object is checked once, when it is built, so that everything 
 from __future__ import annotations
 
 import json
+import zipfile
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -376,8 +377,12 @@ class Measurements:
         try:
             with np.load(path, allow_pickle=False) as npz:
                 content = {key: npz[key] for key in npz.files}
-        except (OSError, ValueError) as error:
-            raise MeasurementError(f"cannot read '{path}' as .npz: {error}") from None
+        except (OSError, ValueError, zipfile.BadZipFile):
+            # numpy's own message suggests allow_pickle=True, which would run code from the file.
+            raise MeasurementError(
+                f"cannot read '{path}': the file is corrupt or not a percver measurement file (an .npz written by "
+                "Measurements.save, or np.savez(path, states=..., measurements=...))"
+            ) from None
         if "states" not in content:
             raise MeasurementError(
                 f"'{path}' has no 'states' array (keys: {sorted(content)}): save with Measurements.save or "

@@ -9,6 +9,10 @@ from pathlib import Path
 
 from percver.errors import InputError
 
+# The authors' data is not in the package; where it is found (see percver.cases.mountain_car.networks.default_shared).
+SHARED = ("the authors' data, read-only beside the repository (default: $PERCVER_SHARED, else ../shared/data "
+          "beside the working directory or one of its parents)")
+
 
 def register(sub) -> None:
     parser = sub.add_parser("cases", help="run a stage of a case study of the paper (data, train, evaluate, verify)",
@@ -48,9 +52,9 @@ def register(sub) -> None:
     train.set_defaults(func=_train)
 
     evaluate = stages.add_parser("evaluate", help="the paper's state-estimation metric: plots and summary JSON")
-    evaluate.add_argument("--networks", default="ours", help="ours (shipped), paper (the authors', from the shared data) or DIR")
+    evaluate.add_argument("--networks", default="ours", help="ours (shipped; default), paper (the authors', from the shared data) or DIR")
     evaluate.add_argument("--controller", help="take the controller from another set: ours, paper, DIR or a network file")
-    evaluate.add_argument("--shared", help="the shared data folder holding mountain_car/networks (default: ../shared/data next to the repository)")
+    evaluate.add_argument("--shared", help=SHARED)
     evaluate.add_argument("--noises", default="canonical,contrast,blur,composite", help="comma-separated noise kinds (default: all)")
     evaluate.add_argument("--trajectories", type=int, default=1000, help="random closed-loop runs per noise kind (default: %(default)s)")
     evaluate.add_argument("--steps", type=int, default=150, help="horizon of each run (default: %(default)s)")
@@ -149,10 +153,10 @@ def _register_mc_verify(stages) -> None:
     verify.add_argument("--p0", nargs=2, type=float, metavar=("LO", "HI"), help="initial positions (default: the row's)")
     verify.add_argument("--delta-c", nargs=2, type=float, metavar=("LO", "HI"), help="contrast range (default: the row's)")
     verify.add_argument("--delta-b", nargs=2, type=float, metavar=("LO", "HI"), help="blur range (default: the row's)")
-    verify.add_argument("--networks", default="paper", help="paper (the authors', from the shared data), ours (shipped) or DIR")
+    verify.add_argument("--networks", default="ours", help="ours (shipped; default), paper (the authors', from the shared data) or DIR")
     verify.add_argument("--controller", help="take the controller from another set: paper, ours, DIR or a network file "
                         "(e.g. --networks ours --controller paper: our perception, the authors' verified controller)")
-    verify.add_argument("--shared", help="the shared data folder (default: ../shared/data next to the repository)")
+    verify.add_argument("--shared", help=SHARED)
     verify.add_argument("--split", metavar="NAME=W,...", help="initial cell widths, e.g. p=0.005,dc=0.2 (default: per row)")
     verify.add_argument("--min-width", metavar="NAME=W,...", help="refinement stops at these widths, e.g. p=0.0003,dc=0.02")
     verify.add_argument("--no-refine", action="store_true", help="report unknown cells instead of bisecting them")
@@ -181,7 +185,7 @@ def _widths(text: str | None, option: str) -> dict | None:
 
 def _mc_verify(args) -> int:
     from percver.cases.mountain_car import verification
-    from percver.commands.verify import EXIT
+    from percver.commands import EXIT, unknown_lines
 
     options = {k: v for k, v in (("split", _widths(args.split, "--split")), ("min_width", _widths(args.min_width, "--min-width")),
                                  ("timeout_per_cell", args.timeout_per_cell), ("workers", args.workers), ("max_splits", args.max_splits),
@@ -194,8 +198,8 @@ def _mc_verify(args) -> int:
         print(json.dumps(record))
     else:
         print(verification.format_row(args.noise, record["row"], record["paper"]))
-        for variable, first, last, n in record["reasons"]:
-            print(f"unknown: {n} cells, the enclosure of '{variable}' blew up at steps {first}-{last}")
+        for line in unknown_lines(record["reasons"]):
+            print(line)
         cex = result.counterexample
         if cex is not None:
             print(f"falsified: from p0 = {cex.initial['p']:.9g}: {cex.violated} fails at step {cex.step}")
@@ -212,7 +216,7 @@ def _register_f1tenth(cases) -> None:
     )
     f1.set_defaults(func=lambda args: _usage(f1))
     stages = f1.add_subparsers(dest="stage", metavar="STAGE")
-    shared = "the F1/10 data folder (default: $PERCVER_F1TENTH_DATA or ../shared/data/f1tenth)"
+    shared = "the F1/10 data folder (default: $PERCVER_F1TENTH_DATA, $PERCVER_SHARED/f1tenth or ../shared/data/f1tenth)"
 
     simulate = stages.add_parser("simulate", help="drive the 12 controllers through the first turn of the 'real' hall")
     simulate.add_argument("--out", default="f1tenth_runs.npz", help="measurements to write (default: %(default)s)")
@@ -371,7 +375,7 @@ def _f1_evaluate(args) -> int:
 
 def _f1_verify(args) -> int:
     from percver.cases.f1tenth import verification
-    from percver.commands.verify import EXIT
+    from percver.commands import EXIT
 
     result = verification.verify(tuple(args.y1), args.networks, noise_model=not args.canonical, cell=args.cell,
                                  mode=args.mode, data=args.data, max_splits=args.max_splits, workers=args.workers,

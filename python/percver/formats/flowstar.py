@@ -25,7 +25,7 @@ from pathlib import Path
 from typing import Optional, Union
 
 from percver import _core
-from percver.errors import BlowUpError, InputError, ParseError
+from percver.errors import BlowUpError, InputError, MissingFileError, ParseError
 
 
 @dataclass
@@ -145,7 +145,7 @@ def load_flowstar(path: str) -> Union[FlowstarModel, "HybridModel"]:
     """Parses a Flow* model file: a :class:`FlowstarModel` (continuous) or a :class:`HybridModel`."""
     p = Path(path)
     if not p.exists():
-        raise FileNotFoundError(f"Flow* model '{path}' does not exist")
+        raise MissingFileError(f"Flow* model '{path}' does not exist")
     text = re.sub(r"#[^\n]*", "", p.read_text())
     name = str(p)
     if re.match(r"\s*hybrid\s+reachability", text):
@@ -192,9 +192,12 @@ def load_flowstar(path: str) -> Union[FlowstarModel, "HybridModel"]:
         if v not in variables:
             raise ParseError(f"{name}, line {_line_of(text, line)}: equation for undeclared variable '{v}' (state var: {', '.join(variables)})")
         try:
-            _core.Expr.parse(rhs)
+            unknown = sorted(set(_core.Expr.parse(rhs).variables()) - set(variables))
         except ParseError as e:
             raise ParseError(f"{name}, line {_line_of(text, line)}: {e}") from None
+        if unknown:
+            raise ParseError(f"{name}, line {_line_of(text, line)}: the ODE \"{v}' = {rhs}\" uses {', '.join(map(repr, unknown))}, "
+                             f"which is not a state variable (state var: {', '.join(variables)}); declare it or fix the name")
         odes[v] = rhs
     missing = [v for v in variables if v not in odes]
     if missing:

@@ -3,7 +3,8 @@
 The controllers, the authors' noise models and the statistics of the real LiDAR runs are
 research data under their own licences; percver reads them where they are and never ships
 them. ``data_dir`` finds them: an explicit path, else ``$PERCVER_F1TENTH_DATA``, else a
-``shared/data/f1tenth`` folder beside or above the working directory or this package.
+``f1tenth`` folder in ``$PERCVER_SHARED``, else a ``shared/data/f1tenth`` folder beside or above
+the working directory or this package.
 """
 
 from __future__ import annotations
@@ -32,14 +33,22 @@ def data_dir(path=None) -> Path:
         return folder
     if os.environ.get(ENV):
         return data_dir(os.environ[ENV])
+    shared = os.environ.get("PERCVER_SHARED")
+    if shared:
+        for candidate in (Path(shared) / "f1tenth", Path(shared) / "data" / "f1tenth"):
+            if (candidate / _MARKER).is_dir():
+                return candidate
+        raise MissingFileError(f"$PERCVER_SHARED is '{shared}', which has no f1tenth/{_MARKER}/ folder: point it to the "
+                               f"shared data folder (../shared/data beside the repository) or set ${ENV}")
     for start in (Path.cwd(), Path(__file__).resolve()):
         for folder in (start, *start.parents):
             for candidate in (folder / "shared" / "data" / "f1tenth", folder.parent / "shared" / "data" / "f1tenth"):
                 if (candidate / _MARKER).is_dir():
                     return candidate
     raise MissingFileError(
-        f"cannot find the F1/10 data (controllers, noise models, real-data statistics): set ${ENV} to the "
-        "folder or pass data=... (the project keeps it in ../shared/data/f1tenth)"
+        f"cannot find the F1/10 data (the authors' controllers, noise models, real-data statistics; not part of "
+        f"the percver package): the project keeps it read-only beside the repository as ../shared/data/f1tenth; "
+        f"set PERCVER_SHARED=/path/to/shared/data or ${ENV} to the folder, or pass data=... (CLI: --data PATH)"
     )
 
 

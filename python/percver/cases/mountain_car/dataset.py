@@ -4,6 +4,7 @@
 
 from __future__ import annotations
 
+import zipfile
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -113,8 +114,12 @@ class Dataset:
                     )
                 arrays = {name: np.asarray(npz[name]) for name in cls.FIELDS}
                 meta = json.loads(str(npz["meta"])) if "meta" in npz.files else {}
-        except (OSError, ValueError) as error:
-            raise ParseError(f"{path}: not a readable .npz data set ({error})") from None
+        except ParseError:
+            raise
+        except (OSError, ValueError, zipfile.BadZipFile):
+            # numpy's own message suggests allow_pickle=True, which would run code from the file.
+            raise ParseError(f"{path}: the file is corrupt or not a Mountain Car data set (make one with "
+                             "`percver cases mountain-car data`)") from None
         return cls(**arrays, meta={**meta, "path": str(path)})
 
 

@@ -15,6 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
+from percver.cases.mountain_car import dynamics
 from percver.cases.mountain_car.camera import PIXELS
 from percver.errors import InputError, MissingFileError
 from percver.networks import Network, load_network
@@ -36,17 +37,42 @@ SHAPES = {"generator": (1, PIXELS), "contrast": (PIXELS + 1, PIXELS), "blur": (P
           "estimator": (PIXELS, 1), "controller": (2, 1)}  # fmt: skip
 
 
+def training_domain(role: str) -> list:
+    """The input range each role's training data was drawn from (:mod:`percver.cases.mountain_car.training`):
+    positions over [P_MIN, P_MAX], pixels in [0, 1], noise levels over the row's range, velocities
+    within +-V_MAX. Training writes it into each ONNX file as the network's ``domain``."""
+    p, pixel = (dynamics.P_MIN, dynamics.P_MAX), (0.0, 1.0)
+    domains = {
+        "generator": [p],
+        "contrast": [pixel] * PIXELS + [dynamics.CONTRAST_RANGE],
+        "blur": [pixel] * PIXELS + [dynamics.BLUR_RANGE],
+        "estimator": [pixel] * PIXELS,
+        "controller": [p, (-dynamics.V_MAX, dynamics.V_MAX)],
+    }
+    if role not in domains:
+        raise InputError(f"unknown model role '{role}'; roles are {list(ROLES)}")
+    return domains[role]
+
+
+# The authors' data (their networks, published logs, the F1/10 study's files) is research data under
+# its own licences: percver never ships it. The project keeps it read-only beside the repository.
+SHARED_HINT = ("the authors' data is not part of the percver package: it sits read-only beside the repository as "
+               "../shared/data; set PERCVER_SHARED=/path/to/shared/data, or pass shared=PATH (CLI: --shared PATH)")
+
+
 def default_shared() -> Path:
     """The shared data: ``$PERCVER_SHARED``, else the first ``shared/data`` beside the working
-    directory or one of its parents (a checkout next to ``../shared``), else beside the
-    repository this package was installed from (editable installs)."""
+    directory or one of its parents (a checkout next to ``../shared``), else beside the source tree
+    this package runs from (editable installs); else ``../shared/data`` from the working directory,
+    which does not exist (the callers' errors then say where they looked and :data:`SHARED_HINT`)."""
     if os.environ.get("PERCVER_SHARED"):
         return Path(os.environ["PERCVER_SHARED"])
-    for folder in (Path.cwd(), *Path.cwd().parents):
+    here = Path(__file__).resolve()
+    for folder in (Path.cwd(), *Path.cwd().parents, *here.parents):
         for candidate in (folder / "shared" / "data", folder.parent / "shared" / "data"):
             if (candidate / "mountain_car" / "networks" / PAPER_FILES["generator"]).is_file():
                 return candidate
-    return Path(__file__).resolve().parents[4].parent / "shared" / "data"
+    return Path.cwd().parent / "shared" / "data"
 
 
 def paper_dir(shared=None) -> Path:
@@ -57,8 +83,8 @@ def paper_dir(shared=None) -> Path:
             return folder
     raise MissingFileError(
         f"the authors' Mountain Car networks are not in {base} (looked for {PAPER_FILES['generator']} there, "
-        "in mountain_car/networks and in data/mountain_car/networks); pass shared=PATH (CLI: --shared PATH) "
-        "pointing to the shared data, or use networks='ours'"
+        f"in mountain_car/networks and in data/mountain_car/networks): {SHARED_HINT}; "
+        "or use percver's shipped networks: networks='ours' (CLI: --networks ours)"
     )
 
 

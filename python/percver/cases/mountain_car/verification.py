@@ -348,13 +348,13 @@ def published(noise: str, *, shared=None) -> dict:
 
 def read_published(name: str, *, shared=None) -> dict:
     """Summary of one of the authors' per-interval logs: verdict counts, p0 and noise ranges covered, times."""
-    from percver.cases.mountain_car.networks import default_shared
+    from percver.cases.mountain_car.networks import SHARED_HINT, default_shared
 
     base = Path(shared) if shared is not None else default_shared()
     path = next((f for f in (base / name, base / "mountain_car" / "published_results" / name,
                              base / "data" / "mountain_car" / "published_results" / name) if f.is_file()), None)
     if path is None:
-        raise MissingFileError(f"the authors' log {name} is not under {base} (mountain_car/published_results)")
+        raise MissingFileError(f"the authors' log {name} is not under {base} (mountain_car/published_results): {SHARED_HINT}")
     rows = []
     for line in path.read_text().splitlines()[1:]:
         fields = [f.strip() for f in line.split(",")]
@@ -462,39 +462,70 @@ def plot_coverage(result, path) -> Path:
     return Path(path)
 
 
+def proven(result) -> str:
+    """What the result proves (or leaves open), in words: the property, horizon, initial set, noise
+    ranges, verdict and coverage; the figures' headline."""
+    init = result.init
+    noise = ", ".join(f"{what} {n} in [{init[n][0]:g}, {init[n][1]:g}]" for n, what in (("dc", "contrast"), ("db", "blur")) if n in init)
+    claim = (f"from p0 in [{init['p'][0]:g}, {init['p'][1]:g}], v0 = 0" + (f", {noise}" if noise else "")
+             + f": every run reaches p >= {dynamics.GOAL:g} within {dynamics.STEPS} steps with reward > {dynamics.REWARD_BOUND:g}")
+    counts = ", ".join(f"{n} {v}" for v in ("verified", "unknown", "falsified")
+                       if (n := sum(c.verdict == v for c in result.cells)))
+    return f"{claim}\n{result.verdict.upper()}: {100 * result.coverage:.1f}% of the initial set ({counts} of {len(result.cells)} cells)"
+
+
 def plot_tube(result, path, loop, samples: int = 40, seed: int = 0) -> Path:
-    """The reach tube of p (per-step boxes of each cell) over simulated runs from the initial set, each
-    run drawn until its first step at the goal; the right panel zooms in on the arrival."""
+    """What was proven, at a glance: the claim and verdict as the title; the reach tube of p (each
+    cell's per-step boxes, drawn over simulated runs from the initial set, each run until its first
+    step at the goal) with the goal line; a zoom on the arrival; and the reward sum ``r`` against
+    the bound it must beat at arrival (reward = r + 100 > 90)."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+    from matplotlib.patches import Patch
 
     from percver.sets import Box
 
     loop = with_reward(loop)
-    j = result.states.index("p")
     colours = {"verified": "tab:green", "unknown": "tab:orange", "falsified": "tab:red"}
     traj, first = runs(loop, Box.coerce(result.init, loop.states).sample(samples, seed=seed))
     ends = np.where(first >= 0, first, traj.shape[1] - 1)
-    fig, axes = plt.subplots(1, 2, figsize=(11, 4.5), gridspec_kw={"width_ratios": [2, 1]})
-    for ax in axes:
+    fig = plt.figure(figsize=(12, 7.5))
+    grid = fig.add_gridspec(2, 3, height_ratios=[3, 2])
+    tube, zoom, reward = fig.add_subplot(grid[0, :2]), fig.add_subplot(grid[0, 2]), fig.add_subplot(grid[1, :])
+    panels = ((tube, "p"), (zoom, "p"), (reward, "r"))
+    for ax, state in panels:
+        k, j = loop.states.index(state), result.states.index(state)
+        for run, end in zip(traj[:, :, k], ends):  # runs first, thin: the tube is drawn over them
+            ax.plot(np.arange(end + 1), run[: end + 1], color="0.25", linewidth=0.5, alpha=0.6, zorder=1)
         for cell in result.cells:
             if cell.boxes:
                 b = np.asarray(cell.boxes)[:, j]
-                ax.fill_between(np.arange(len(b)), b[:, 0], b[:, 1], step="mid", color=colours[cell.verdict], alpha=0.35, linewidth=0)
-        for run, end in zip(traj[:, :, j], ends):
-            ax.plot(np.arange(end + 1), run[: end + 1], color="k", linewidth=0.4)
-        ax.axhline(dynamics.GOAL, color="tab:blue", linestyle="--", linewidth=0.8, label="goal p = 0.45")
+                ax.fill_between(np.arange(len(b)), b[:, 0], b[:, 1], step="mid", facecolor=colours[cell.verdict],
+                                edgecolor=colours[cell.verdict], alpha=0.3, linewidth=0.6, zorder=2)
         ax.set_xlabel("step")
+        ax.grid(alpha=0.3)
+    for ax in (tube, zoom):
+        ax.axhline(dynamics.GOAL, color="tab:blue", linestyle="--", linewidth=1, zorder=3)
+    bound = dynamics.REWARD_BOUND - dynamics.GOAL_REWARD
+    reward.axhline(bound, color="tab:red", linestyle="--", linewidth=1, zorder=3)
     last = max((len(c.boxes) for c in result.cells), default=1) - 1
-    axes[1].set_xlim(max(0, int(ends.min()) - 8), max(last, int(ends.max())) + 1)
-    axes[1].set_ylim(0.2, 0.65)
-    axes[1].set_title("arrival: per-step boxes and runs", fontsize=9)
-    axes[0].set_ylabel("p")
-    axes[0].legend(loc="lower right", fontsize=8)
-    axes[0].set_title(f"reach tube of p ({result.verdict}, coverage {100 * result.coverage:.1f}% of {len(result.cells)} cells) "
-                      f"over {samples} simulated runs", fontsize=9)
+    zoom.set_xlim(max(0, int(ends.min()) - 8), max(last, int(ends.max())) + 1)
+    zoom.set_ylim(0.2, 0.65)
+    tube.set_ylabel("position p")
+    zoom.set_title("arrival at the goal (zoom)", fontsize=9)
+    tube.set_title("reach tube of p: every run from the initial set stays inside", fontsize=9)
+    reward.set_ylabel("reward sum r (-0.1 u² per step)")
+    reward.set_title(f"reward: r must stay above {bound:g} until arrival (reward = r + {dynamics.GOAL_REWARD:g} > "
+                     f"{dynamics.REWARD_BOUND:g})", fontsize=9)
+    present = [v for v in colours if any(c.verdict == v and c.boxes for c in result.cells)]
+    handles = [Patch(facecolor=colours[v], edgecolor=colours[v], alpha=0.4, label=f"reach tube ({v} cells)") for v in present]
+    handles += [plt.Line2D([], [], color="0.25", linewidth=0.8, label=f"{samples} simulated runs (until arrival)"),
+                plt.Line2D([], [], color="tab:blue", linestyle="--", label=f"goal p = {dynamics.GOAL:g}"),
+                plt.Line2D([], [], color="tab:red", linestyle="--", label=f"reward bound r = {bound:g}")]
+    tube.legend(handles=handles, loc="lower right", fontsize=8, framealpha=0.9)
+    fig.suptitle(proven(result), fontsize=10)
     fig.tight_layout()
     fig.savefig(path, dpi=120)
     plt.close(fig)

@@ -1,0 +1,262 @@
+# Type stubs for percver._core, the pyo3 module built from crates/percver-py/src/*.rs.
+# tests/test_packaging.py checks that every name and method the module exports is declared here
+# (and nothing else), so a change to the Rust boundary that forgets this file fails CI.
+# Errors are raised as percver.errors classes (InputError, DomainError, ParseError, BlowUpError,
+# NetworkFormatError), mapped in crates/percver-py/src/error.rs.
+
+from typing import Any, Callable, Optional, Sequence, Tuple, Union
+
+import numpy as np
+from numpy.typing import NDArray
+
+__version__: str
+
+Bounds = Sequence[Tuple[float, float]]
+# One DAG node for pickling: (kind, operator/function index, numbers, child indices, name).
+FlatNode = Tuple[int, int, Sequence[float], Sequence[int], str]
+Operand = Union["Expr", float]
+
+class Interval:
+    """A closed interval with outward-rounded arithmetic."""
+
+    def __init__(self, lo: float, hi: Optional[float] = None) -> None: ...
+    @property
+    def lo(self) -> float: ...
+    @property
+    def hi(self) -> float: ...
+    def is_empty(self) -> bool: ...
+    def contains(self, x: float) -> bool: ...
+    def __add__(self, o: Interval) -> Interval: ...
+    def __sub__(self, o: Interval) -> Interval: ...
+    def __mul__(self, o: Interval) -> Interval: ...
+    def __truediv__(self, o: Interval) -> Interval: ...
+    def __neg__(self) -> Interval: ...
+    def div_extended(self, o: Interval) -> Interval:
+        """Division that returns the whole line for a divisor containing zero instead of raising."""
+    def hull(self, o: Interval) -> Interval: ...
+    def intersect(self, o: Interval) -> Interval: ...
+    def sqr(self) -> Interval: ...
+    def powi(self, n: int) -> Interval: ...
+    def powf(self, r: float) -> Interval: ...
+    def apply(self, name: str) -> Interval:
+        """An elementary function by name: exp log sqrt sin cos tan atan tanh sigmoid abs."""
+
+class Expr:
+    """A node of the expression DAG, evaluated on floats, intervals and Taylor models."""
+
+    @staticmethod
+    def var(name: str) -> Expr: ...
+    @staticmethod
+    def constant(value: float) -> Expr: ...
+    @staticmethod
+    def uncertain(lo: float, hi: float) -> Expr:
+        """A constant known only to lie in [lo, hi]."""
+    @staticmethod
+    def parse(text: str) -> Expr: ...
+    @staticmethod
+    def apply(name: str, arg: Operand) -> Expr: ...
+    @staticmethod
+    def select(condition: Condition, then: Operand, otherwise: Operand) -> Expr: ...
+    @staticmethod
+    def minimum(a: Operand, b: Operand) -> Expr: ...
+    @staticmethod
+    def maximum(a: Operand, b: Operand) -> Expr: ...
+    @staticmethod
+    def _from_nodes(nodes: Sequence[FlatNode]) -> Expr: ...
+    def variables(self) -> list[str]: ...
+    def name(self) -> Optional[str]:
+        """The variable's name if this expression is a bare variable."""
+    def structural_hash(self) -> int:
+        """Structural hash (each shared node once): for fingerprints of large expression DAGs."""
+    def __add__(self, o: Operand) -> Expr: ...
+    def __radd__(self, o: Operand) -> Expr: ...
+    def __sub__(self, o: Operand) -> Expr: ...
+    def __rsub__(self, o: Operand) -> Expr: ...
+    def __mul__(self, o: Operand) -> Expr: ...
+    def __rmul__(self, o: Operand) -> Expr: ...
+    def __truediv__(self, o: Operand) -> Expr: ...
+    def __rtruediv__(self, o: Operand) -> Expr: ...
+    def __pow__(self, exponent: float, modulo: None = None) -> Expr: ...
+    def __neg__(self) -> Expr: ...
+    def __pos__(self) -> Expr: ...
+    def __lt__(self, o: Operand) -> Condition: ...
+    def __le__(self, o: Operand) -> Condition: ...
+    def __gt__(self, o: Operand) -> Condition: ...
+    def __ge__(self, o: Operand) -> Condition: ...
+    def __hash__(self) -> int: ...
+
+class Condition:
+    """A comparison ``lhs op rhs``, the argument of ``where`` and of properties."""
+
+    @property
+    def op(self) -> str: ...
+    @property
+    def lhs(self) -> Expr: ...
+    @property
+    def rhs(self) -> Expr: ...
+    def margin(self) -> Expr:
+        """The expression lhs - rhs whose sign the condition tests."""
+    def __bool__(self) -> bool: ...
+
+class TaylorModels:
+    """Taylor models of expressions over a box (each variable mapped affinely onto [-1, 1])."""
+
+    def bound(self) -> list[Tuple[float, float]]:
+        """Naive (monomial-wise) range bound of each model."""
+    def range(self) -> list[Tuple[float, float]]:
+        """Range bound refined by the linear dominated bounder."""
+    def remainders(self) -> list[Tuple[float, float]]: ...
+    def degree(self) -> list[int]: ...
+    def enclose(self, points: NDArray[np.float64]) -> Tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """Rigorous enclosures (lo, hi arrays, N x m) of the models at the given points of the box."""
+
+class FlowpipeResult:
+    """A validated flowpipe: one box per time segment."""
+
+    @property
+    def names(self) -> list[str]: ...
+    @property
+    def times(self) -> NDArray[np.float64]:
+        """(S, 2) array of segment start and end times."""
+    @property
+    def boxes(self) -> NDArray[np.float64]:
+        """(S, n, 2) array: the box of each segment, lower and upper bounds per variable."""
+    @property
+    def final_box(self) -> list[Tuple[float, float]]: ...
+    @property
+    def time_reached(self) -> float: ...
+    @property
+    def failure(self) -> Optional[str]:
+        """Why integration stopped early (None when it reached the horizon)."""
+    @property
+    def orders(self) -> list[int]: ...
+    @property
+    def stats(self) -> dict[str, Any]: ...
+
+class NetworkModels:
+    """Taylor models of a network's outputs (or inputs), ready to be propagated further."""
+
+    def __len__(self) -> int: ...
+    def bounds(self) -> list[Tuple[float, float]]:
+        """Range of each model (polynomial by the linear dominated bounder, plus symbols and remainder)."""
+    def remainders(self) -> list[Tuple[float, float]]:
+        """Each model's interval remainder, the error symbols' range included."""
+    @property
+    def symbols(self) -> int:
+        """Error symbols shared between the models (activation errors kept for cancellation)."""
+    @property
+    def variables(self) -> list[Tuple[int, int, float, float]]:
+        """(input index, variable, centre, radius): input = centre + radius * x_variable, x in [-1, 1]."""
+    @property
+    def order(self) -> int: ...
+
+class Network:
+    """A feed-forward network: ``layers`` of (weight n_out x n_in, bias, activations: one name per
+    neuron or one per layer), outputs mapped by ``scale`` and ``offset``."""
+
+    def __init__(
+        self,
+        layers: Sequence[Tuple[NDArray[np.float64], NDArray[np.float64], Sequence[str]]],
+        scale: Optional[Sequence[float]] = None,
+        offset: Optional[Sequence[float]] = None,
+    ) -> None: ...
+    @property
+    def n_in(self) -> int: ...
+    @property
+    def n_out(self) -> int: ...
+    def bounds(
+        self,
+        input: Union[Bounds, NetworkModels],
+        method: str = "taylor",
+        order: int = 5,
+        cutoff: float = 1e-15,
+        symbolic: bool = True,
+        max_vars: int = 4,
+        max_symbols: int = 4096,
+        splits: Sequence[Tuple[int, int]] = ...,
+    ) -> list[Tuple[float, float]]:
+        """Sound output bounds over a box (or over earlier models) by "taylor", "verisig" or "interval"."""
+    def models(
+        self,
+        input: Union[Bounds, NetworkModels],
+        method: str = "taylor",
+        order: int = 5,
+        cutoff: float = 1e-15,
+        symbolic: bool = True,
+        max_vars: int = 4,
+        max_symbols: int = 4096,
+    ) -> NetworkModels:
+        """The output Taylor models over a box (or over earlier models), to propagate further."""
+
+# A condition for the engine: (margin, op, label) meaning ``margin op 0`` over the state.
+EngineCondition = Tuple[Expr, str, str]
+# A discrete plant: next-state expressions over env_names. A continuous plant: (right-hand sides,
+# ODE variable names = states then inputs, input indices in the environment, control period,
+# integration step, remainder estimate).
+Plant = Union[Sequence[Expr], Tuple[Sequence[Expr], Sequence[str], Sequence[int], float, float, float]]
+# A stage's component: a network, or expressions over named inputs.
+Component = Union[Network, Tuple[Sequence[Expr], Sequence[str]]]
+
+class ClosedLoop:
+    """A perception-control loop for the cell engine. ``stages``: (component, indices of its inputs
+    in the environment = state ++ stage outputs)."""
+
+    def __init__(
+        self,
+        state_names: Sequence[str],
+        stages: Sequence[Tuple[Component, Sequence[int]]],
+        env_names: Sequence[str],
+        plant: Plant,
+        safe: Sequence[EngineCondition],
+        goal: Optional[EngineCondition],
+        goal_within: bool,
+        steps: int,
+    ) -> None: ...
+
+def eval_float(exprs: Sequence[Expr], names: Sequence[str], points: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Float evaluation of ``exprs`` on the rows of ``points`` (N x len(names)) -> N x len(exprs)."""
+
+def eval_interval(exprs: Sequence[Expr], names: Sequence[str], bounds: Bounds) -> list[Tuple[float, float]]:
+    """Interval evaluation over a box."""
+
+def taylor_models(exprs: Sequence[Expr], names: Sequence[str], bounds: Bounds, order: int = 6, cutoff: float = 0.0) -> TaylorModels:
+    """Taylor models of expressions over a box (each variable mapped affinely onto [-1, 1])."""
+
+def parse_condition(text: str) -> Condition:
+    """Parses Flow*'s constraint syntax ``lhs <= rhs`` into a Condition."""
+
+def flowpipe(
+    names: Sequence[str],
+    rhs: Sequence[Expr],
+    init: Bounds,
+    t_end: float,
+    step: Union[float, Tuple[float, float]],
+    order: Union[int, Tuple[int, int]],
+    cutoff: float = 1e-10,
+    remainder: Optional[Sequence[float]] = None,
+    precondition: str = "identity",
+    refinements: int = 30,
+    symbolic_queue: int = 100,
+    progress: Optional[Callable[..., Any]] = None,
+) -> FlowpipeResult:
+    """A validated flowpipe of ``d names / dt = rhs`` from ``init`` to ``t_end``; ``step`` fixed or
+    (min, max) adaptive, ``order`` fixed or (min, max) adaptive."""
+
+def verify_cells(
+    problem: ClosedLoop,
+    cells: Sequence[Bounds],
+    done: Callable[[int, dict[str, Any]], Optional[bool]],
+    order: int = 5,
+    cutoff: float = 1e-12,
+    method: str = "taylor",
+    timeout: Optional[float] = None,
+    workers: Optional[int] = None,
+    nn_order: Optional[int] = None,
+    blow_up_width: float = 1e6,
+    max_splits: int = 16,
+    rebox: bool = False,
+    state_symbols: bool = False,
+) -> None:
+    """Runs ``cells`` ((lo, hi) per state variable); ``done(index, outcome)`` is called as each cell
+    finishes (outcome keys: verdict, reason, steps_done, boxes, seconds, nn_seconds, branches,
+    split); returning False (or raising) stops starting new cells."""
