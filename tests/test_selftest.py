@@ -217,7 +217,7 @@ def test_a_faulty_engine_is_caught_shrunk_and_reproduced(monkeypatch, capsys):
     monkeypatch.setattr(campaign_module, "verify_with_percver", _unsound)
     assert main(["selftest", "--programs", "20", "--seed", "3", "--shrink-seconds", "20", "--no-progress"]) == 1
     out = capsys.readouterr().out
-    assert "VIOLATION in program" in out and "(box)" in out and "1 violations" in out
+    assert "VIOLATION in program" in out and "(box)" in out and "1 violation in" in out
     script = out.split("-" * 72 + "\n")[1]
     namespace: dict = {}
     exec(compile(script, "<reproducer>", "exec"), namespace)  # runnable (with the sound engine: it prints the box)

@@ -117,8 +117,9 @@ class Tally:
 
     def line(self) -> str:
         verdicts = ", ".join(f"{k} {v}" for k, v in sorted(self.verdicts.items()))
-        return (f"seed {self.seed}: {self.programs} programs ({verdicts}), {self.runs:,} runs sampled, "
-                f"{self.box_checks:,} box checks, {len(self.findings)} violations in {self.seconds:.0f} s"
+        found = len(self.findings)
+        return (f"seed {self.seed}: {self.programs} program{'s' * (self.programs != 1)} ({verdicts}), {self.runs:,} runs sampled, "
+                f"{self.box_checks:,} box checks, {found} violation{'s' * (found != 1)} in {self.seconds:.0f} s"
                 + (f" ({self.diverged:,} runs not finite in the oracle, left out)" if self.diverged else ""))
 
 
