@@ -39,6 +39,7 @@ from percver.expr import (
 )
 from percver.flowpipe import Flowpipe, flowpipe
 from percver.sets import Box
+from percver.properties import all_of, any_of, during
 from percver.systems import ClosedLoop, Continuous, Discrete, Stage
 from percver.verification import Part, Result, verify, verify_parts
 

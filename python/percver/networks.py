@@ -389,18 +389,21 @@ def _checked_names(names, n_in: int, network: str) -> tuple[str, ...]:
 
 
 def load_network(path) -> Network:
-    """Read a network from ``.onnx`` or a Verisig ``.yml``/``.yaml`` file."""
+    """Read a network from ``.onnx``, a Verisig ``.yml``/``.yaml``, an NNet ``.nnet`` or a MATLAB
+    ``.mat`` file (W, b and act_fcns, the NNV/CORA/JuliaReach layout)."""
+    from percver.formats.mat import read_mat
+    from percver.formats.nnet import read_nnet
     from percver.formats.onnx import read_onnx
     from percver.formats.verisig_yaml import read_verisig_yaml
 
     path = Path(path)
-    readers = {".onnx": read_onnx, ".yml": read_verisig_yaml, ".yaml": read_verisig_yaml}
+    readers = {".onnx": read_onnx, ".yml": read_verisig_yaml, ".yaml": read_verisig_yaml, ".nnet": read_nnet, ".mat": read_mat}
     if not path.is_file():
         raise MissingFileError(f"network file not found: {path}")
     reader = readers.get(path.suffix.lower())
     if reader is None:
         raise NetworkFormatError(
-            f"{path}: unknown network file type {path.suffix!r}; percver reads .onnx and Verisig .yml/.yaml"
+            f"{path}: unknown network file type {path.suffix!r}; percver reads .onnx, Verisig .yml/.yaml, .nnet and .mat"
         )
     return reader(path)
 

@@ -109,7 +109,7 @@ class Campaign:
             verdict = "unknown"
         c = Cell(cell.to_dict(), verdict, outcome["seconds"], outcome["nn_seconds"], outcome["branches"],
                  outcome["steps_done"], reason, cex, outcome["boxes"], outcome.get("peak_rss_mb"),
-                 None if outcome.get("split") is None else self.init.names[outcome["split"]])
+                 None if outcome.get("split") is None else self.init.names[outcome["split"]], outcome["deepest_step"])
         self.cell_seconds[0] += c.seconds
         self.cell_seconds[1] += 1
         if self._timed_out(c) and not self._splits(cell, c):
@@ -139,16 +139,47 @@ class Campaign:
 
 class Progress:
     """The progress bar of a verify call (tqdm once started, else nothing), shared by its parts:
-    cells settled and the verdicts so far over all of them. Updated under the parts' lock."""
+    cells settled and the verdicts so far over all of them, and the step each running cell has
+    reached (``steps``: deepest first, as step/horizon). Updated under the parts' ``lock``; the
+    running cells' steps are read from their engine counters once a second by a thread of its
+    own, which takes the same lock, so a long cell shows progress before it ends."""
 
-    def __init__(self):
+    SECONDS = 1.0
+
+    def __init__(self, lock: threading.RLock):
         self.tqdm = None
+        self.lock = lock
         self.counts = dict.fromkeys(("verified", "unknown", "falsified"), 0)
+        self.running: dict = {}  # thread -> (_core.StepCounter of its cell, the cell's horizon)
+        self.stopped = threading.Event()
 
     def start(self, total: int):
         from tqdm import tqdm
 
         self.tqdm = tqdm(total=total, unit="cell", desc="verify")
+        threading.Thread(target=self._watch, name="percver-progress", daemon=True).start()
+
+    def _watch(self):
+        while not self.stopped.wait(self.SECONDS):
+            with self.lock:
+                if self.tqdm is not None and self.running:
+                    self._postfix()
+                    self.tqdm.refresh()
+
+    def _postfix(self):
+        shown = dict(self.counts)
+        steps = sorted(((counter.get(), horizon) for counter, horizon in self.running.values()), reverse=True)
+        if steps:
+            shown["steps"] = " ".join(f"{s}/{h}" for s, h in steps[:4])
+        self.tqdm.set_postfix(shown, refresh=False)
+
+    def cell_started(self, counter, horizon: int):
+        with self.lock:
+            self.running[threading.get_ident()] = (counter, horizon)
+
+    def cell_ended(self):
+        with self.lock:
+            self.running.pop(threading.get_ident(), None)
 
     def settled(self, verdict: Optional[str], more: int = 0):
         """A cell is settled with ``verdict``, or (None) replaced by ``more`` sub-cells."""
@@ -156,12 +187,14 @@ class Progress:
             self.counts[verdict] += 1
         if self.tqdm is not None:
             self.tqdm.total += more
-            self.tqdm.set_postfix(self.counts, refresh=False)
+            self._postfix()
             self.tqdm.update(1)
 
     def close(self):
+        self.stopped.set()
         if self.tqdm is not None:
-            self.tqdm.close()
+            with self.lock:
+                self.tqdm.close()
 
 
 _CLEAR: dict = {}  # pid -> descriptor of /proc/self/clear_refs (a forked child opens its own)
@@ -188,20 +221,20 @@ def _peak_rss_mb() -> float:
     return peak / 2**20 if sys.platform == "darwin" else peak / 1024
 
 
-def run_cells(problem, cells: list, done, options: dict, workers: Optional[int]):
+def run_cells(problem, cells: list, done, options: dict, workers: Optional[int], progress=None):
     """``_core.verify_cells`` on cells given as lists of (lo, hi), each outcome with the peak RSS
     of this process from the batch's start to the cell's end; the one place cells run, locally
-    and on executor workers."""
+    and on executor workers. ``progress`` (a ``_core.StepCounter``) follows the deepest step."""
 
     def each(i, outcome):
         outcome["peak_rss_mb"] = _peak_rss_mb()
         return done(i, outcome)
 
     _reset_peak_rss()
-    _core.verify_cells(problem, [list(c) for c in cells], each, _core.CellSettings(**options), workers=workers)
+    _core.verify_cells(problem, [list(c) for c in cells], each, _core.CellSettings(**options), workers=workers, progress=progress)
 
 
-def run_local(jobs: list, workers: Optional[int]):
+def run_local(jobs: list, workers: Optional[int], bar: Progress):
     """The cells of all ``jobs`` (campaign, problem, options) on this machine's cores: ``workers``
     threads (the caller's among them) each take one cell at a time from the first campaign that
     has one and run it alone (a rayon pool of one), so sub-cells join in as they are made and no
@@ -229,6 +262,7 @@ def run_local(jobs: list, workers: Optional[int]):
         return None
 
     def work():
+        counter = _core.StepCounter()  # the step this thread's cell has reached, for the bar
         try:
             while not stop.is_set():
                 got = next_cell()
@@ -239,9 +273,12 @@ def run_local(jobs: list, workers: Optional[int]):
                         idle.wait(0.1)  # a running cell may be bisected into more
                     continue
                 campaign, problem, options, cell = got
+                counter.reset()
+                bar.cell_started(counter, campaign.prop.steps)
                 try:
-                    run_cells(problem, [cell.bounds], lambda i, o: campaign.record(cell, o), options, 1)
+                    run_cells(problem, [cell.bounds], lambda i, o: campaign.record(cell, o), options, 1, counter)
                 finally:
+                    bar.cell_ended()
                     with idle:
                         busy[0] -= 1
                         idle.notify_all()

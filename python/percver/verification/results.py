@@ -37,6 +37,7 @@ class Cell:
     seconds: float = 0.0
     nn_seconds: float = 0.0
     branches: int = 0
+    # Steps every part of the cell completed: the reach boxes cover steps 0..steps_done.
     steps_done: int = 0
     reason: Optional[str] = None
     counterexample: Optional[Counterexample] = None
@@ -46,6 +47,9 @@ class Cell:
     peak_rss_mb: Optional[float] = None
     # The state the engine would have split next when it gave up: refinement halves it.
     split: Optional[str] = None
+    # The deepest step any part of the cell reached (an unknown cell's parts stop at different
+    # steps; steps_done is the shallowest, where the boxes stop being complete).
+    deepest_step: int = 0
 
     def to_dict(self) -> dict:
         # Shallow (asdict would deep-copy the reach boxes of every journaled cell).

@@ -72,6 +72,12 @@ def verify(
 ) -> Result:
     """Prove ``loop`` satisfies the property from every state of ``init`` (see module doc).
 
+    ``safe`` (stay in, every step), ``unsafe`` (avoid, every step) and ``goal`` (reach at the
+    last step, or at some step with ``within``) take a condition, a :class:`~percver.Box`, or
+    :func:`~percver.all_of` / :func:`~percver.any_of` of them; a list is their intersection (for
+    ``unsafe`` one set to avoid). :func:`~percver.during` limits a safe or unsafe set to a window
+    of steps or times (docs/verify.md, "Properties").
+
     Cells run on this machine's cores (``workers`` threads, one cell each at a time) or, with
     ``executor=``, on a ``dask.distributed.Client``, a scheduler address ``"tcp://host:8786"`` or
     any ``concurrent.futures.Executor`` (``workers`` then caps the batches in flight; ``batch``
@@ -89,7 +95,9 @@ def verify(
     (``pv.where``, in a stage or a discrete plant, e.g. a wall that some runs hit at this step) that
     holds on part of the set forks into one part per side, up to ``max_splits`` splits and forks
     per cell (0: never; conditions then take the hull of both sides); they count as branches. An
-    unknown cell's reach boxes end at the last step every part reached. ``rebox=True`` restarts
+    unknown cell's reach boxes end at the last step every part reached (``Cell.steps_done``); its
+    ``Cell.deepest_step`` is the deepest step a part reached, where it gave up. While cells run,
+    the progress bar shows the step each has reached (``steps=18/40 3/40``). ``rebox=True`` restarts
     a part from its box whenever a remainder is most of a state's enclosure (for loops whose
     remainders feed back and grow, such as the F1/10 LiDAR loop; it loses the dependency on the
     initial state, so it can be looser elsewhere). ``state_symbols=True`` (Taylor method, discrete
@@ -172,8 +180,9 @@ def verify_parts(
         from percver.executors import Runner
 
         runner = Runner(executor, slots=workers, batch=batch)  # checked (and connected) before any work
-    jobs, bar = [], Progress()
+    jobs = []
     lock = threading.RLock()  # one for all parts: they share the progress bar
+    bar = Progress(lock)
     try:
         with ExitStack() as journals:
             for p, box in zip(parts, boxes):
@@ -194,7 +203,7 @@ def verify_parts(
             if progress:
                 bar.start(sum(campaign.left for campaign, *_ in jobs))
             if runner is None:
-                run_local([(campaign, problem, options) for campaign, _, _, options in jobs], workers)
+                run_local([(campaign, problem, options) for campaign, _, _, options in jobs], workers, bar)
             else:
                 for campaign, _, fingerprint, options in jobs:
                     runner.run(campaign, (loop, safe_r, goal_r, within, steps), fingerprint, options)

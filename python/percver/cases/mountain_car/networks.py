@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
-from percver.cases.mountain_car.dataset import PIXELS
+from percver.cases.mountain_car.camera import PIXELS
 from percver.errors import InputError, MissingFileError
 from percver.networks import Network, load_network
 

@@ -28,7 +28,8 @@ from pathlib import Path
 import numpy as np
 
 from percver.cases.mountain_car import dynamics
-from percver.cases.mountain_car.dataset import PIXELS, Dataset
+from percver.cases.mountain_car.camera import PIXELS
+from percver.cases.mountain_car.dataset import Dataset
 from percver.cases.mountain_car.networks import ESTIMATE_OFFSET, ESTIMATE_SCALE, OUR_FILES, ROLES
 from percver.errors import InputError, MissingDependencyError, NetworkFormatError
 from percver.networks import Layer, Network, load_network
