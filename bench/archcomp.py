@@ -66,7 +66,7 @@ def one(name: str, variant: str) -> dict:
         row["reason"] = unknown[0].reason
     if result.counterexample is not None:
         cex = result.counterexample
-        row["counterexample"] = {"initial": cex.initial, "step": cex.step, "violated": cex.violated, "replays": examples.replays(loop, cex, kwargs.get("safe"))}
+        row["counterexample"] = {"initial": cex.initial, "step": cex.step, "violated": cex.violated, "replays": examples.replays(loop, cex, kwargs)}
     return row
 
 

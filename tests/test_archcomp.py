@@ -18,11 +18,12 @@ pytestmark = pytest.mark.skipif(not MODELS.is_dir(), reason="the ARCH-COMP packa
 
 
 @pytest.mark.parametrize("name, variant", [("inverted_pendulum", ""), ("acc", "relu"), ("tora", "relutanh"),
-                                           ("inverted_two_link_pendulum", "more_robust"), ("airplane", "")])
+                                           ("inverted_two_link_pendulum", "more_robust"), ("airplane", ""),
+                                           ("vertical_cas", "-25.5")])
 def test_verdict_is_juliareachs(name, variant):
     bench = __import__(name)
     loop, kwargs = bench.problem(variant)
     result = pv.verify(loop, progress=False, **kwargs)
     assert result.verdict == bench.VARIANTS[variant], [c.reason for c in result.cells if c.verdict != "verified"][:3]
     if result.verdict == "falsified":
-        assert replays(loop, result.counterexample, kwargs["safe"])
+        assert replays(loop, result.counterexample, kwargs)

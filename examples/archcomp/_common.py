@@ -20,19 +20,25 @@ def network(model: str, file: str) -> pv.Network:
     return pv.load_network(MODELS / model / file)
 
 
-def replays(loop: pv.ClosedLoop, counterexample, safe=None) -> bool:
+def replays(loop: pv.ClosedLoop, counterexample, kwargs: dict) -> bool:
     """Whether a counterexample's run is what the loop does from its initial state (float
-    simulation): the recorded trajectory is reproduced to 1e-6 relative, and, given the ``safe``
-    set (a condition, box or region), the state at the reported step is outside it."""
-    from percver.properties import as_region
+    simulation): the recorded trajectory is reproduced to 1e-6 relative, and the state at the
+    reported step leaves the benchmark's ``safe`` set or enters its ``unsafe`` one."""
+    from percver.properties import Window, as_region
 
     x0 = np.array([[counterexample.initial[s] for s in loop.states]])
     steps = len(counterexample.trajectory) - 1
     run = loop.simulate(x0, steps)[0] if steps else x0
     same = np.allclose(run, np.asarray(counterexample.trajectory), rtol=1e-6, atol=1e-9)
-    if safe is None:
-        return bool(same)
-    return bool(same and not as_region(safe, "safe").holds(loop.states, run[counterexample.step][None])[0])
+    state = run[counterexample.step][None]
+
+    def inside(key):
+        value = kwargs.get(key)
+        value = value.region if isinstance(value, Window) else value
+        return None if value is None else bool(as_region(value, key).holds(loop.states, state)[0])
+
+    safe, unsafe = inside("safe"), inside("unsafe")
+    return bool(same and (safe is False or unsafe is True))
 
 
 def main(problem, expected: str, **options) -> pv.Result:
@@ -43,7 +49,7 @@ def main(problem, expected: str, **options) -> pv.Result:
     print(f"verdict: {result.verdict} (JuliaReach asserts: {expected})")
     if result.counterexample is not None:
         cex = result.counterexample
-        print(f"counterexample from {cex.initial}: '{cex.violated}' at step {cex.step}; replays: {replays(loop, cex, kwargs.get('safe'))}")
+        print(f"counterexample from {cex.initial}: '{cex.violated}' at step {cex.step}; replays: {replays(loop, cex, kwargs)}")
     return result
 
 

@@ -4,8 +4,11 @@ normalised (h, h0', tau); the pilot takes the central acceleration of the new ad
 keeps an advisory it complies with). From h in [-133, -129], tau = 25 and a fixed climb rate
 h0' (one variant each), the intruder must stay out of |h| <= 100 for 10 steps (1 s each)."""
 
+import warnings
+
 import percver as pv
 from _common import main, network
+from percver.formats.nnet import NNetNormalizationWarning
 
 VARIANTS = {"-19.5": "verified", "-22.5": "verified", "-25.5": "falsified", "-28.5": "falsified"}
 G = 32.2
@@ -35,10 +38,14 @@ def argmax(scores):
 
 
 def problem(variant: str = "-19.5"):
-    h, rate, tau, adv, new = pv.variables("h rate tau adv next_0")
+    h, rate, tau, adv, new = pv.variables("h rate tau adv next")
     inputs = pv.Stage([h / 16000.0, rate / 5000.0, (tau - 20.0) / 40.0], inputs=["h", "rate", "tau"], output="z")
-    scorers = [pv.Stage(network("VerticalCAS", f"VertCAS_noResp_pra0{i + 1}_v9_20HU_200.nnet"), inputs=["z"], output=f"s{i}")
-               for i in range(9)]
+    # The inputs are normalised as JuliaReach does (h' by 5000, not by the files' 200), so the
+    # files' own normalisation stays unused, as in JuliaReach.
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", NNetNormalizationWarning)
+        nets = [network("VerticalCAS", f"VertCAS_noResp_pra0{i + 1}_v9_20HU_200.nnet") for i in range(9)]
+    scorers = [pv.Stage(net, inputs=["z"], output=f"s{i}") for i, net in enumerate(nets)]
     scores = [chain(adv, [pv.variables(f"s{i}_{j}") for i in range(9)]) for j in range(9)]
     advise = pv.Stage([argmax(scores)], inputs=["adv"] + [f"s{i}" for i in range(9)], output="next")
     kept = []
