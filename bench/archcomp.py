@@ -52,7 +52,7 @@ def one(name: str, variant: str) -> dict:
     examples = module("_common")
     bench = module(name)
     loop, kwargs = bench.problem(variant)
-    settings = {k: v for k, v in kwargs.items() if k in ("split", "order", "max_splits", "steps", "rebox", "timeout_per_cell")}
+    settings = {k: v for k, v in kwargs.items() if k in ("split", "order", "max_splits", "steps", "rebox", "state_symbols", "timeout_per_cell")}
     start, usage = time.perf_counter(), resource.getrusage(resource.RUSAGE_SELF)
     result = pv.verify(loop, progress=False, **kwargs)
     wall = time.perf_counter() - start

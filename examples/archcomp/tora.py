@@ -19,9 +19,11 @@ def problem(variant: str = "relu"):
         stage = pv.Stage(network("TORA", "controllerTora.mat"), inputs=states, output="u", offset=-10.0)
         init = {"x1": (0.6, 0.7), "x2": (-0.7, -0.6), "x3": (-0.4, -0.3), "x4": (0.5, 0.6)}
         box = pv.Box({s: (-2.0, 2.0) for s in states})
-        # JuliaReach's grid is 4 x 4 x 3 x 5 (240 cells).
+        # JuliaReach's grid, 4 x 4 x 3 x 5 (240 cells). Without state symbols the enclosure grows
+        # about 3x per period from any cell size (the controller's correction of an earlier error
+        # does not cancel it), and no cell gets past period 10.
         return pv.ClosedLoop(plant, [stage]), dict(init=init, steps=20, safe=box, split={"x1": 4, "x2": 4, "x3": 3, "x4": 5},
-                                                   order=3, max_splits=16)
+                                                   order=3, max_splits=16, state_symbols=True)
     file = {"relutanh": "nn_tora_relu_tanh.mat", "sigmoid": "nn_tora_sigmoid.mat"}[variant]
     plant = pv.Continuous(rhs, inputs=[u], period=0.5)
     stage = pv.Stage(network("TORA", file), inputs=states, output="u", scale=11.0)

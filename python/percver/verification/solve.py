@@ -100,11 +100,12 @@ def verify(
     the progress bar shows the step each has reached (``steps=18/40 3/40``). ``rebox=True`` restarts
     a part from its box whenever a remainder is most of a state's enclosure (for loops whose
     remainders feed back and grow, such as the F1/10 LiDAR loop; it loses the dependency on the
-    initial state, so it can be looser elsewhere). ``state_symbols=True`` (Taylor method, discrete
-    plants) keeps the remainders of the states that feed back as error symbols from step to step,
-    so that an error the controller corrects cancels instead of adding its magnitude again (the
-    wrapping effect of a stiff feedback); it pays where the loop's Jacobian varies little over a
-    cell, and is off by default because on Mountain Car's cells it does not (bench/README.md).
+    initial state, so it can be looser elsewhere). ``state_symbols=True`` (Taylor method) keeps the
+    remainders of the states that feed back as error symbols from step to step (a continuous
+    plant's flowpipe carries them as variables), so that an error the controller corrects cancels
+    instead of adding its magnitude again (the wrapping effect of a stiff feedback: ARCH-COMP's
+    TORA with its ReLU controller); it pays where the loop's Jacobian varies little over a cell,
+    and is off by default because on Mountain Car's cells it does not (bench/README.md).
     """
     part = Part(init, split, order, max_splits, journal)
     return verify_parts(loop, [part], steps=steps, goal=goal, safe=safe, unsafe=unsafe, within=within, reward=reward,
