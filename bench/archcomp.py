@@ -93,7 +93,7 @@ def main():
         before = os.getloadavg()[0]
         start = time.perf_counter()
         try:
-            done = subprocess.run([sys.executable, __file__, "--one", key], capture_output=True, text=True, timeout=args.limit)
+            done = subprocess.run([sys.executable, __file__, "--one", key], capture_output=True, text=True, timeout=args.limit, check=False)
             row = json.loads(done.stdout.strip().splitlines()[-1]) if done.returncode == 0 else {"verdict": "error", "error": done.stderr[-2000:]}
         except subprocess.TimeoutExpired:
             row = {"verdict": "timeout", "wall_s": round(time.perf_counter() - start, 2)}

@@ -12,7 +12,7 @@ import percver as pv
 EXAMPLES = Path(__file__).resolve().parents[1] / "examples" / "archcomp"
 sys.path.insert(0, str(EXAMPLES))
 
-from _common import MODELS, replays  # noqa: E402
+from _common import MODELS, replays
 
 pytestmark = pytest.mark.skipif(not MODELS.is_dir(), reason="the ARCH-COMP package is not in ../shared/data/archcomp2024")
 
