@@ -224,3 +224,22 @@ def test_a_window_in_a_config(tmp_path, capsys):
     (tmp_path / "bad.toml").write_text(base + 'safe = {conditions = ["x >= 0"], seconds = [5, 1]}\n')
     assert main(["verify", str(tmp_path / "bad.toml"), "--no-progress"]) == 1
     assert "[property] safe: a window is {conditions" in capsys.readouterr().err
+
+
+def test_a_splitter_in_a_config(tmp_path, capsys):
+    """[verify] splitter = "bisection" or a table with kind and the class's keywords."""
+    from percver.commands.verify import Config
+    from percver.verification.splitters import Adaptive, Bisection
+
+    python_config(tmp_path, journal=False)
+    base = (tmp_path / "mc.toml").read_text()
+    (tmp_path / "s.toml").write_text(base + '[verify]\nsplitter = {kind = "adaptive", max_cells = 64, start = 2}\n')
+    splitter = Config(str(tmp_path / "s.toml")).verify_kwargs()["splitter"]
+    assert isinstance(splitter, Adaptive) and (splitter.max_cells, splitter.start) == (64, 2)
+    (tmp_path / "s.toml").write_text(base.replace("[split]\np = 4\n", "") + '[verify]\nsplitter = "bisection"\n')
+    assert type(Config(str(tmp_path / "s.toml")).verify_kwargs()["splitter"]) is Bisection
+    for spec, message in (('"halving"', "kind must be one of grid, bisection, adaptive, got 'halving'"),
+                          ('{kind = "adaptive", cells = 3}', "adaptive: ")):
+        (tmp_path / "s.toml").write_text(base + f"[verify]\nsplitter = {spec}\n")
+        assert main(["verify", str(tmp_path / "s.toml"), "--no-progress"]) == 1
+        assert f"[verify] splitter: {message}" in capsys.readouterr().err

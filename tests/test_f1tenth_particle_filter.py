@@ -56,7 +56,7 @@ def test_runs_round_trip_as_measurements(runs, tmp_path):
 def test_particle_filter_converges_without_the_true_states(runs):
     settings = particle_filter.FilterSettings(particles=150)
     # The filter's inputs: scans, controls, run ids and times. No states.
-    est = estimate.estimate_poses(runs.scans, runs.controls, runs.run, runs.time, settings=settings, seed=0)
+    est = particle_filter.estimate_poses(runs.scans, runs.controls, runs.run, runs.time, settings=settings, seed=0)
     assert est.poses.shape == (len(runs.run), 3)
     late = runs.time >= 2.0
     errors = particle_filter.PoseEstimate(est.poses[late], est.speed[late], est.spread[late]).errors(runs.states[late])
@@ -66,7 +66,7 @@ def test_particle_filter_converges_without_the_true_states(runs):
         last = runs.rows(r)[-1]
         assert np.hypot(*(est.poses[last, :2] - runs.states[last, :2])) < 0.15
     with pytest.raises(InputError, match="1081"):
-        estimate.estimate_poses(runs.scans[:, :21], runs.controls, runs.run, runs.time)
+        particle_filter.estimate_poses(runs.scans[:, :21], runs.controls, runs.run, runs.time)
 
 
 def test_calibration_report(runs):

@@ -16,7 +16,7 @@ import pytest
 import percver as pv
 
 from percver.verification import campaign
-from percver.verification.cells import bisect
+from percver.verification.splitters import bisect
 
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
 CONTROLLER = DATA / "mountain_car" / "networks" / "ControllerSigmoid16x16.yml"
@@ -243,7 +243,8 @@ def test_a_wall_hit_at_different_steps_forks_the_plant():
     # five steps. The hull of both sides of the wall loses the cell; forking the plant's guard
     # (one branch per side, both `where`s on it take the same side) keeps every branch precise.
     loop, p, v = mountain_car()
-    kwargs = dict(init={"p": (-0.41, -0.40), "v": (0, 0)}, steps=150, goal=p >= 0.45, within=True, progress=False)
+    kwargs = dict(init={"p": (-0.41, -0.40), "v": (0, 0)}, steps=150, goal=p >= 0.45, within=True, progress=False,
+                  splitter=pv.Grid())  # one cell: the engine's own forks and splits are under test
     hull = pv.verify(loop, max_splits=0, **kwargs)
     forked = pv.verify(loop, max_splits=8, **kwargs)
     assert hull.verdict == "unknown" and forked.verdict == "verified"

@@ -41,7 +41,7 @@ from percver.flowpipe import Flowpipe, flowpipe
 from percver.sets import Box
 from percver.properties import all_of, any_of, during
 from percver.systems import ClosedLoop, Continuous, Discrete, Stage
-from percver.verification import Part, Result, verify, verify_parts
+from percver.verification import Adaptive, Bisection, Grid, Part, Result, verify, verify_parts
 
 min = minimum  # noqa: A001 - the design's names pv.min / pv.max, like numpy's
 max = maximum  # noqa: A001

@@ -64,6 +64,9 @@ OPTIONS = {
     "workers": ("verify", int, "2", "local threads (default: all cores; --workers overrides)"),
     "executor": ("verify", str, '"tcp://host:8786"', "a Dask scheduler to run the cells on (--scheduler overrides)"),
     "batch": ("verify", int, "8", "cells per executor task (default: sized to about a quarter second)"),
+    "splitter": ("verify", (str, dict), '{kind = "adaptive", max_cells = 512}',
+                 'how cells are made: "grid", "bisection" or "adaptive" (pv.Grid, pv.Bisection, pv.Adaptive), '
+                 "or a table with kind and their keywords (instead of [split], refine, min_width)"),
     "journal": ("verify", str, '"run.jsonl"', "append finished cells here, skip them on a rerun (--journal overrides)"),
     "progress": ("verify", bool, "true", "the progress bar (--no-progress turns it off)"),
 }
@@ -288,6 +291,8 @@ class Config:
         if "reward" in prop:
             kwargs["reward"] = {k: self._parsed(f"[property] reward.{k}", v, _expression) for k, v in prop.pop("reward").items()}
         kwargs.update(self.section("verify"))
+        if "splitter" in kwargs:
+            kwargs["splitter"] = self._splitter(kwargs["splitter"])
         if "journal" in kwargs:
             kwargs["journal"] = str(self.written("[verify] journal", kwargs["journal"]))
         return kwargs
@@ -299,6 +304,22 @@ class Config:
         if not (self.path.parent / value).parent.is_dir():
             raise self.error(field, f"the directory of {self.path.parent / value} does not exist")
         return self.path.parent / value
+
+    def _splitter(self, spec):
+        """``"adaptive"`` or ``{kind = "adaptive", max_cells = 512, ...}`` as the splitter object."""
+        from percver.verification.splitters import Adaptive, Bisection, Grid
+
+        kinds = {"grid": Grid, "bisection": Bisection, "adaptive": Adaptive}
+        table = {"kind": spec} if isinstance(spec, str) else dict(spec)
+        kind = table.pop("kind", None)
+        if kind not in kinds:
+            raise self.error("[verify] splitter", f"kind must be one of {', '.join(kinds)}, got {kind!r}")
+        try:
+            return kinds[kind](**table)
+        except TypeError as error:
+            raise self.error("[verify] splitter", f"{kind}: {error}") from None
+        except PercverError as error:
+            raise self.error("[verify] splitter", str(error)) from None
 
     def _window(self, field: str, table: dict):
         """``{conditions = [...], time = [t0, t1]}`` (or ``steps = [first, last]``; one number: to

@@ -12,7 +12,6 @@ from typing import Optional
 from percver import _core
 from percver.errors import InputError
 from percver.sets import Box
-from percver.verification.cells import bisect, splittable
 from percver.verification.falsify import falsify
 from percver.verification.journal import cell_key
 from percver.verification.results import Cell, Counterexample
@@ -36,10 +35,11 @@ class Campaign:
 
     chunk = 128  # cells falsified together at most: one simulation batch, bounded trajectories
 
-    def __init__(self, loop, prop, init: Box, grid, count: int, journal, bar, *, refine: bool, timeout, min_width: dict,
-                 falsify: int, seed: int, lock: threading.RLock):
-        self.loop, self.prop, self.init, self.grid, self.left, self.journal, self.bar = loop, prop, init, grid, count, journal, bar
-        self.refine, self.timeout, self.min_width, self.falsify, self.seed = refine, timeout, min_width, falsify, seed
+    def __init__(self, loop, prop, init: Box, splitter, cells, journal, bar, *, timeout, falsify: int, seed: int,
+                 lock: threading.RLock):
+        self.loop, self.prop, self.init, self.splitter, self.journal, self.bar = loop, prop, init, splitter, journal, bar
+        self.grid, self.left = cells  # the splitter's initial cells (a lazy iterator) and their count
+        self.timeout, self.falsify, self.seed = timeout, falsify, seed
         self.queue: list = []  # sub-cells, last in first out: depth-first keeps the queue short
         self.ready: deque = deque()  # falsification found nothing: to be run
         self.cells: list = []
@@ -71,8 +71,9 @@ class Campaign:
                     if cex is None:
                         self.ready.append(cell)
                     else:
-                        self._finish(cell, Cell(cell.to_dict(), "falsified", counterexample=cex,
-                                                reason=f"simulation violates {cex.violated} at step {cex.step}"))
+                        c = Cell(cell.to_dict(), "falsified", counterexample=cex, reason=f"simulation violates {cex.violated} at step {cex.step}")
+                        self.journal.write(c)
+                        self._place(cell, c, None)
 
     def _draw(self, want: int) -> list:
         """Up to ``want`` cells not in the journal (the journal's are settled on the way)."""
@@ -85,7 +86,12 @@ class Campaign:
                 self.left -= 1
             known = self.journal.done.get(cell_key(cell.to_dict()))
             if known is not None:
-                self._settle(cell, known)
+                self._place(cell, known, self._again(cell, known))
+                continue
+            pieces = self.splitter.prepare(cell, self.init)
+            if len(pieces) > 1:
+                self.queue += pieces
+                self.bar.settled(None, more=len(pieces))
             else:
                 fresh.append(cell)
         return fresh
@@ -112,26 +118,25 @@ class Campaign:
                  None if outcome.get("split") is None else self.init.names[outcome["split"]], outcome["deepest_step"])
         self.cell_seconds[0] += c.seconds
         self.cell_seconds[1] += 1
-        if self._timed_out(c) and not self._splits(cell, c):
+        halves = self._again(cell, c)
+        if self._timed_out(c) and not halves:
             c.reason += "; not split further: the cell is at min_width"
-        self._finish(cell, c)
-
-    def _finish(self, cell: Box, c: Cell):
         self.journal.write(c)
-        self._settle(cell, c)
+        self._place(cell, c, halves)
 
     def _timed_out(self, c: Cell) -> bool:
         # The engine stops a cell between steps once it has run longer than the timeout.
         return c.verdict == "unknown" and self.timeout is not None and c.seconds > self.timeout
 
-    def _splits(self, cell: Box, c: Cell) -> bool:
-        return c.verdict == "unknown" and (self.refine or self._timed_out(c)) and splittable(cell, self.init, self.min_width)
+    def _again(self, cell: Box, c: Cell) -> Optional[list]:
+        return self.splitter.again(cell, c, self.init, self._timed_out(c))
 
-    def _settle(self, cell: Box, c: Cell):
+    def _place(self, cell: Box, c: Cell, halves: Optional[list]):
         """A finished cell (fresh or from the journal) is a result, or replaced by its halves."""
-        if self._splits(cell, c):
-            self.queue += bisect(cell, self.init, self.min_width, c.split)
-            self.bar.settled(None, more=2)
+        self.splitter.learn(cell, c.verdict, self.init)
+        if halves:
+            self.queue += halves
+            self.bar.settled(None, more=len(halves))
         else:
             self.cells.append(c)
             self.bar.settled(c.verdict)

@@ -21,7 +21,9 @@ from percver.expr import Condition
 from percver.sets import BoxLike
 from percver.systems import ClosedLoop
 from percver.verification.campaign import Campaign, Progress, run_local
-from percver.verification.cells import grid
+import copy
+
+from percver.verification.splitters import Adaptive, Bisection, Grid
 from percver.verification.journal import Journal
 from percver.verification.journal import fingerprint as fingerprint_of
 from percver.verification.property import Property
@@ -56,6 +58,7 @@ def verify(
     split: Optional[dict] = None,
     refine: bool = False,
     min_width: Optional[dict] = None,
+    splitter=None,
     method: str = "taylor",
     order: int = DEFAULTS.order,
     max_splits: int = DEFAULTS.max_splits,
@@ -109,9 +112,9 @@ def verify(
     """
     part = Part(init, split, order, max_splits, journal)
     return verify_parts(loop, [part], steps=steps, goal=goal, safe=safe, unsafe=unsafe, within=within, reward=reward,
-                        refine=refine, min_width=min_width, method=method, rebox=rebox, state_symbols=state_symbols,
-                        workers=workers, executor=executor, batch=batch, timeout_per_cell=timeout_per_cell,
-                        falsify=falsify, progress=progress, seed=seed)[0]
+                        refine=refine, min_width=min_width, splitter=splitter, method=method, rebox=rebox,
+                        state_symbols=state_symbols, workers=workers, executor=executor, batch=batch,
+                        timeout_per_cell=timeout_per_cell, falsify=falsify, progress=progress, seed=seed)[0]
 
 
 def verify_parts(
@@ -126,6 +129,7 @@ def verify_parts(
     reward: Optional[dict] = None,
     refine: bool = False,
     min_width: Optional[dict] = None,
+    splitter=None,
     method: str = "taylor",
     rebox: bool = False,
     state_symbols: bool = False,
@@ -173,6 +177,10 @@ def verify_parts(
     if reward is not None:
         loop = loop.with_accumulators(reward)  # sums as extra states: see ClosedLoop.with_accumulators
     boxes = [loop.initial_box(p.init) for p in parts]
+    splitters = []  # each part's splitter and its initial cells, checked before any journal is opened
+    for p, box in zip(parts, boxes):
+        part_splitter = _splitter_of(p, splitter, refine, min_width)
+        splitters.append((part_splitter, part_splitter.initial(box)))
     prop = Property(loop, safe, unsafe, goal, within, steps)
     safe_r, goal_r = prop.rust()
     problem = loop.compile(safe=safe_r, goal=goal_r, within=within, steps=steps)
@@ -186,7 +194,7 @@ def verify_parts(
     bar = Progress(lock)
     try:
         with ExitStack() as journals:
-            for p, box in zip(parts, boxes):
+            for p, box, (part_splitter, cells) in zip(parts, boxes, splitters):
                 settings = {"steps": steps, "method": method, "order": p.order, "max_splits": p.max_splits, "rebox": bool(rebox),
                             "timeout_per_cell": timeout_per_cell, "within": within}
                 if state_symbols:  # only when on, so that journals written before the option still resume
@@ -194,12 +202,10 @@ def verify_parts(
                 fingerprint = fingerprint_of(loop, prop, settings)
                 options = {"order": p.order, "method": method, "timeout": timeout_per_cell, "max_splits": p.max_splits,
                            "rebox": bool(rebox), "state_symbols": bool(state_symbols)}
-                cells, count = grid(box, p.split or {})
                 journal = Journal(p.journal, fingerprint)
                 journals.callback(journal.close)
-                campaign = Campaign(loop, prop, box, cells, count, journal, bar, refine=refine, timeout=timeout_per_cell,
-                                     min_width={n: float(w) for n, w in (min_width or {}).items()}, falsify=falsify, seed=seed,
-                                     lock=lock)
+                campaign = Campaign(loop, prop, box, part_splitter, cells, journal, bar,
+                                    timeout=timeout_per_cell, falsify=falsify, seed=seed, lock=lock)
                 jobs.append((campaign, settings, fingerprint, options))
             if progress:
                 bar.start(sum(campaign.left for campaign, *_ in jobs))
@@ -214,3 +220,20 @@ def verify_parts(
         bar.close()
     seconds = time.time() - started
     return [Result(loop.states, box.to_dict(), campaign.cells, seconds, settings) for box, (campaign, settings, _, _) in zip(boxes, jobs)]
+
+
+def _splitter_of(part: Part, splitter, refine: bool, min_width: Optional[dict]):
+    """The part's own splitter (a fresh copy of ``splitter``: an adaptive one learns per part);
+    without one, ``split``/``refine``/``min_width`` name a grid or a bisection, and with none of
+    them the adaptive default applies."""
+    if splitter is not None:
+        if part.split or refine or min_width:
+            raise InputError("give splitter= or split=/refine=/min_width=, not both (a splitter carries its own grid and widths)")
+        if not all(hasattr(splitter, m) for m in ("initial", "prepare", "again", "learn")):
+            raise InputError(f"splitter= takes pv.Grid, pv.Bisection, pv.Adaptive or an object with their methods, got {splitter!r}")
+        return copy.deepcopy(splitter)
+    if refine:
+        return Bisection(part.split or {}, min_width or {})
+    if part.split or min_width:
+        return Grid(part.split or {}, min_width or {})
+    return Adaptive()

@@ -38,7 +38,7 @@ from percver.cases.f1tenth import data as f1data
 from percver.cases.f1tenth import dynamics, noise, world
 from percver.errors import InputError
 from percver.sets import Box
-from percver.verification.cells import grid as cell_grid
+from percver.verification.splitters import grid as cell_grid
 from percver.verification.falsify import falsify as falsify_cells
 from percver.verification.journal import Journal, cell_key, fingerprint
 from percver.verification.property import Property, holds
