@@ -25,8 +25,9 @@ def problem(variant: str = ""):
     plant = pv.Continuous(rhs, inputs=["u"], period=0.1)
     stage = pv.Stage(network("Quadrotor", "model.mat"), inputs=STATES, output="u")
     init = {name: (-0.004, 0.004) if i < 6 else (0.0, 0.0) for i, name in enumerate(STATES)}
+    # State symbols: without them the pitch x8's enclosure wraps until 1/cos(x8) is undefined (step 19).
     return pv.ClosedLoop(plant, [stage]), dict(init=init, steps=50, goal=pv.Box({"x3": (0.94, 1.06)}), order=3,
-                                               max_splits=16)
+                                               max_splits=16, state_symbols=True)
 
 
 if __name__ == "__main__":
