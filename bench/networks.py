@@ -10,6 +10,11 @@ child process, on one thread (RAYON_NUM_THREADS=1: the figure other load disturb
 of an earlier commit), in the same processes, for a before/after on equal terms.
 
     python bench/networks.py [--repeat 10] [--skip-verisig-chain] [--baseline /path/to/lib_core.so]
+
+``--archcomp`` measures instead the ARCH-COMP 2024 AINNCS controllers (ReLU and, for comparison,
+smooth) on boxes of half-width 0.5 around the centre of their benchmark's initial set: the
+ratio of the bound's width to the sampled range (worst output), unrefined and refined by
+branch and bound (``leaves=``); writes bench/results/networks_archcomp.json.
 """
 
 import argparse
@@ -168,13 +173,71 @@ def shared_networks(repeat: int) -> dict:
     return rows
 
 
+ARCHCOMP = DATA / "archcomp2024" / "models"
+# Controller -> the centre of its benchmark's initial set, in the network's input order (ACC:
+# v_set, T_gap, v_ego, D_rel, v_rel; Airplane: its 12 states; ...).
+ARCHCOMP_CENTRES = {
+    "InvertedPendulum/controller_single_pendulum.nnet": [1.0875, 0.1],
+    "InvertedTwoLinkPendulum/controller_double_pendulum_less_robust.nnet": [1.15] * 4,
+    "InvertedTwoLinkPendulum/controller_double_pendulum_more_robust.nnet": [1.15] * 4,
+    "TORA/controllerTora.mat": [0.65, -0.65, -0.35, 0.55],
+    "TORA/nn_tora_relu_tanh.mat": [-0.76, -0.44, 0.525, -0.29],
+    "TORA/nn_tora_sigmoid.mat": [-0.76, -0.44, 0.525, -0.29],
+    "ACC/controller_5_20.mat": [30.0, 1.4, 30.1, 89.5, 2.0],
+    "ACC/tanh.yml": [30.0, 1.4, 30.1, 89.5, 2.0],
+    "Unicycle/controllerB_nnv.mat": [9.525, -4.475, 2.105, 1.505],
+    "NAV/nn-nav-set.mat": [3.0, 3.0, 0.0, 0.0],
+    "Airplane/controller_airplane.nnet": [0.0, 0.0, 0.0, 0.5, 0.5, 0.5, 0.5, 0.5, 0.5, 0.0, 0.0, 0.0],
+    "AttitudeControl/model.mat": [-0.445, -0.545, 0.655, -0.745, 0.855, -0.645],
+    "Quadrotor/model.mat": [0.0] * 12,
+    "SpacecraftDocking/model.mat": [88.0, 88.0, 0.0, 0.0],
+}
+
+
+def archcomp(leaves: list) -> dict:
+    """Per controller: worst-output ratio of bound width to sampled range (100,000 uniform points
+    and the box's corners up to 2^12), CPU seconds, per number of leaves (1: unrefined)."""
+    import itertools
+    import warnings
+
+    rows = {}
+    rng = np.random.default_rng(0)
+    for name, centre in ARCHCOMP_CENTRES.items():
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            network = pv.load_network(ARCHCOMP / name)
+        centre = np.array(centre)
+        box = [(c - 0.5, c + 0.5) for c in centre]
+        corners = centre + 0.5 * np.array(list(itertools.product([-1.0, 1.0], repeat=len(centre))))
+        y = network(np.vstack([centre + rng.uniform(-0.5, 0.5, (100_000, len(centre))), corners]))
+        sampled = y.max(0) - y.min(0)
+        acts = sorted({a for layer in network.layers for a in ([layer.activation] if isinstance(layer.activation, str) else layer.activation)} - {"identity"})
+        row = {"activations": acts, "sampled": [[float(a), float(b)] for a, b in zip(y.min(0), y.max(0))]}
+        for n in leaves:
+            start = time.process_time()
+            bounds = np.array(network.bounds(box, leaves=n))
+            seconds = time.process_time() - start
+            if np.any(y < bounds[:, 0]) or np.any(y > bounds[:, 1]):
+                raise AssertionError(f"{name}: a sample lies outside the bounds with leaves={n}")
+            row[f"leaves_{n}"] = {"ratio": float(np.max((bounds[:, 1] - bounds[:, 0]) / np.maximum(sampled, 1e-12))), "cpu_seconds": seconds}
+        rows[name] = row
+        print(f"{name:70s} {'/'.join(acts):13s}" + "".join(f"  {n:5d}: {row[f'leaves_{n}']['ratio']:7.2f}x {row[f'leaves_{n}']['cpu_seconds']:6.2f} s" for n in leaves), flush=True)
+    return rows
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--repeat", type=int, default=10)
     parser.add_argument("--skip-verisig-chain", action="store_true", help="the chain through Verisig takes about a minute")
     parser.add_argument("--baseline", help="another build of percver._core (lib_core.so) to time the key figure with")
     parser.add_argument("--key-figure-only", action="store_true", help=argparse.SUPPRESS)
+    parser.add_argument("--archcomp", type=int, nargs="*", metavar="LEAVES", help="the ARCH-COMP controllers (default leaves: 1 256 1024)")
     args = parser.parse_args()
+    if args.archcomp is not None:
+        leaves = args.archcomp or [1, 256, 1024]
+        doc = {"machine": {"cpus": os.cpu_count(), "load_average": os.getloadavg()}, "half_width": 0.5, "networks": archcomp(leaves)}
+        (ROOT / "bench" / "results" / "networks_archcomp.json").write_text(json.dumps(doc, indent=1))
+        return
     if args.key_figure_only:
         print(json.dumps(key_figure(args.repeat, args.baseline)))
         return

@@ -344,7 +344,8 @@ class Network:
             splits.append((self.input_names.index(name), int(count)))
         return dict(order=order, symbolic=symbolic, max_vars=max_vars, splits=splits)
 
-    def bounds(self, box, method: str = "taylor", order: int = 5, *, pieces=None, symbolic: bool = True, max_vars: int = 4):
+    def bounds(self, box, method: str = "taylor", order: int = 5, *, pieces=None, symbolic: bool = True, max_vars: int = 4,
+               leaves: int = 1):
         """Sound bounds of every output over an input box: a list of ``(lo, hi)``.
 
         ``box`` is a dict ``{name: (lo, hi)}`` over :attr:`input_names`, a list of ``(lo, hi)`` in
@@ -356,8 +357,17 @@ class Network:
         nonlinear neuron that depends on it are computed once) and returns the hull. The
         ``max_vars`` widest inputs are polynomial variables, the others enter linearly as error
         symbols; ``symbolic=False`` boxes activation errors into remainders instead of keeping them.
+        ``leaves=N`` (Taylor method, boxes) refines the bounds by branch and bound on the input, up to
+        N sub-boxes, halving where a bound is loosest along the input that moves it most: what a
+        ReLU network's linear relaxations need on wide boxes (``bench/networks.py``).
         """
         settings = self._settings(order, symbolic, max_vars, pieces)
+        if not (isinstance(leaves, int) and leaves >= 1):
+            raise InputError(f"leaves must be a positive integer, got {leaves!r}")
+        if leaves > 1 and (method != "taylor" or isinstance(box, _core.NetworkModels)):
+            raise InputError("leaves= refines the bounds over a box by the Taylor method; give a box and method='taylor'")
+        if leaves > 1:
+            settings["leaves"] = leaves
         if isinstance(box, _core.NetworkModels):
             if len(box) != self.n_in:
                 raise InputError(f"network {self._name!r} takes {self.n_in} inputs, the models have {len(box)} outputs")

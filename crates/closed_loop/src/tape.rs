@@ -5,22 +5,32 @@ use crate::settings::{CellSettings, Method};
 use taylor::expr::Op;
 use taylor::TaylorModel;
 
-/// The states whose errors become symbols: with the Taylor method and a discrete plant (no
-/// rebox), every state whose error can feed back, i.e. that a stage or another state's update
-/// reads. Parameters the plant copies (a noise level) stay exact, and a sum that only adds to
-/// itself (a reward) cannot wrap: symbols for them would only enlarge every model.
+/// The states whose errors become symbols: with the Taylor method (no rebox), every state whose
+/// error can feed back, i.e. that a stage or another state's update (or right-hand side) reads.
+/// Parameters a discrete plant copies (a noise level) stay exact, and a sum that only adds to
+/// itself (a reward) cannot wrap: symbols for them would only enlarge every model. A continuous
+/// plant's flowpipe carries the symbols as variables of its own (constant over the period),
+/// so a controller's correction of an earlier error cancels it there too.
 pub(crate) fn symbol_states(lp: &ClosedLoop, settings: &CellSettings) -> Vec<usize> {
-    let Plant::Discrete(plant) = &lp.plant else { return vec![] };
     if !settings.state_symbols || settings.method != Method::Taylor || settings.rebox {
         return vec![];
     }
-    let deps = plant.dependencies();
-    (0..lp.state_names.len())
-        .filter(|&i| {
-            let copied = matches!(plant.ops[plant.outputs[i]], Op::Input(j) if j == i);
-            !copied && steers(lp, &deps, i)
-        })
-        .collect()
+    let states = 0..lp.state_names.len();
+    match &lp.plant {
+        Plant::Discrete(plant) => {
+            let deps = plant.dependencies();
+            states
+                .filter(|&i| {
+                    let copied = matches!(plant.ops[plant.outputs[i]], Op::Input(j) if j == i);
+                    !copied && steers(lp, &deps, i)
+                })
+                .collect()
+        }
+        Plant::Continuous { ode, .. } => {
+            let deps = ode.program.dependencies();
+            states.filter(|&i| steers(lp, &deps, i)).collect()
+        }
+    }
 }
 
 /// Whether state `i` steers the loop: a stage reads it, or another state's update does (`deps`:

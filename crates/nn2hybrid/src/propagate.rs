@@ -915,6 +915,87 @@ pub fn bounds(net: &Network, input: &[Interval], settings: &Settings) -> Result<
     Ok(models.iter().zip(interval_bounds(net, input)?).map(|(a, b)| a.intersect(&b)).collect())
 }
 
+/// Sound output bounds over a box, refined by branch and bound on the input: up to `leaves`
+/// sub-boxes, each bounded by [`bounds`], the result their hull. A ReLU network's relaxations
+/// are loose where many neurons change sign over the box (their gaps add up layer by layer), and
+/// halving the box where it matters shrinks them far more than any single relaxation can. Each
+/// round takes the output bound (an output's lower or upper end) that lies farthest beyond the
+/// values seen at points of the box (leaf centres and probes, float evaluations: they only steer,
+/// soundness rests on the leaves' bounds, which cover the box), and halves the leaf that attains
+/// it along the input to which that output is most sensitive there (central difference over
+/// the leaf); a child's bounds are intersected with its parent's, which contain its range too.
+pub fn refined_bounds(net: &Network, input: &[Interval], settings: &Settings, leaves: usize) -> Result<Vec<Interval>> {
+    let root = bounds(net, input, settings)?;
+    if leaves <= 1 {
+        return Ok(root);
+    }
+    let n_out = net.n_out();
+    let mut seen = vec![(f64::INFINITY, f64::NEG_INFINITY); n_out];
+    fn observe(y: &[f64], seen: &mut [(f64, f64)]) {
+        for (s, &v) in seen.iter_mut().zip(y) {
+            *s = (s.0.min(v), s.1.max(v));
+        }
+    }
+    let centre = |cell: &[Interval]| cell.iter().map(|b| b.mid()).collect::<Vec<f64>>();
+    observe(&net.eval(&centre(input))?, &mut seen);
+    let mut cells: Vec<(Vec<Interval>, Vec<Interval>)> = vec![(input.to_vec(), root)];
+    while cells.len() < leaves {
+        // The output end farthest beyond the values seen, relative to the seen spread.
+        let mut worst: Option<(f64, usize, usize)> = None;
+        for j in 0..n_out {
+            let spread = (seen[j].1 - seen[j].0).max(1e-12);
+            let (lo_leaf, lo) = (0..cells.len()).map(|k| (k, cells[k].1[j].lo())).min_by(|a, b| a.1.total_cmp(&b.1)).expect("a leaf");
+            let (hi_leaf, hi) = (0..cells.len()).map(|k| (k, cells[k].1[j].hi())).max_by(|a, b| a.1.total_cmp(&b.1)).expect("a leaf");
+            for (gap, leaf) in [((seen[j].0 - lo) / spread, lo_leaf), ((hi - seen[j].1) / spread, hi_leaf)] {
+                if gap > worst.map_or(0.0, |w| w.0) {
+                    worst = Some((gap, j, leaf));
+                }
+            }
+        }
+        let Some((_, j, leaf)) = worst else { break };
+        let (cell, parent) = cells.swap_remove(leaf);
+        let c = centre(&cell);
+        observe(&net.eval(&c)?, &mut seen);
+        // The input along which output j moves most over the leaf (central difference).
+        let mut best = (f64::NEG_INFINITY, usize::MAX);
+        for d in (0..cell.len()).filter(|&d| cell[d].lo() < cell[d].hi()) {
+            let (mut a, mut b) = (c.clone(), c.clone());
+            a[d] = cell[d].lo();
+            b[d] = cell[d].hi();
+            let (ya, yb) = (net.eval(&a)?, net.eval(&b)?);
+            observe(&ya, &mut seen);
+            observe(&yb, &mut seen);
+            let effect = (yb[j] - ya[j]).abs() + 1e-9 * cell[d].width();
+            if effect > best.0 {
+                best = (effect, d);
+            }
+        }
+        if best.1 == usize::MAX {
+            cells.push((cell, parent));
+            break;
+        }
+        let d = best.1;
+        let halves: Vec<Vec<Interval>> = [iv(cell[d].lo(), c[d]), iv(c[d], cell[d].hi())]
+            .into_iter()
+            .map(|piece| {
+                let mut h = cell.clone();
+                h[d] = piece;
+                h
+            })
+            .collect();
+        let bounded: Vec<Result<Vec<Interval>>> = halves.par_iter().map(|h| bounds(net, h, settings)).collect();
+        for (h, b) in halves.into_iter().zip(bounded) {
+            let b: Vec<Interval> = b?.iter().zip(&parent).map(|(x, p)| x.intersect(p)).collect();
+            cells.push((h, b));
+        }
+    }
+    let mut hull = cells[0].1.clone();
+    for (_, b) in &cells[1..] {
+        hull.iter_mut().zip(b).for_each(|(h, x)| *h = h.hull(x));
+    }
+    Ok(hull)
+}
+
 /// Naive interval bound propagation (the baseline), in midpoint-radius form: per layer a
 /// float product W c + b for the centres and |W| r for the radii, the rounding error of the
 /// centres bounded by gamma_(n+1) (|W| |c| + |b|); then each activation's (monotone) image.
@@ -1009,6 +1090,35 @@ mod tests {
         let first = activate(&Models::from_box(&input, &settings, false).unwrap().affine(&net.layers()[0]).unwrap(), &net.layers()[0], &settings).unwrap();
         assert!(first.own.is_some() && first.symbols() == wide, "every sigmoid neuron has its own symbol");
         (net, first)
+    }
+
+    /// Branch and bound on the input: the hull of the leaves' bounds contains every sampled output,
+    /// and is never wider than the bounds of the whole box (children are intersected with parents).
+    #[test]
+    fn refined_bounds_enclose_samples_and_tighten() {
+        let mut state = 11;
+        let mut weights = |n_out: usize, n_in: usize| (0..n_out * n_in).map(|_| noise(&mut state)).collect::<Vec<f64>>();
+        let layers = vec![
+            LayerArrays { n_out: 24, n_in: 3, weight: weights(24, 3), bias: vec![0.1; 24], activations: vec![Activation::Relu] },
+            LayerArrays { n_out: 24, n_in: 24, weight: weights(24, 24), bias: vec![-0.05; 24], activations: vec![Activation::Relu] },
+            LayerArrays { n_out: 2, n_in: 24, weight: weights(2, 24), bias: vec![0.0; 2], activations: vec![Activation::Identity] },
+        ];
+        let net = Network::new(layers, None, None).unwrap();
+        let input = [iv(-0.5, 0.5), iv(0.2, 1.2), iv(-1.0, 0.0)];
+        let settings = Settings::default();
+        let whole = bounds(&net, &input, &settings).unwrap();
+        let refined = refined_bounds(&net, &input, &settings, 128).unwrap();
+        let mut state = 12;
+        for _ in 0..5000 {
+            let x: Vec<f64> = input.iter().map(|b| b.mid() + b.radius() * noise(&mut state)).collect();
+            for (y, b) in net.eval(&x).unwrap().iter().zip(&refined) {
+                assert!(b.contains(*y), "{y} outside {b}");
+            }
+        }
+        for (r, w) in refined.iter().zip(&whole) {
+            assert!(r.lo() >= w.lo() && r.hi() <= w.hi(), "{r} wider than {w}");
+        }
+        assert!(refined.iter().zip(&whole).any(|(r, w)| r.width() < 0.9 * w.width()), "128 leaves must tighten: {refined:?} vs {whole:?}");
     }
 
     #[test]

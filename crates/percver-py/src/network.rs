@@ -74,17 +74,18 @@ impl PyNetwork {
         self.0.n_out()
     }
 
-    /// Sound output bounds over a box (or over earlier models) by "taylor", "verisig" or "interval".
-    #[pyo3(signature = (input, method="taylor", order=5, cutoff=1e-15, symbolic=true, max_vars=4, max_symbols=4096, splits=vec![]))]
+    /// Sound output bounds over a box (or over earlier models) by "taylor", "verisig" or "interval";
+    /// `leaves` > 1 refines a box's Taylor bounds by branch and bound on the input.
+    #[pyo3(signature = (input, method="taylor", order=5, cutoff=1e-15, symbolic=true, max_vars=4, max_symbols=4096, splits=vec![], leaves=1))]
     #[allow(clippy::too_many_arguments)]
-    fn bounds(&self, py: Python<'_>, input: Input<'_>, method: &str, order: usize, cutoff: f64, symbolic: bool, max_vars: usize, max_symbols: usize, splits: Vec<(usize, usize)>) -> PyResult<Vec<(f64, f64)>> {
+    fn bounds(&self, py: Python<'_>, input: Input<'_>, method: &str, order: usize, cutoff: f64, symbolic: bool, max_vars: usize, max_symbols: usize, splits: Vec<(usize, usize)>, leaves: usize) -> PyResult<Vec<(f64, f64)>> {
         let net = self.0.clone();
         let s = settings(order, cutoff, symbolic, max_vars, max_symbols, splits)?;
         let result = match input {
             Input::Box(b) => {
                 let b = to_box(&b)?;
                 match method {
-                    "taylor" => py.allow_threads(|| propagate::bounds(&net, &b, &s)),
+                    "taylor" => py.allow_threads(|| propagate::refined_bounds(&net, &b, &s, leaves)),
                     "verisig" => py.allow_threads(|| verisig::bounds(&net, &b, &s)),
                     "interval" => propagate::interval_bounds(&net, &b),
                     other => return Err(unknown_method(other, "'taylor', 'verisig' or 'interval'")),

@@ -61,7 +61,7 @@ OPTIONS = {
     "refine": ("verify", bool, "true", "bisect unknown cells down to min_width"),
     "min_width": ("verify", dict, "{p = 0.005}", "smallest cell width per state for refine and timeouts (default: 1/64 of init)"),
     "rebox": ("verify", bool, "false", "restart a part from its box when a remainder is most of a state's enclosure"),
-    "state_symbols": ("verify", bool, "false", "keep feedback remainders as error symbols (Taylor method, discrete plants)"),
+    "state_symbols": ("verify", bool, "false", "keep feedback remainders as error symbols (Taylor method)"),
     "timeout_per_cell": ("verify", NUMBER, "600", "seconds after which a cell stops at the next step and is bisected"),
     "falsify": ("verify", int, "32", "random simulated runs per cell the engine does not verify"),
     "seed": ("verify", int, "0", "seed of those runs"),

@@ -111,11 +111,12 @@ def verify(
     initial state, so it can be looser elsewhere). ``validated`` (a ``Domain``, e.g.
     ``diagnosis.domain``; by default the plant's own when it comes from a diagnosis) makes
     ``Result.validity`` say whether every reach box stays where the model was validated, or the
-    first step and state where one leaves. ``state_symbols=True`` (Taylor method, discrete
-    plants) keeps the remainders of the states that feed back as error symbols from step to step,
-    so that an error the controller corrects cancels instead of adding its magnitude again (the
-    wrapping effect of a stiff feedback); it pays where the loop's Jacobian varies little over a
-    cell, and is off by default because on Mountain Car's cells it does not (bench/README.md).
+    first step and state where one leaves. ``state_symbols=True`` (Taylor method) keeps the
+    remainders of the states that feed back as error symbols from step to step (a continuous
+    plant's flowpipe carries them as variables), so that an error the controller corrects cancels
+    instead of adding its magnitude again (the wrapping effect of a stiff feedback: ARCH-COMP's
+    TORA with its ReLU controller); it pays where the loop's Jacobian varies little over a cell,
+    and is off by default because on Mountain Car's cells it does not (bench/README.md).
 
     A network that records its input domain (:attr:`percver.Network.domain`, the range it was
     trained on) is checked against the initial set before the run and against every cell's reach
