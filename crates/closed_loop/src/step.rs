@@ -12,7 +12,7 @@ use nn2hybrid::{verisig, Network, NetworkError};
 use std::time::Instant;
 use taylor::error_symbols::ErrorSymbols;
 use taylor::expr::{Intervals, Op, TaylorModels};
-use taylor::flowpipe::{reach_from, Ode, Settings as FlowSettings};
+use taylor::flowpipe::{reach_from, Ode, Segment, Settings as FlowSettings};
 use taylor::{Ctx, Interval, Program, Space, TaylorModel};
 
 pub(crate) fn decide(c: &Condition, state: &[TaylorModel], ctx: &Ctx) -> Result<Option<bool>> {
@@ -261,6 +261,15 @@ pub(crate) fn one_step(
                     Err(reason) => return Ok(Err(reason)),
                 }
             }
+            Plant::Hybrid { automaton, start, inputs, flow, max_time, max_jumps } => {
+                let held: Vec<TaylorModel> = inputs.iter().map(|&i| env[i].clone()).collect();
+                let most = (1 + forks).saturating_sub(nexts.len() + envs.len() - k - 1).max(1);
+                let limits = taylor::hybrid::Limits { max_time: *max_time, max_jumps: *max_jumps, max_branches: most };
+                match crate::hybrid::run_period(lp, automaton, *start, flow, limits, state, &held, ctx, hulls)? {
+                    Ok(next) => next,
+                    Err(reason) => return Ok(Err(reason)),
+                }
+            }
         };
         for mut next in successors {
             for m in next.iter_mut() {
@@ -343,13 +352,8 @@ pub(crate) fn integrate_period(
     if let Some(f) = &fp.failure {
         return Ok(Err(f.to_string()));
     }
-    for seg in &fp.segments {
-        for c in &lp.safe {
-            let margin = c.margin.eval(&Intervals, &seg.bounds[..n])?;
-            if c.cmp.decide(margin[0]) != Some(true) {
-                return Ok(Err(format!("'{}' could not be proved over t in [{:.4}, {:.4}] of the period", c.label, seg.t0, seg.t1)));
-            }
-        }
+    if let Some(reason) = unsafe_segment(lp, &fp.segments)? {
+        return Ok(Err(reason));
     }
     let next = fp.final_state[..n].iter().map(|t| {
         let mut t = shift_vars(t, &flow_space, &ctx.space, -1)?;
@@ -357,6 +361,21 @@ pub(crate) fn integrate_period(
         Ok(t)
     });
     Ok(Ok(next.collect::<Result<_>>()?))
+}
+
+/// Why a safety condition fails on some flowpipe segment (over the states, the segment's first
+/// variables), if it does.
+pub(crate) fn unsafe_segment<'a>(lp: &ClosedLoop, segments: impl IntoIterator<Item = &'a Segment>) -> Result<Option<String>> {
+    let n = lp.state_names.len();
+    for seg in segments {
+        for c in &lp.safe {
+            let margin = c.margin.eval(&Intervals, &seg.bounds[..n])?;
+            if c.cmp.decide(margin[0]) != Some(true) {
+                return Ok(Some(format!("'{}' could not be proved over t in [{:.4}, {:.4}] of the period", c.label, seg.t0, seg.t1)));
+            }
+        }
+    }
+    Ok(None)
 }
 
 /// Number of `where` conditions and min/max choices (clip) of the plant that are undecided on
