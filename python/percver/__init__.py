@@ -39,7 +39,7 @@ from percver.expr import (
 )
 from percver.flowpipe import Flowpipe, flowpipe
 from percver.sets import Box
-from percver.systems import ClosedLoop, Continuous, Discrete, Stage
+from percver.systems import ClosedLoop, Continuous, Discrete, Hybrid, Jump, Mode, Stage
 from percver.verification import Part, Result, verify, verify_parts
 
 min = minimum  # noqa: A001 - the design's names pv.min / pv.max, like numpy's

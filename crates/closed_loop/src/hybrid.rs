@@ -7,7 +7,11 @@ use taylor::flowpipe::Settings as FlowSettings;
 use taylor::hybrid::{run, Automaton, Limits};
 use taylor::{Ctx, Space, TaylorModel};
 
-/// At most `most` successors (more exit states are aggregated, counted in `hulls`);
+/// Branches one period follows at once before it aggregates them: the exits are aggregated to the
+/// cell's fork budget anyway, and branches kept apart until then keep their jump times apart.
+pub(crate) const BRANCHES: usize = 64;
+
+/// At most `limits.max_exits` successors (more exit states are aggregated, counted in `hulls`);
 /// Ok(Err(reason)) when a flowpipe, a safety check or the automaton's limits fail.
 #[allow(clippy::too_many_arguments)]
 pub(crate) fn run_period(

@@ -264,7 +264,10 @@ pub(crate) fn one_step(
             Plant::Hybrid { automaton, start, inputs, flow, max_time, max_jumps } => {
                 let held: Vec<TaylorModel> = inputs.iter().map(|&i| env[i].clone()).collect();
                 let most = (1 + forks).saturating_sub(nexts.len() + envs.len() - k - 1).max(1);
-                let limits = taylor::hybrid::Limits { max_time: *max_time, max_jumps: *max_jumps, max_branches: most };
+                // Contracting the domain re-parameterises it, which the goal's margins kept across
+                // steps (`within`) could not follow.
+                let contract = if lp.goal_within { vec![] } else { (1..=symbols.domain.space.nvars).collect() };
+                let limits = taylor::hybrid::Limits { max_time: *max_time, max_jumps: *max_jumps, max_branches: crate::hybrid::BRANCHES, max_exits: most, contract };
                 match crate::hybrid::run_period(lp, automaton, *start, flow, limits, state, &held, ctx, hulls)? {
                     Ok(next) => next,
                     Err(reason) => return Ok(Err(reason)),

@@ -108,12 +108,17 @@ impl Automaton {
 
 /// Bounds of one run: flowing beyond `max_time` or taking more than `max_jumps` jumps fails
 /// it (a Zeno run or a mode never left); states are aggregated so that at most `max_branches`
-/// branches are followed at once and at most as many exit states are returned.
+/// branches are followed at once and at most `max_exits` exit states are returned (aggregating
+/// the exits rather than the branches keeps each branch's jump times apart until the end).
 #[derive(Clone, Debug)]
 pub struct Limits {
     pub max_time: f64,
     pub max_jumps: usize,
     pub max_branches: usize,
+    pub max_exits: usize,
+    /// The variables of the space whose range the jumps may contract (Flow*'s domain
+    /// contraction): those of the initial set, not ones shared with anything outside the run.
+    pub contract: Vec<usize>,
 }
 
 #[derive(Clone, Debug, Default)]
@@ -166,7 +171,10 @@ pub fn run(aut: &Automaton, start: usize, state: Vec<TaylorModel>, space: &Arc<S
             // Each state its own branch while the budget allows (a branch keeps its jump time
             // to a step's precision); beyond, consecutive ones are aggregated.
             let room = limits.max_branches.saturating_sub(queue.len() + out.exits.len()).max(1);
+            let source = &aut.modes[branch.mode].invariant;
+            let holds: Vec<&Constraint> = jump.guard.iter().chain(source).collect();
             for taken in groups(&found, room, &ctx.space, &mut out.aggregations) {
+                let Some(taken) = contract(taken, &holds, &limits.contract, &ctx)? else { continue };
                 let next = match &jump.reset {
                     Some(r) => r.eval(&TaylorModels { ctx: &ctx }, &taken)?,
                     None => taken,
@@ -183,7 +191,7 @@ pub fn run(aut: &Automaton, start: usize, state: Vec<TaylorModel>, space: &Arc<S
             }
         }
     }
-    out.exits = groups(&out.exits, limits.max_branches, &ctx.space, &mut out.aggregations);
+    out.exits = groups(&out.exits, limits.max_exits, &ctx.space, &mut out.aggregations);
     Ok(out)
 }
 
@@ -232,11 +240,13 @@ fn visit(
         let mut t_prev = 0.0;
         let mut error = None;
         let fp = reach_from_steps(&mode.ode, start, space, &settings, &mut |t, seg, now| {
-            let mut shifted = seg.clone();
-            (shifted.t0, shifted.t1) = (seg.t0 + branch.elapsed + t_base, seg.t1 + branch.elapsed + t_base);
-            segments.push((branch.mode, shifted));
             let window = Window { ode: &mode.ode, invariant: &mode.invariant, start: &prev, end: &now, seg, h: t - t_prev, space: &ctx.space };
             let step = (|| -> Result<bool> {
+                // The runs in the segment satisfy the invariant: what violates it is cut off.
+                if let Some(bounds) = contract_box(&seg.bounds, &mode.invariant)? {
+                    let (t0, t1) = (seg.t0 + branch.elapsed + t_base, seg.t1 + branch.elapsed + t_base);
+                    segments.push((branch.mode, Segment { t0, t1, bounds, order: seg.order }));
+                }
                 for (k, j) in outgoing.iter().enumerate() {
                     if let Some(state) = window.jump_state(&j.guard)? {
                         found[k].0.push(state);
@@ -388,6 +398,88 @@ fn edge(a: f64, b: f64, depth: usize, from_left: bool, feasible: &dyn Fn(f64, f6
     edge(second.0, second.1, depth - 1, from_left, feasible, budget)
 }
 
+/// Depth of the bisection that contracts a variable's range, and the evaluations one bound may
+/// cost.
+const CONTRACT_DEPTH: usize = 12;
+const CONTRACT_BUDGET: usize = 60;
+
+/// The state re-parameterised onto the sub-box of `vars` (each in [-1, 1]) outside which
+/// `constraints` surely fail (x_v = m + r x_v' for the range [m - r, m + r] kept): the runs
+/// cut off cannot take the jump. None when no point of the domain may satisfy them.
+fn contract(state: Vec<TaylorModel>, constraints: &[&Constraint], vars: &[usize], ctx: &Ctx) -> Result<Option<Vec<TaylorModel>>> {
+    let space = &ctx.space;
+    let mut domain: Vec<Interval> = (0..space.nvars).map(|v| if space.is_unit(v) { Interval::UNIT } else { Interval::SYMMETRIC }).collect();
+    let feasible = |domain: &[Interval]| -> Result<bool> {
+        let values: Vec<Interval> = state.iter().map(|m| m.eval_interval(space, domain)).collect();
+        for c in constraints {
+            if c.on_box(&values)? == Some(false) {
+                return Ok(false);
+            }
+        }
+        Ok(true)
+    };
+    if !feasible(&domain)? {
+        return Ok(None);
+    }
+    let mut changed = false;
+    for &v in vars {
+        let at = |d: &[Interval], a: f64, b: f64| -> Result<bool> {
+            let mut d = d.to_vec();
+            d[v] = Interval::new(a, b).expect("a <= b");
+            feasible(&d)
+        };
+        let (a, b) = (domain[v].lo(), domain[v].hi());
+        let current = domain.clone();
+        let mut budget = CONTRACT_BUDGET;
+        let Some(lo) = edge(a, b, CONTRACT_DEPTH, true, &|x, y| at(&current, x, y), &mut budget)? else { return Ok(None) };
+        budget = CONTRACT_BUDGET;
+        let hi = edge(lo, b, CONTRACT_DEPTH, false, &|x, y| at(&current, x, y), &mut budget)?.unwrap_or(b);
+        if lo > a || hi < b {
+            domain[v] = Interval::new(lo, hi).expect("lo <= hi");
+            changed = true;
+        }
+    }
+    if !changed {
+        return Ok(Some(state));
+    }
+    // Bisection points are dyadic, so centre and radius are exact.
+    let args: Vec<TaylorModel> = (0..space.nvars)
+        .map(|v| if vars.contains(&v) { TaylorModel::affine(ctx, domain[v].mid(), v, 0.5 * domain[v].width()) } else { TaylorModel::var(ctx, v) })
+        .collect();
+    Ok(Some(state.iter().map(|m| m.compose(&args, ctx)).collect()))
+}
+
+/// The box shrunk, variable by variable, to where `constraints` may hold (interval evaluation,
+/// bisection); None if they hold nowhere in it.
+fn contract_box(b: &[Interval], constraints: &[Constraint]) -> Result<Option<Vec<Interval>>> {
+    let feasible = |x: &[Interval]| -> Result<bool> { Ok(conjunction(constraints, |c| c.on_box(x))? != Some(false)) };
+    if constraints.is_empty() {
+        return Ok(Some(b.to_vec()));
+    }
+    if !feasible(b)? {
+        return Ok(None);
+    }
+    let mut out = b.to_vec();
+    for v in 0..b.len() {
+        let (a, z) = (out[v].lo(), out[v].hi());
+        if a == z || !out[v].is_bounded() {
+            continue;
+        }
+        let current = out.clone();
+        let at = |lo: f64, hi: f64| -> Result<bool> {
+            let mut x = current.clone();
+            x[v] = Interval::new(lo, hi).expect("lo <= hi");
+            feasible(&x)
+        };
+        let mut budget = CONTRACT_BUDGET;
+        let Some(lo) = edge(a, z, CONTRACT_DEPTH, true, &at, &mut budget)? else { return Ok(None) };
+        budget = CONTRACT_BUDGET;
+        let hi = edge(lo, z, CONTRACT_DEPTH, false, &at, &mut budget)?.unwrap_or(z);
+        out[v] = Interval::new(lo, hi).expect("lo <= hi");
+    }
+    Ok(Some(out))
+}
+
 /// `states` as at most `most` states (at least one), consecutive ones aggregated.
 fn groups(states: &[Vec<TaylorModel>], most: usize, space: &Space, aggregations: &mut usize) -> Vec<Vec<TaylorModel>> {
     if states.len() <= most {
@@ -397,14 +489,21 @@ fn groups(states: &[Vec<TaylorModel>], most: usize, space: &Space, aggregations:
     states.chunks(states.len().div_ceil(most.max(1))).map(|group| aggregate(group, space)).collect()
 }
 
-/// One model per variable enclosing all `states`: the middle one, its remainder widened by
-/// everything the others differ from it by (the models keep the dependence they share).
+/// One model per variable enclosing all `states`: the middle one with its remainder widened by
+/// everything the others differ from it by (keeping the dependence they share), or the hull of
+/// their ranges when that is narrower (states of different jump times share little).
 pub fn aggregate(states: &[Vec<TaylorModel>], space: &Space) -> Vec<TaylorModel> {
     let reference = &states[states.len() / 2];
     (0..reference.len())
         .map(|i| {
             let spread = states.iter().fold(Interval::ZERO, |acc, s| acc.hull(&crate::bound::range(&s[i].sub(&reference[i]), space)));
-            reference[i].add_interval(spread)
+            let kept = reference[i].add_interval(spread);
+            let hull = states.iter().fold(Interval::EMPTY, |acc, s| acc.hull(&crate::bound::range(&s[i], space)));
+            if hull.width() < crate::bound::range(&kept, space).width() {
+                TaylorModel::from_interval(hull)
+            } else {
+                kept
+            }
         })
         .collect()
 }
@@ -452,7 +551,7 @@ mod tests {
         let space = Space::get(4, 5, 1).unwrap();
         let ctx = Ctx::new(space.clone(), 5, 1e-12);
         let init = vec![TaylorModel::affine(&ctx, 1.05, 1, 0.05), TaylorModel::constant(0.0), TaylorModel::constant(0.0)];
-        let limits = Limits { max_time: 1.0, max_jumps: 10, max_branches: 8 };
+        let limits = Limits { max_time: 1.0, max_jumps: 10, max_branches: 8, max_exits: 8, contract: vec![1] };
         let run = run(&ball(), 0, init, &space, &settings(5), &limits).unwrap();
         assert!(run.failure.is_none(), "{:?}", run.failure);
         assert!(!run.exits.is_empty());
@@ -494,7 +593,7 @@ mod tests {
         let mut s = settings(5);
         s.step = StepSize::Fixed(0.07); // does not divide 0.3 or 0.2
         s.remainder_estimate = vec![1e-3; 2];
-        let run = run(&aut, 0, init, &space, &s, &Limits { max_time: 1.0, max_jumps: 4, max_branches: 1 }).unwrap();
+        let run = run(&aut, 0, init, &space, &s, &Limits { max_time: 1.0, max_jumps: 4, max_branches: 1, max_exits: 1, contract: vec![1] }).unwrap();
         assert!(run.failure.is_none(), "{:?}", run.failure);
         assert_eq!(run.exits.len(), 1);
         let x = run.exits[0][0].bound(&space);
