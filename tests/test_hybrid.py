@@ -82,3 +82,112 @@ def test_hybrid_plant_errors_name_the_fix():
         pv.Hybrid({"fly": fly}, [pv.Jump("fly", None, reset={u: 0})], max_time=1, step=0.1)
     with pytest.raises(pv.InputError, match="neither its states nor its inputs"):
         pv.Hybrid({"fly": pv.Mode({x: v, v: u})}, [pv.Jump("fly", None)], max_time=1, step=0.1)
+
+
+def _ode(rates: dict) -> str:
+    names = ["_f1", "_f2", "x0", "x1", "u", "worldtime", "clock"]
+    return "nonpoly ode\n{\n" + "\n".join(f"{v}' = {rates.get(v, '0')}" for v in names) + "\n}"
+
+
+def _mode(name: str, rates: dict, clock_bound: float) -> str:
+    return f"{name}\n{{\n{_ode(rates)}\ninv\n{{\nclock <= {clock_bound}\n}}\n}}"
+
+
+def _segments_model(path, horizon: float, bound: float) -> None:
+    """A Verisig 2.0-style model whose period runs through two plant modes with different
+    dynamics (seg_a, then seg_b after 0.05 s), like the quadrotor MPC benchmark's segments."""
+    frozen = {"clock": "1"}
+    flow = {"worldtime": "1", "clock": "1"}
+    modes = [_mode("m0", frozen, 0), _mode("DNNm1", frozen, 0), _mode("startmode", frozen, 0), _mode("unsafe1", frozen, 1),
+             _mode("seg_a", {**flow, "x0": "x1", "x1": "u - x0"}, 0.05),
+             _mode("seg_b", {**flow, "x0": "x1", "x1": "u * x1 * x1 - x0"}, 0.05)]
+    jumps = [("m0", "DNNm1", "", "clock' := 0"), ("DNNm1", "seg_a", "", "u' := 2.0 * _f1 clock' := 0.0"),
+             ("seg_a", "seg_b", "clock = 0.05", "clock' := 0.0"),
+             ("seg_b", "m0", "clock = 0.05", "_f2' := x1 _f1' := x0 clock' := 0.0"),
+             ("seg_b", "unsafe1", f"worldtime = {horizon} x0 >= {bound}", "clock' := 0.0"),
+             ("startmode", "m0", "clock = 0.0", "_f2' := x1 _f1' := x0 clock' := 0.0")]
+    text = f"""hybrid reachability
+{{
+state var _f1, _f2, x0, x1, u, worldtime, clock
+setting
+{{
+adaptive steps {{min 1e-6, max 0.005}}
+time {horizon}
+remainder estimation 1e-1
+identity precondition
+matlab octagon x0, x1
+fixed orders 4
+cutoff 1e-10
+precision 100
+output segments
+max jumps 500
+print on
+}}
+modes
+{{
+{chr(10).join(modes)}
+}}
+jumps
+{{
+{chr(10).join(f"{a} -> {b}{chr(10)}guard {{ {g} }}{chr(10)}reset {{ {r} }}{chr(10)}interval aggregation" for a, b, g, r in jumps)}
+}}
+init
+{{
+startmode
+{{
+x0 in [0.8, 0.9]
+x1 in [0.5, 0.6]
+_f1 in [0, 0]
+_f2 in [0, 0]
+u in [0, 0]
+worldtime in [0, 0]
+clock in [0, 0]
+}}
+}}
+}}
+unsafe
+{{
+unsafe1
+{{
+x0 >= {bound}
+}}
+}}
+"""
+    path.write_text(text)
+
+
+def test_verisig_model_with_two_plant_modes_per_period_is_verified(tmp_path):
+    from percver.formats.verisig_yaml import write_verisig_yaml
+
+    net = Network([Layer(np.array([[-0.5, -0.4], [0.2, -0.3]]), np.array([0.0, 0.1]), "tanh"),
+                   Layer(np.array([[0.8, 0.5]]), np.array([0.0]), "identity")])
+    write_verisig_yaml(net, tmp_path / "net.yml")
+    _segments_model(tmp_path / "segments.model", horizon=0.5, bound=2.0)
+    problem = pv.formats.load_verisig(str(tmp_path / "segments.model"), networks=[str(tmp_path / "net.yml")])
+    assert isinstance(problem.loop.plant, pv.Hybrid) and list(problem.loop.plant.modes) == ["seg_a", "seg_b"]
+    assert problem.steps == 5
+    result = problem.verify(progress=False)
+    assert result.verdict == "verified", [c.reason for c in result.cells]
+    # Every simulated run (scipy through both modes, written here from the model) lies in the boxes.
+    rng = np.random.default_rng(3)
+    x0 = np.column_stack([rng.uniform(0.8, 0.9, 1000), rng.uniform(0.5, 0.6, 1000)])
+    runs = []
+    for row in x0:
+        state, traj = row.copy(), [row.copy()]
+        for _ in range(5):
+            u0 = 2.0 * float(net(state[None, :])[0, 0])
+            for f in (lambda _t, y: [y[1], u0 - y[0]], lambda _t, y: [y[1], u0 * y[1] ** 2 - y[0]]):
+                state = solve_ivp(f, (0, 0.05), state, method="DOP853", rtol=1e-12, atol=1e-13).y[:, -1]
+            traj.append(state.copy())
+        runs.append(traj)
+    runs = np.asarray(runs)
+    names = result.states
+    for cell in result.cells:
+        boxes = np.asarray(cell.boxes)
+        for j, name in enumerate(("x0", "x1")):
+            k = names.index(name)
+            assert ((runs[:, : len(boxes), j] >= boxes[None, :, k, 0] - 1e-9) & (runs[:, : len(boxes), j] <= boxes[None, :, k, 1] + 1e-9)).all()
+    # A bound the runs cross is not verified.
+    _segments_model(tmp_path / "tight.model", horizon=0.5, bound=float(runs[:, -1, 0].max()) - 0.05)
+    tight = pv.formats.load_verisig(str(tmp_path / "tight.model"), networks=[str(tmp_path / "net.yml")])
+    assert tight.verify(progress=False).verdict != "verified"
