@@ -173,6 +173,7 @@ pub fn run(aut: &Automaton, start: usize, state: Vec<TaylorModel>, space: &Arc<S
             let room = limits.max_branches.saturating_sub(queue.len() + out.exits.len()).max(1);
             let source = &aut.modes[branch.mode].invariant;
             let holds: Vec<&Constraint> = jump.guard.iter().chain(source).collect();
+            let found = merge_alike(found, &ctx.space);
             for taken in groups(&found, room, &ctx.space, &mut out.aggregations) {
                 let Some(taken) = contract(taken, &holds, &limits.contract, &ctx)? else { continue };
                 let next = match &jump.reset {
@@ -480,6 +481,26 @@ fn contract_box(b: &[Interval], constraints: &[Constraint]) -> Result<Option<Vec
     Ok(Some(out))
 }
 
+/// Consecutive states merged where their aggregate is hardly wider than the wider of them (a
+/// time-triggered jump found at the end of one step and the start of the next): a branch
+/// less for nothing lost.
+fn merge_alike(states: Vec<Vec<TaylorModel>>, space: &Space) -> Vec<Vec<TaylorModel>> {
+    let widths = |s: &[TaylorModel]| -> Vec<f64> { s.iter().map(|m| crate::bound::range(m, space).width()).collect() };
+    let mut out: Vec<Vec<TaylorModel>> = Vec::with_capacity(states.len());
+    for s in states {
+        if let Some(last) = out.last_mut() {
+            let both = aggregate(&[last.clone(), s.clone()], space);
+            let (a, b, w) = (widths(last), widths(&s), widths(&both));
+            if (0..w.len()).all(|i| w[i] <= 1.001 * a[i].max(b[i]) + 1e-9) {
+                *last = both;
+                continue;
+            }
+        }
+        out.push(s);
+    }
+    out
+}
+
 /// `states` as at most `most` states (at least one), consecutive ones aggregated.
 fn groups(states: &[Vec<TaylorModel>], most: usize, space: &Space, aggregations: &mut usize) -> Vec<Vec<TaylorModel>> {
     if states.len() <= most {
@@ -489,15 +510,19 @@ fn groups(states: &[Vec<TaylorModel>], most: usize, space: &Space, aggregations:
     states.chunks(states.len().div_ceil(most.max(1))).map(|group| aggregate(group, space)).collect()
 }
 
-/// One model per variable enclosing all `states`: the middle one with its remainder widened by
-/// everything the others differ from it by (keeping the dependence they share), or the hull of
+/// One model per variable enclosing all `states`: the middle one's polynomial with a remainder
+/// that holds every state's polynomial difference from it plus that state's remainder (keeping
+/// the dependence they share), or the hull of
 /// their ranges when that is narrower (states of different jump times share little).
 pub fn aggregate(states: &[Vec<TaylorModel>], space: &Space) -> Vec<TaylorModel> {
     let reference = &states[states.len() / 2];
     (0..reference.len())
         .map(|i| {
-            let spread = states.iter().fold(Interval::ZERO, |acc, s| acc.hull(&crate::bound::range(&s[i].sub(&reference[i]), space)));
-            let kept = reference[i].add_interval(spread);
+            // s = ref.poly + (s.poly - ref.poly) + s.rem for every state s, the reference too.
+            let poly = |m: &TaylorModel| TaylorModel { coef: m.coef.clone(), rem: Interval::ZERO };
+            let base = poly(&reference[i]);
+            let rem = states.iter().fold(Interval::EMPTY, |acc, s| acc.hull(&(crate::bound::range(&poly(&s[i]).sub(&base), space) + s[i].rem)));
+            let kept = base.add_interval(rem);
             let hull = states.iter().fold(Interval::EMPTY, |acc, s| acc.hull(&crate::bound::range(&s[i], space)));
             if hull.width() < crate::bound::range(&kept, space).width() {
                 TaylorModel::from_interval(hull)

@@ -601,7 +601,7 @@ class VerisigProblem:
 
     @property
     def kind(self) -> str:
-        return "continuous" if isinstance(self.loop.plant, Continuous) else "discrete"
+        return "continuous" if isinstance(self.loop.plant, Continuous) else "hybrid" if isinstance(self.loop.plant, Hybrid) else "discrete"
 
     @property
     def states(self) -> list:
@@ -636,6 +636,11 @@ class VerisigProblem:
         lines = [f"{Path(self.path).name}: {self.kind} plant, states {', '.join(self.states)}"]
         if isinstance(plant, Discrete):
             lines += [f"  {s}+ = {opaque(e)}" for s, e in zip(plant.states, plant.update)]
+        elif isinstance(plant, Hybrid):
+            for name in plant.modes:
+                lines.append(f"  mode {name}: " + "; ".join(f"{s}' = {short(e, 60)}" for s, e in zip(plant.states, plant.rhs_of(name))))
+            lines += [f"  jump {j.source} -> {j.target or 'the networks'} when {' and '.join(map(str, j.guard)) or 'always'}" for j in plant.jumps]
+            lines.append(f"  inputs {', '.join(plant.inputs)} held for {self.period} s")
         else:
             lines += [f"  {s}' = {short(e)}" for s, e in zip(plant.states, plant.rhs)]
             lines.append(f"  inputs {', '.join(plant.inputs)} held for {self.period} s")
