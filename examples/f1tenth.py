@@ -24,7 +24,7 @@ import numpy as np
 import torch
 
 import percver as pv
-from percver.cases.f1tenth import controllers, data, estimate, noise, pipeline, plots, simulate, world
+from percver.cases.f1tenth import controllers, data, noise, particle_filter, pipeline, plots, simulate, world
 
 parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
 parser.add_argument("--runs", type=int, default=3, help="runs per controller (the paper has 9-10)")
@@ -50,10 +50,10 @@ print(f"reflected rays per 21-ray scan: {calibration['reflected_per_scan']:.2f} 
       f"{100 * real['covered']['within_5cm']:.1f}%)")
 
 # ---- 2. poses from scans and steering only
-poses = estimate.estimate_poses(runs.scans, runs.controls, runs.run, runs.time,
-                                settings=estimate.FilterSettings(particles=args.particles), progress=True)
+poses = particle_filter.estimate_poses(runs.scans, runs.controls, runs.run, runs.time,
+                                settings=particle_filter.FilterSettings(particles=args.particles), progress=True)
 settled = runs.time >= 1.0
-error = estimate.PoseEstimate(poses.poses[settled], poses.speed[settled], poses.spread[settled]).errors(runs.states[settled])
+error = particle_filter.PoseEstimate(poses.poses[settled], poses.speed[settled], poses.spread[settled]).errors(runs.states[settled])
 print(f"pose error after 1 s: median {100 * error['position_median_m']:.1f} cm, mean {100 * error['position_mean_m']:.1f} cm, "
       f"heading {error['heading_mean_deg']:.2f} deg")
 dataset = pipeline.training_set(runs, poses)

@@ -14,6 +14,7 @@ import warnings
 import numpy as np
 
 import percver as pv
+from percver.properties import Region, Window
 
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
 NETWORKS = DATA / "mountain_car" / "networks"
@@ -156,26 +157,51 @@ def verified_loop(target, kwargs) -> pv.ClosedLoop:
 
 
 def _property(target, kwargs):
-    """(safe conditions, goal conditions, within) of the call, the loaded problem's if none given."""
+    """(safe, goal, within) of the call, the loaded problem's if none given: safe and goal as
+    predicates on (points, step), judged leaf by leaf here (not by percver's own combination)."""
     if not isinstance(target, pv.ClosedLoop) and not {"safe", "unsafe", "goal"} & set(kwargs):
         d = target.defaults
         kwargs = {**kwargs, "safe": d["safe"], "goal": d["goal"], "within": d["within"]}
     listed = lambda c: [] if c is None else list(c) if isinstance(c, (list, tuple)) else [c]  # noqa: E731
-    negate = {"<": ">=", "<=": ">", ">": "<=", ">=": "<"}
-    safe = [(c.margin(), c.op) for c in listed(kwargs.get("safe"))]
-    safe += [(c.margin(), negate[c.op]) for c in listed(kwargs.get("unsafe"))]
-    goal = [(c.margin(), c.op) for c in listed(kwargs.get("goal"))]
+    safe = [_during(c) for c in listed(kwargs.get("safe"))]
+    unsafe = listed(kwargs.get("unsafe"))
+    if len(unsafe) > 1:  # a list to avoid is one set, the intersection of its members
+        unsafe = [pv.all_of(unsafe)]
+    safe += [(lambda names, x, t, m=_during(u): ~m(names, x, t) if _active(u, t) else np.ones(len(x), bool)) for u in unsafe]
+    goal = [_during(c) for c in listed(kwargs.get("goal"))]
     return safe, goal, kwargs.get("within", False)
 
 
-def _holds(conditions, names, points) -> np.ndarray:
-    """Row-wise: all (margin, op) conditions hold at the points (N x n)."""
-    ok = np.ones(len(points), dtype=bool)
-    values = {n: points[:, j] for j, n in enumerate(names)}
-    for margin, op in conditions:
-        m = pv.evaluate(margin, values)
-        ok &= {"<": m < 0, "<=": m <= 0, ">": m > 0, ">=": m >= 0}[op]
-    return ok
+def _active(item, t) -> bool:
+    """Whether a windowed requirement (pv.during with steps=) applies at step t."""
+    return not isinstance(item, Window) or item.steps[0] <= t <= (item.steps[1] if item.steps[1] is not None else t)
+
+
+def _during(item):
+    """A predicate (names, points, step) -> rows inside ``item`` (always inside outside its window)."""
+    if isinstance(item, Window):
+        assert item.steps is not None, "the oracle handles windows given in steps"
+        inner = _during(item.region)
+        return lambda names, x, t: inner(names, x, t) if _active(item, t) else np.ones(len(x), bool)
+    return lambda names, x, t: _inside(item, names, x)
+
+
+def _inside(item, names, x) -> np.ndarray:
+    """Row-wise membership in a condition, box or region, member by member."""
+    if isinstance(item, Region):
+        parts = [_inside(p, names, x) for p in item.parts]
+        return np.logical_and.reduce(parts) if item.kind == "all" else np.logical_or.reduce(parts)
+    if isinstance(item, (pv.Box, dict)):
+        box = item if isinstance(item, pv.Box) else pv.Box(item)
+        cols = [x[:, list(names).index(n)] for n in box.names]
+        return np.logical_and.reduce([(c >= lo) & (c <= hi) for c, (lo, hi) in zip(cols, box.bounds)])
+    m = pv.evaluate(item.margin(), {n: x[:, j] for j, n in enumerate(names)})
+    return {"<": m < 0, "<=": m <= 0, ">": m > 0, ">=": m >= 0}[item.op]
+
+
+def _holds(conditions, names, points, t) -> np.ndarray:
+    """Row-wise: all predicates hold at the points (N x n) at step t."""
+    return np.logical_and.reduce([c(names, points, t) for c in conditions] + [np.ones(len(points), bool)])
 
 
 def check_against_simulation(target, kwargs, result, n=1000, seed=1):
@@ -203,9 +229,9 @@ def check_against_simulation(target, kwargs, result, n=1000, seed=1):
         if cell.verdict == "verified":
             reached = np.zeros(n, dtype=bool)
             for t in range(steps + 1):
-                at_goal = _holds(goal, loop.states, traj[:, t]) if goal and (within or t == steps) else np.zeros(n, dtype=bool)
+                at_goal = _holds(goal, loop.states, traj[:, t], t) if goal and (within or t == steps) else np.zeros(n, dtype=bool)
                 # The engine stops checking safety at the step the goal holds on the whole set.
-                unsafe = ~reached & ~_holds(safe, loop.states, traj[:, t])
+                unsafe = ~reached & ~_holds(safe, loop.states, traj[:, t], t)
                 assert not unsafe.any(), f"verified cell {cell.box}: a sampled run is unsafe at step {t}"
                 reached |= at_goal
             assert not goal or reached.all(), f"verified cell {cell.box}: a sampled run misses the goal"

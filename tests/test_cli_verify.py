@@ -173,3 +173,73 @@ def test_initial_set_outside_a_declared_range_is_a_one_line_warning(tmp_path, ca
     assert main(["verify", str(tmp_path / "c.toml"), "--no-progress", "--out", str(tmp_path / "r.json")]) == 0
     err = capsys.readouterr().err
     assert err.startswith("percver verify: warning: initial v in [0, 0.1] leaves [-0.07, 0.07]") and err.count("\n") == 1
+
+
+def test_every_verify_keyword_is_a_config_key_and_reaches_verify(tmp_path, monkeypatch):
+    """The config's [property] and [verify] keys are pv.verify's keywords (but the loop, init and
+    split, which have tables of their own); the example that --help prints parses, and each of its
+    values reaches pv.verify."""
+    import inspect
+
+    from percver.commands.verify import OPTIONS, example
+
+    keywords = set(inspect.signature(pv.verify).parameters) - {"loop", "init", "split"}
+    assert set(OPTIONS) == keywords
+    python_config(tmp_path, journal=False)
+    text = (tmp_path / "mc.toml").read_text().split("[property]")[0] + "\n".join(l.strip() for l in example().splitlines())
+    (tmp_path / "all.toml").write_text(text)
+    seen = {}
+    monkeypatch.setattr(sys.modules["percver.verification"], "verify", lambda loop, **kwargs: seen.update(kwargs) or pv.Result([], {}, []))
+    main(["verify", str(tmp_path / "all.toml"), "--out", str(tmp_path / "r.json")])
+    assert set(seen) == keywords | {"init", "split"}
+    config = tomllib.loads(text)
+    assert seen["rebox"] is config["verify"]["rebox"] is False and seen["max_splits"] == config["verify"]["max_splits"]
+    assert seen["batch"] == 8 and seen["executor"] == "tcp://host:8786" and seen["progress"] is True
+
+
+def test_the_config_reference_in_the_docs_is_current(capsys):
+    """docs/verify.md carries `percver verify --config-reference` verbatim: a new option of
+    pv.verify (OPTIONS) that is not in the docs fails here."""
+    assert main(["verify", "--config-reference"]) == 0
+    table = capsys.readouterr().out
+    docs = (TESTS.parent / "docs" / "verify.md").read_text()
+    assert "| `rebox` | [verify] | boolean | `false` |" in table
+    assert table in docs, "docs/verify.md is stale: paste the output of `percver verify --config-reference` into it"
+
+
+def test_a_window_in_a_config(tmp_path, capsys):
+    """safe = {conditions = [...], steps = [first, last]}: pv.during from TOML; [first] runs to the horizon."""
+    (tmp_path / "rise.py").write_text("import percver as pv\nx = pv.variables('x')\nloop = pv.ClosedLoop(pv.Discrete({x: x + 0.1}))\n")
+    base = '[plant]\npython = "rise.py:loop"\n[init]\nx = [0, 0.05]\n[property]\nsteps = 10\n'
+    runs = {"late": ('safe = {conditions = ["x >= 0.49"], steps = [5, 10]}\n', 0),
+            "early": ('safe = [{conditions = ["x >= 0.49", "x <= 2"], steps = [4]}]\n', 4),
+            "avoid": ('unsafe = {conditions = ["x >= 0.2", "x <= 0.3"], steps = [4, 10]}\n', 0)}
+    for name, (prop, code) in runs.items():
+        (tmp_path / f"{name}.toml").write_text(base + prop)
+        assert main(["verify", str(tmp_path / f"{name}.toml"), "--no-progress", "--out", str(tmp_path / f"{name}.json")]) == code, name
+    capsys.readouterr()
+    (tmp_path / "bad.toml").write_text(base + 'safe = {conditions = ["x >= 0"], steps = [5, 1]}\n')
+    assert main(["verify", str(tmp_path / "bad.toml"), "--no-progress"]) == 1
+    assert "[property] safe: during(): the window (5.0, 1.0) must start at 0 or later and not end before it starts" in capsys.readouterr().err
+    (tmp_path / "bad.toml").write_text(base + 'safe = {conditions = ["x >= 0"], seconds = [5, 1]}\n')
+    assert main(["verify", str(tmp_path / "bad.toml"), "--no-progress"]) == 1
+    assert "[property] safe: a window is {conditions" in capsys.readouterr().err
+
+
+def test_a_splitter_in_a_config(tmp_path, capsys):
+    """[verify] splitter = "bisection" or a table with kind and the class's keywords."""
+    from percver.commands.verify import Config
+    from percver.verification.splitters import Adaptive, Bisection
+
+    python_config(tmp_path, journal=False)
+    base = (tmp_path / "mc.toml").read_text()
+    (tmp_path / "s.toml").write_text(base + '[verify]\nsplitter = {kind = "adaptive", max_cells = 64, start = 2}\n')
+    splitter = Config(str(tmp_path / "s.toml")).verify_kwargs()["splitter"]
+    assert isinstance(splitter, Adaptive) and (splitter.max_cells, splitter.start) == (64, 2)
+    (tmp_path / "s.toml").write_text(base.replace("[split]\np = 4\n", "") + '[verify]\nsplitter = "bisection"\n')
+    assert type(Config(str(tmp_path / "s.toml")).verify_kwargs()["splitter"]) is Bisection
+    for spec, message in (('"halving"', "kind must be one of grid, bisection, adaptive, got 'halving'"),
+                          ('{kind = "adaptive", cells = 3}', "adaptive: ")):
+        (tmp_path / "s.toml").write_text(base + f"[verify]\nsplitter = {spec}\n")
+        assert main(["verify", str(tmp_path / "s.toml"), "--no-progress"]) == 1
+        assert f"[verify] splitter: {message}" in capsys.readouterr().err

@@ -8,6 +8,7 @@ import torch
 import percver as pv
 from percver.cases.f1tenth import noise, world
 from percver.errors import InputError
+from percver.noise import to_network
 
 torch.set_num_threads(2)
 
@@ -73,11 +74,11 @@ def test_reduced_classifier_learns_the_knock_out_and_round_trips_through_onnx(tm
 def test_to_network_matches_torch():
     torch.manual_seed(0)
     module = torch.nn.Sequential(torch.nn.Linear(5, 7), torch.nn.Tanh(), torch.nn.Linear(7, 3), torch.nn.Sigmoid()).double()
-    network = noise.to_network(module, "probe")
+    network = to_network(module, "probe")
     x = np.random.default_rng(0).normal(size=(10, 5))
     assert np.allclose(network(x), module(torch.as_tensor(x)).detach().numpy(), atol=1e-12)
     with pytest.raises(InputError, match="dense layer"):
-        noise.to_network(torch.nn.Sequential(torch.nn.Linear(2, 2), torch.nn.Dropout()), "bad")
+        to_network(torch.nn.Sequential(torch.nn.Linear(2, 2), torch.nn.Dropout()), "bad")
 
 
 def test_denoiser_trains_and_round_trips(tmp_path):

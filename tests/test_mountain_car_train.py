@@ -64,6 +64,7 @@ def test_onnx_round_trip(trained, role):
     model = fits[role].model
     path = out / f"{role}.onnx"
     network = pv.load_network(path)
+    assert network.domain == tuple(mc.networks.training_domain(role))  # written on export, read back
     n_in = network.n_in
     x = np.random.default_rng(1).uniform(0, 1, (16, n_in))
     x[:, -1] = np.linspace(-0.6, 0.6, 16) if role != "controller" else np.linspace(-0.07, 0.07, 16)
@@ -118,9 +119,11 @@ def test_shipped_networks():
     assert {"generator", "contrast", "blur", "estimator", "controller"} <= set(record["models"])
     assert all("command" in run and "seed" in run for run in record["runs"])
     size = sum(path.stat().st_size for path in PACKAGED.glob("*.onnx"))
-    assert size < 700_000  # float32 ONNX, 632 KB
+    assert size < 700_000  # float32 ONNX with their training domains, 654 KB
     ours = mc.load("ours")
     assert ours.source == PACKAGED
+    for role in mc.networks.ROLES:  # verify warns where a set leaves them
+        assert getattr(ours, role).domain == tuple(mc.networks.training_domain(role))
     check = training.controller_check(ours.controller, noise=0.05)
     assert check["safe_fraction"] == 1.0 and check["min_reward"] > 90
 

@@ -424,6 +424,12 @@ def test_yaml_fixture_layers_and_layout(tmp_path):
         (lambda d: d["weights"][1][2].pop(), r"layer 1 weights: row 3 has 2 entries but row 1 has 3"),
         (lambda d: d["weights"][1][0].__setitem__(0, "x"), r"layer 1 weights contain a non-numeric entry"),
         (lambda d: d["activations"].__setitem__(1, "tanh"), r"layer 1 activation 'tanh'.*write 'Tanh'"),
+        # Verisig reads unknown names as linear: a silent identity would verify another network
+        (
+            lambda d: d["activations"].__setitem__(2, "Swish"),
+            r"layer 2 activation 'Swish' is not supported: the format names 'Sigmoid', 'Tanh', 'Relu', 'Linear'",
+        ),
+        (lambda d: d["activations"].__setitem__(3, None), r"layer 3 activation None is not supported"),
         (lambda d: d["weights"].__setitem__(4, d["weights"].pop(3)), r"'weights' must number its layers 1, 2, \.\.\., 3"),
         (lambda d: d["offsets"].pop(3), r"weights, offsets and activations must list the same layers"),
         (lambda d: d.pop("activations"), r"not a Verisig network file"),

@@ -80,6 +80,7 @@ def test_knockout_classifier_learns_where_rays_are_swallowed_and_round_trips(tmp
     assert np.array_equal(again.apply(canonical, features), model.apply(canonical, features))
     network = pv.load_network(tmp_path / "knockout.onnx")
     assert [layer.activation for layer in network.layers] == ["tanh", "sigmoid"]
+    assert network.domain == tuple(zip(inputs[train].min(axis=0), inputs[train].max(axis=0)))
     np.testing.assert_allclose(onnx_outputs(tmp_path / "knockout.onnx", inputs[:50]), model.network(inputs[:50]), atol=1e-12)
     with pytest.raises(InputError, match="labels N x m"):
         noise.train_knockout(inputs[:, :4], labels, knocked=LIMIT, epochs=1)
@@ -107,7 +108,10 @@ def test_generative_model_learns_a_benign_noise_and_round_trips(tmp_path):
     assert again.n_conditions == 1
     x = np.column_stack([canonical, gamma])
     np.testing.assert_allclose(onnx_outputs(tmp_path / "gamma.onnx", x), model.network(x), atol=1e-12)
-    assert pv.load_network(tmp_path / "gamma.onnx").layers[-1].activation == "sigmoid"
+    loaded = pv.load_network(tmp_path / "gamma.onnx")
+    assert loaded.layers[-1].activation == "sigmoid"
+    # the training inputs' range is the network's domain, kept in the file
+    assert loaded.domain == tuple(zip(x[train].min(axis=0), x[train].max(axis=0)))
 
 
 def test_generative_model_of_unbounded_measurements_uses_least_squares(tmp_path):

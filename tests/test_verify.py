@@ -16,7 +16,7 @@ import pytest
 import percver as pv
 
 from percver.verification import campaign
-from percver.verification.cells import bisect
+from percver.verification.splitters import bisect
 
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
 CONTROLLER = DATA / "mountain_car" / "networks" / "ControllerSigmoid16x16.yml"
@@ -243,7 +243,8 @@ def test_a_wall_hit_at_different_steps_forks_the_plant():
     # five steps. The hull of both sides of the wall loses the cell; forking the plant's guard
     # (one branch per side, both `where`s on it take the same side) keeps every branch precise.
     loop, p, v = mountain_car()
-    kwargs = dict(init={"p": (-0.41, -0.40), "v": (0, 0)}, steps=150, goal=p >= 0.45, within=True, progress=False)
+    kwargs = dict(init={"p": (-0.41, -0.40), "v": (0, 0)}, steps=150, goal=p >= 0.45, within=True, progress=False,
+                  splitter=pv.Grid())  # one cell: the engine's own forks and splits are under test
     hull = pv.verify(loop, max_splits=0, **kwargs)
     forked = pv.verify(loop, max_splits=8, **kwargs)
     assert hull.verdict == "unknown" and forked.verdict == "verified"
@@ -252,6 +253,9 @@ def test_a_wall_hit_at_different_steps_forks_the_plant():
     # being complete (they held only the parts that had run, up to the step it gave up).
     wide = pv.verify(loop, max_splits=16, **{**kwargs, "init": {"p": (-0.42, -0.40), "v": (0, 0)}})
     assert wide.verdict == "unknown" and wide.cells[0].steps_done == len(wide.cells[0].boxes) - 1
+    # Its deepest step is where a part gave up, the step its reason names, past the boxes' end.
+    cell = wide.cells[0]
+    assert cell.reason.startswith(f"step {cell.deepest_step}:") and cell.deepest_step > cell.steps_done, (cell.reason, cell.steps_done)
     # The same with the states' errors as symbols (the wall's exact point has none).
     symbols = pv.verify(loop, max_splits=8, state_symbols=True, **kwargs)
     assert symbols.verdict == "verified"
@@ -351,3 +355,32 @@ def test_continuous_plant_with_network_controller():
     # Safety is checked along the flow, not only at the sampling instants.
     tight = pv.verify(loop, init={"x": (0.9, 1.1), "v": (-0.1, 0.1)}, steps=30, safe=x <= 1.1, progress=False)
     assert tight.verdict != "verified"
+
+
+def test_the_bar_shows_the_step_a_running_cell_reached():
+    """A running cell raises its engine counter to its deepest step as it goes; the bar shows
+    the counters of the running cells (deepest first), so a long cell shows progress."""
+    from percver import _core
+    from percver.verification.campaign import Progress, run_cells
+
+    x = pv.variables("x")
+    loop = pv.ClosedLoop(pv.Discrete({x: 0.9 * x}))
+    problem = loop.compile(safe=[(x - 5, "<=", "x <= 5", None)], goal=None, within=False, steps=30)
+    counter, outcomes = _core.StepCounter(), []
+    run_cells(problem, [[(0.0, 1.0)]], lambda i, o: outcomes.append(o), {}, 1, counter)
+    assert outcomes[0]["verdict"] == "verified" and counter.get() == outcomes[0]["deepest_step"] == 30
+    bar = Progress(threading.RLock())
+    bar.start(2)
+    try:
+        idle = _core.StepCounter()
+        bar.cell_started(counter, 30)
+        other = threading.Thread(target=bar.cell_started, args=(idle, 30))
+        other.start()
+        other.join()
+        bar.settled("verified")
+        assert "steps=30/30 0/30" in bar.tqdm.postfix
+        bar.cell_ended()
+        bar.settled("verified")
+        assert "steps=0/30" in bar.tqdm.postfix
+    finally:
+        bar.close()

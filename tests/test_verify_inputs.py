@@ -85,14 +85,14 @@ def test_bad_accumulators(tmp_path):
 
 def test_mixed_conjunction_is_strict_and_exact_elsewhere():
     """A goal list is one condition: min of the margins; with a strict member the whole is strict."""
-    from percver.systems import all_of, condition
+    from percver.systems import condition
 
     p, r = pv.variables("p r")
-    both = all_of([p >= 0.45, r + 100 > 90])
+    both = pv.all_of(p >= 0.45, r + 100 > 90).condition()
     pts = {"p": np.array([0.5, 0.5, 0.4, 0.45]), "r": np.array([-5.0, -11.0, -5.0, -5.0])}
     margin = pv.evaluate(both.margin(), pts)
     assert both.op == ">" and list(margin > 0) == [True, False, False, False]  # the last: p = 0.45 exactly
-    same = all_of([p >= 0.45, r >= -10])
+    same = pv.all_of([p >= 0.45, r >= -10]).condition()
     assert same.op == ">=" and list(pv.evaluate(same.margin(), pts) >= 0) == [True, False, False, True]
     assert str(condition("x^2 + y <= 1")) == "((x^2) + y) <= 1.0"
     with pytest.raises(pv.InputError, match="not one comparison"):

@@ -190,7 +190,7 @@ def test_f1tenth_lidar_matches_ray_casting():
     y1, y4 = rng.uniform(0.3, 1.2, n), rng.uniform(-0.3, 0.3, n)
     y2 = np.full(n, 7.0)  # far from the corner: within 5 m the right wall has no opening
     x = np.column_stack([y1, y2, np.full(n, 2.4), y4])
-    got = problem.loop._stage_float(0, x)
+    got = problem.loop.stage_float(0, x)
     angles = np.deg2rad(-115 + 11.5 * np.arange(21))[None, :] + y4[:, None]
     s, c = np.sin(angles), np.cos(angles)
     with np.errstate(divide="ignore"):

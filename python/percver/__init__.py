@@ -6,6 +6,7 @@ from percver.errors import (
     DomainError,
     InputError,
     MeasurementError,
+    NetworkDomainError,
     NetworkFormatError,
     ParseError,
     PercverError,
@@ -39,8 +40,9 @@ from percver.expr import (
 )
 from percver.flowpipe import Flowpipe, flowpipe
 from percver.sets import Box
+from percver.properties import all_of, any_of, during
 from percver.systems import ClosedLoop, Continuous, Discrete, Hybrid, Jump, Mode, Stage
-from percver.verification import Part, Result, verify, verify_parts
+from percver.verification import Adaptive, Bisection, DomainWarning, Grid, Part, Result, verify, verify_parts
 
 min = minimum  # noqa: A001 - the design's names pv.min / pv.max, like numpy's
 max = maximum  # noqa: A001

@@ -22,6 +22,10 @@ class DomainError(PercverError, ArithmeticError):
     """A function was applied outside its domain on a set (log of a negative interval, ...)."""
 
 
+class NetworkDomainError(DomainError):
+    """A set reaches inputs outside the domain a network was trained on (``verify(strict=True)``)."""
+
+
 class BlowUpError(PercverError, ArithmeticError):
     """A flowpipe or reach set could not be enclosed: the message gives the time reached."""
 

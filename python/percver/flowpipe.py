@@ -47,15 +47,24 @@ class Flowpipe:
         return Box(tuple(self.names), tuple((float(self.array[:, j, 0].min()), float(self.array[:, j, 1].max())) for j in range(len(self.names))))
 
     def contains(self, t: np.ndarray, states: np.ndarray, tol: float = 0.0) -> np.ndarray:
-        """Whether states (N x n) at times t (N) lie in the box of a step covering their time."""
-        t = np.asarray(t, dtype=float)
-        states = np.atleast_2d(states)
+        """Whether states (N x n) at times t (N) lie in the box of a step whose closed time interval holds their time.
+
+        The steps tile [0, time_reached]: each starts on the very float where the previous one
+        ends, so every time in it is in one step, or in two on a boundary (either box will do).
+        """
+        t = np.asarray(t, dtype=float).reshape(-1)
+        states = np.atleast_2d(np.asarray(states, dtype=float))
+        if states.shape != (len(t), len(self.names)):
+            raise InputError(f"contains needs one state of {len(self.names)} values per time: {len(t)} times, states of shape {states.shape}")
         ok = np.zeros(len(t), dtype=bool)
-        for i, ti in enumerate(t):
-            steps = np.nonzero((self.times[:, 0] <= ti) & (ti <= self.times[:, 1]))[0]
-            ok[i] = any(
-                np.all((states[i] >= self.array[s, :, 0] - tol) & (states[i] <= self.array[s, :, 1] + tol)) for s in steps
-            )
+        if len(self.times) == 0:
+            return ok
+        first = np.searchsorted(self.times[:, 1], t, side="left")  # the first step ending at or after t
+        for step in (first, first + 1):
+            s = np.minimum(step, len(self.times) - 1)
+            covers = (step < len(self.times)) & (self.times[s, 0] <= t) & (t <= self.times[s, 1])
+            box = self.array[s]
+            ok |= covers & np.all((states >= box[:, :, 0] - tol) & (states <= box[:, :, 1] + tol), axis=1)
         return ok
 
     def to_json(self, path: Optional[str] = None) -> str:

@@ -152,11 +152,12 @@ class Network:
     ``layers`` holds :class:`Layer` objects or ``(weight, bias, activation)`` tuples; activations are
     ``"sigmoid"``, ``"tanh"``, ``"relu"`` or ``"identity"`` (one per layer, or a tuple with one per
     neuron). ``scale`` and ``offset`` are numbers or one value per output (``None``: not applied).
-    ``input_names`` name the inputs for :meth:`bounds` (default ``in0``, ``in1``, ...). Layers are
-    numbered from 1 in error messages, as in Verisig files.
+    ``input_names`` name the inputs for :meth:`bounds` (default ``in0``, ``in1``, ...). ``domain``
+    is the input range the network was trained on (see :attr:`domain`). Layers are numbered from 1
+    in error messages, as in Verisig files.
     """
 
-    def __init__(self, layers, *, scale=None, offset=None, name: str | None = None, source=None, input_names=None):
+    def __init__(self, layers, *, scale=None, offset=None, name: str | None = None, source=None, input_names=None, domain=None):
         self._source = Path(source) if source is not None else None
         where = f"{self._source}: " if self._source is not None else ""
         checked: list[Layer] = []
@@ -169,6 +170,7 @@ class Network:
         self._offset = _checked_output_map(offset, "offset", checked[-1].n_out, where)
         self._name = name if name is not None else (self._source.stem if self._source is not None else "network")
         self._input_names = None if input_names is None else _checked_names(input_names, checked[0].n_in, self._name)
+        self._domain = None if domain is None else self._checked_domain(domain)
         self._rust = None
 
     @property
@@ -201,6 +203,43 @@ class Network:
     @property
     def name(self) -> str:
         return self._name
+
+    @property
+    def domain(self) -> tuple[tuple[float, float], ...] | None:
+        """The input range the network was trained on: one ``(lo, hi)`` per input (``-inf``/``inf``
+        where an input is unbounded), or ``None`` when unknown.
+
+        Outside it the network's outputs are extrapolation, so a proof over such inputs is about a
+        function nobody checked; :func:`percver.verify` warns when a set leaves it. percver's ONNX
+        exports carry it in their metadata; :func:`load_network` (``domain=``) and
+        :meth:`with_domain` set it for other files.
+        """
+        return self._domain
+
+    def with_domain(self, domain) -> Network:
+        """The same network with input domain ``domain``: a dict ``{input name: (lo, hi)}`` (inputs
+        not named are unbounded), a list of one ``(lo, hi)`` per input, or ``None`` (unknown)."""
+        return Network(self._layers, scale=self._scale, offset=self._offset, name=self._name, source=self._source,
+                       input_names=self._input_names, domain=domain)
+
+    def _checked_domain(self, domain) -> tuple[tuple[float, float], ...]:
+        where = f"{self._source}: " if self._source is not None else ""
+        names = self.input_names
+        if isinstance(domain, dict):
+            unknown = [k for k in domain if k not in names]
+            if unknown:
+                raise InputError(f"{where}network {self._name!r}: domain names {unknown[:8]}, not among its inputs ({', '.join(names[:8])} ...)")
+            domain = [domain.get(n, (-np.inf, np.inf)) for n in names]
+        try:
+            pairs = [(float(lo), float(hi)) for lo, hi in domain]
+        except (TypeError, ValueError):
+            raise InputError(f"{where}network {self._name!r}: a domain is a dict or list of (lo, hi) pairs, got {domain!r:.80}") from None
+        if len(pairs) != self.n_in:
+            raise InputError(f"{where}network {self._name!r} has {self.n_in} inputs but its domain has {len(pairs)} intervals")
+        for name, (lo, hi) in zip(names, pairs):
+            if not lo <= hi or lo == np.inf or hi == -np.inf:  # NaN fails lo <= hi
+                raise InputError(f"{where}network {self._name!r}: domain of input {name!r} is [{lo}, {hi}]; give lo <= hi, no NaN")
+        return tuple(pairs)
 
     @property
     def source(self) -> Path | None:
@@ -257,13 +296,16 @@ class Network:
             layers.append(Layer(weight, bias, layer.activations + ("identity",) * count))
         scale = None if self._scale is None else np.concatenate([self._scale, np.ones(count)])
         offset = None if self._offset is None else np.concatenate([self._offset, np.zeros(count)])
+        domain = None if self._domain is None else [*self._domain, *[(-np.inf, np.inf)] * count]
         return Network(
-            layers, scale=scale, offset=offset, name=f"{self._name}+passthrough", input_names=[*self.input_names, *names]
+            layers, scale=scale, offset=offset, name=f"{self._name}+passthrough", input_names=[*self.input_names, *names],
+            domain=domain,
         )
 
     def with_input_names(self, names) -> Network:
         """The same network with its inputs named ``names`` (for box dicts in :meth:`bounds`)."""
-        return Network(self._layers, scale=self._scale, offset=self._offset, name=self._name, source=self._source, input_names=names)
+        return Network(self._layers, scale=self._scale, offset=self._offset, name=self._name, source=self._source,
+                       input_names=names, domain=self._domain)
 
     def _core(self):
         if self._rust is None:
@@ -378,21 +420,29 @@ def _checked_names(names, n_in: int, network: str) -> tuple[str, ...]:
     return names
 
 
-def load_network(path) -> Network:
-    """Read a network from ``.onnx`` or a Verisig ``.yml``/``.yaml`` file."""
+def load_network(path, *, domain=None) -> Network:
+    """Read a network from ``.onnx``, a Verisig ``.yml``/``.yaml``, an NNet ``.nnet`` or a MATLAB
+    ``.mat`` file (W, b and act_fcns, the NNV/CORA/JuliaReach layout).
+
+    ``domain`` (see :attr:`Network.domain`) overrides the input domain the file records (percver's
+    ONNX exports record it; the other formats cannot).
+    """
+    from percver.formats.mat import read_mat
+    from percver.formats.nnet import read_nnet
     from percver.formats.onnx import read_onnx
     from percver.formats.verisig_yaml import read_verisig_yaml
 
     path = Path(path)
-    readers = {".onnx": read_onnx, ".yml": read_verisig_yaml, ".yaml": read_verisig_yaml}
+    readers = {".onnx": read_onnx, ".yml": read_verisig_yaml, ".yaml": read_verisig_yaml, ".nnet": read_nnet, ".mat": read_mat}
     if not path.is_file():
         raise MissingFileError(f"network file not found: {path}")
     reader = readers.get(path.suffix.lower())
     if reader is None:
         raise NetworkFormatError(
-            f"{path}: unknown network file type {path.suffix!r}; percver reads .onnx and Verisig .yml/.yaml"
+            f"{path}: unknown network file type {path.suffix!r}; percver reads .onnx, Verisig .yml/.yaml, .nnet and .mat"
         )
-    return reader(path)
+    network = reader(path)
+    return network if domain is None else network.with_domain(domain)
 
 
 def chain(*networks: Network) -> Network:
@@ -427,4 +477,5 @@ def chain(*networks: Network) -> Network:
         offset=last.offset,
         name=" -> ".join(n.name for n in networks),
         input_names=networks[0]._input_names,
+        domain=networks[0].domain,  # later networks' domains concern inner signals: see their own stages
     )

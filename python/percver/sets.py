@@ -15,12 +15,19 @@ BoxLike = Union["Box", Mapping[str, Sequence[float]], Sequence[Sequence[float]]]
 
 @dataclass(frozen=True)
 class Box:
-    """An axis-aligned box with a name per dimension; bounds are checked on creation."""
+    """An axis-aligned box with a name per dimension; bounds are checked on creation.
+    ``Box({"x": (0, 1), "v": (-1, 1)})`` is the same as ``Box(("x", "v"), ((0, 1), (-1, 1)))``."""
 
     names: tuple
-    bounds: tuple
+    bounds: tuple = None
 
     def __post_init__(self):
+        if isinstance(self.names, Mapping) and self.bounds is None:
+            items = [(str(k), _pair(k, v)) for k, v in self.names.items()]
+            object.__setattr__(self, "names", tuple(k for k, _ in items))
+            object.__setattr__(self, "bounds", tuple(b for _, b in items))
+        if self.bounds is None:
+            raise InputError("Box needs {name: (lo, hi)} or names and bounds, e.g. Box({'x': (0, 1)})")
         if len(self.names) != len(self.bounds):
             raise InputError(f"box has {len(self.names)} names but {len(self.bounds)} intervals")
         if len(set(self.names)) != len(self.names):
@@ -39,8 +46,7 @@ class Box:
         if isinstance(value, Box):
             box = value
         elif isinstance(value, Mapping):
-            items = [(str(k), _pair(k, v)) for k, v in value.items()]
-            box = cls(tuple(k for k, _ in items), tuple(b for _, b in items))
+            box = cls(value)
         else:
             pairs = [_pair(i, v) for i, v in enumerate(value)]
             names = list(names) if names is not None else [f"x{i}" for i in range(len(pairs))]

@@ -8,7 +8,6 @@ definition of every component.
 
 from __future__ import annotations
 
-import functools
 import operator
 import re
 import warnings
@@ -19,8 +18,15 @@ import numpy as np
 
 from percver import _core
 from percver.errors import InputError
-from percver.expr import Condition, Expr, ExprLike, as_expr, minimum, name_of
+from percver.expr import Condition, Expr, ExprLike, as_expr, name_of
 from percver.sets import Box, BoxLike
+
+
+_CONSTANTS = "_constants"  # the signal of the stages' constant inputs
+
+
+def _is_number(x) -> bool:
+    return isinstance(x, (int, float, np.integer, np.floating)) and not isinstance(x, bool)
 
 
 class InputRangeWarning(UserWarning):
@@ -39,19 +45,6 @@ def condition(text: str) -> Condition:
     return _COMPARISONS[parts[1]](as_expr(parts[0].strip()), as_expr(parts[2].strip()))
 
 
-def all_of(conditions: Sequence[Condition]) -> Condition:
-    """One condition that holds exactly where all of ``conditions`` hold: the smallest of their
-    margins (each turned to "h >= 0" or "h > 0") compared with 0. A mix of strict and non-strict
-    comparisons becomes strict (> 0): never weaker, different only where a non-strict one is
-    met with equality."""
-    conditions = list(conditions)
-    if len(conditions) == 1:
-        return conditions[0]
-    margins = [-c.margin() if c.op in ("<", "<=") else c.margin() for c in conditions]
-    smallest = functools.reduce(minimum, margins)
-    return smallest > 0.0 if any(c.op in ("<", ">") for c in conditions) else smallest >= 0.0
-
-
 class Discrete:
     """A discrete-time plant ``x[k+1] = update(x[k], inputs[k])``; noise parameters are states
     whose update is themselves (``d: d``)."""
@@ -68,7 +61,11 @@ class Discrete:
 
 
 class Continuous:
-    """A continuous-time plant ``x' = f(x, u)`` with the inputs held over each control period."""
+    """A continuous-time plant ``x' = f(x, u)`` with the inputs held over each control period.
+
+    An input may be a vector signal (a network with several outputs, ``output="T"``): declare
+    ``inputs=["T"]`` and read its components ``T_0, T_1, ...`` in the right-hand sides, or
+    declare the components themselves, ``inputs=["T_0", "T_1"]``, as with ``pv.Discrete``."""
 
     def __init__(self, rhs: Mapping[Union[Expr, str], ExprLike], inputs: Sequence[Union[Expr, str]] = (), *, period: float,
                  step: Optional[float] = None, remainder: float = 1e-4):
@@ -83,13 +80,15 @@ class Continuous:
             raise InputError(f"the integration step must be in (0, period], got {step}")
         self.remainder = float(remainder)
 
-    def advance(self, x: np.ndarray, u: np.ndarray, parameters: Optional[dict] = None) -> np.ndarray:
+    def advance(self, x: np.ndarray, u: np.ndarray, parameters: Optional[dict] = None,
+                inputs: Optional[Sequence[str]] = None) -> np.ndarray:
         """States after one period from the rows of x with the inputs u held (scipy, tight
-        tolerances); ``parameters`` maps an uncertain parameter's id to its value per row."""
+        tolerances); ``parameters`` maps an uncertain parameter's id to its value per row,
+        ``inputs`` names u's columns (default: the declared inputs)."""
         from scipy.integrate import solve_ivp
 
         n, count = len(self.states), len(x)
-        names = self.states + self.inputs
+        names = self.states + list(self.inputs if inputs is None else inputs)
 
         def f(_t, flat):
             s = flat.reshape(n, count).T
@@ -280,7 +279,8 @@ class Stage:
     """One block of the perception-control chain: ``output = scale * component(inputs) + offset``.
 
     ``component`` is a :class:`percver.networks.Network` or an expression (or a list of them)
-    over the input names; ``inputs`` are signal names (states or earlier outputs), concatenated.
+    over the input names; ``inputs`` are signal names (states or earlier outputs), concatenated,
+    or numbers: a constant input of a network (ACC's set speed, ``inputs=[30.0, 1.4, v, d]``).
     ``domain`` declares the range the component was made for, ``{input: (lo, hi)}`` over scalar
     inputs (e.g. a controller's training range); an initial set leaving it draws an
     :class:`InputRangeWarning` before verification starts.
@@ -298,7 +298,9 @@ class Stage:
     def __post_init__(self):
         from percver.networks import Network
 
-        self.input_names = [name_of(i) for i in self.inputs]
+        # A constant input has no name (None); ClosedLoop feeds it from its constants stage.
+        self.constants = {j: float(i) for j, i in enumerate(self.inputs) if _is_number(i)}
+        self.input_names = [None if j in self.constants else name_of(i) for j, i in enumerate(self.inputs)]
         if not isinstance(self.output, str) or not self.output:
             raise InputError("a stage's output must be a signal name, e.g. output='u'")
         self.name = self.name or self.output
@@ -306,6 +308,9 @@ class Stage:
             if self.scale is not None or self.offset is not None:
                 self.component = _with_output_map(self.component, self._output_map(self.component.n_out))
         else:
+            if self.constants:
+                raise InputError(f"stage '{self.name}': constant inputs {list(self.constants.values())} feed networks; "
+                                 "an expression can use the constant itself")
             exprs = self.component if isinstance(self.component, (list, tuple)) else [self.component]
             exprs = [as_expr(e) for e in exprs]
             if self.scale is not None or self.offset is not None:
@@ -341,6 +346,11 @@ class Stage:
         return isinstance(self.component, Network)
 
     @property
+    def input_labels(self) -> list:
+        """The inputs as written: signal names, constants as numbers."""
+        return [n if n is not None else f"{self.constants[j]:g}" for j, n in enumerate(self.input_names)]
+
+    @property
     def width(self) -> int:
         return self.component.n_out if self.is_network else len(self.component)
 
@@ -353,7 +363,8 @@ def _with_output_map(net, output_map):
     s, o = output_map
     s1 = np.ones(n) if net.scale is None else np.asarray(net.scale, float)
     o1 = np.zeros(n) if net.offset is None else np.asarray(net.offset, float)
-    return Network(net.layers, scale=s * s1, offset=s * o1 + o, name=net.name, source=net.source, input_names=net.input_names)
+    return Network(net.layers, scale=s * s1, offset=s * o1 + o, name=net.name, source=net.source, input_names=net.input_names,
+                   domain=net.domain)
 
 
 class ClosedLoop:
@@ -363,28 +374,35 @@ class ClosedLoop:
         if not isinstance(plant, (Discrete, Continuous, Hybrid)):
             raise InputError("plant must be pv.Discrete(...), pv.Continuous(...) or pv.Hybrid(...)")
         self.plant = plant
-        self.stages = list(stages)
         self.states = list(plant.states)
         self.accumulators: list = []  # states added by with_accumulators (they start at 0)
         # Signal name -> indices in the environment (state first, then stage outputs).
         self.signals: dict = {s: [i] for i, s in enumerate(self.states)}
         self.env_names = list(self.states)
+        # The stages' constant inputs, one signal per distinct value, computed by a first stage
+        # of constants (the engine's environment holds only states and stage outputs).
+        values = self._constant_values = sorted({v for stage in stages for v in stage.constants.values()})
+        self._constants = Stage(values, inputs=[], output=_CONSTANTS, name="constants") if values else None
+        self.stages = ([self._constants] if values else []) + list(stages)
         self.stage_inputs = []
         for k, stage in enumerate(self.stages):
             self.stage_inputs.append(self._wire(k, stage))
-        missing = [u for u in plant.inputs if u not in self.signals]
+        index = {name: i for i, name in enumerate(self.env_names)}
+        missing = [u for u in plant.inputs if u not in self.signals and u not in index]
         if missing:
             raise InputError(f"the plant's inputs {missing} are not produced by any stage (outputs: {[s.output for s in self.stages]})")
+        # The plant's inputs as scalar signals: a vector input is its components T_0, T_1, ...
+        self.plant_inputs = [self.env_names[i] for u in plant.inputs for i in (self.signals[u] if u in self.signals else [index[u]])]
         used = plant.update if isinstance(plant, Discrete) else plant.expressions() if isinstance(plant, Hybrid) else plant.rhs
-        allowed = set(self.env_names) if isinstance(plant, Discrete) else set(plant.states) | set(plant.inputs)
+        allowed = set(self.env_names) if isinstance(plant, Discrete) else set(plant.states) | set(self.plant_inputs)
         for e in used:
             unknown = set(e.variables()) - allowed
             if unknown:
                 raise InputError(f"the plant uses {sorted(unknown)}, which are neither states nor its declared inputs{self._vector_hint(unknown)}")
-        if not isinstance(plant, Discrete):
-            wide = [u for u in plant.inputs if len(self.signals[u]) != 1]
+        if isinstance(plant, Hybrid):
+            wide = [u for u in plant.inputs if len(self.signals.get(u, [0])) != 1]
             if wide:
-                raise InputError(f"continuous plant inputs must be scalar signals; {wide} are vectors")
+                raise InputError(f"hybrid plant inputs must be scalar signals; {wide} are vectors")
         # Column maps of the float simulation, fixed once wired: a stage's consecutive inputs (an
         # image) are read as a view, not gathered; a discrete plant gets only the columns it reads.
         self._float_inputs = [slice(i[0], i[0] + len(i)) if i and i == list(range(i[0], i[0] + len(i))) else i
@@ -396,7 +414,10 @@ class ClosedLoop:
         """Checks stage k against the signals so far, adds its output; returns its input indices."""
         where = f"stage {k + 1} ('{stage.name}')"
         indices = []
-        for name in stage.input_names:
+        for j, name in enumerate(stage.input_names):
+            if name is None:
+                indices.append(self.signals[_CONSTANTS][self._constant_values.index(stage.constants[j])])
+                continue
             if name not in self.signals:
                 raise InputError(f"{where} reads '{name}', which is neither a state nor an earlier output (known: {', '.join(self.signals)})")
             indices += self.signals[name]
@@ -404,10 +425,12 @@ class ClosedLoop:
         if stage.is_network:
             net = stage.component
             if net.n_in != len(indices):
-                parts = " + ".join(f"{n} ({len(self.signals[n])})" for n in stage.input_names)
+                parts = " + ".join(f"{n} ({len(self.signals[n])})" if n is not None else f"{stage.constants[j]:g} (1)"
+                                   for j, n in enumerate(stage.input_names))
                 raise InputError(f"{where} takes {net.n_in} inputs but is wired to {parts} = {len(indices)}")
             # A network that names its inputs (not the default in0, in1, ...) must get those signals, in its order.
-            if any(n != w and not re.fullmatch(r"in\d+", n) for n, w in zip(net.input_names, wired)):
+            # A constant input matches any name.
+            if any(n != w and not re.fullmatch(r"in\d+", n) and not w.startswith(_CONSTANTS) for n, w in zip(net.input_names, wired)):
                 raise InputError(
                     f"{where}: network '{net.name}' takes inputs ({', '.join(net.input_names)}) but is wired to ({', '.join(wired)}); "
                     "list the stage's inputs in the network's order, or rename them with net.with_input_names([...])"
@@ -456,7 +479,7 @@ class ClosedLoop:
             added[name] = e
         if not added:
             raise InputError("give accumulators as {name: expression}, e.g. {'r': -0.1 * u**2}")
-        plant, stages = self.plant, list(self.stages)
+        plant, stages = self.plant, [s for s in self.stages if s is not self._constants]
         if isinstance(plant, Hybrid):
             raise InputError("accumulators (reward=) are not supported with a hybrid plant; add the sum as a state of every mode")
         if isinstance(plant, Discrete):
@@ -499,7 +522,8 @@ class ClosedLoop:
                                   InputRangeWarning, stacklevel=3)
         return box
 
-    def _stage_float(self, k: int, env: np.ndarray, parameters: Optional[dict]) -> np.ndarray:
+    def stage_float(self, k: int, env: np.ndarray, parameters: Optional[dict] = None) -> np.ndarray:
+        """Stage k's outputs for a batch of environments (columns: the signals computed so far)."""
         stage = self.stages[k]
         x = env[:, self._float_inputs[k]]
         if stage.is_network:
@@ -529,9 +553,12 @@ class ClosedLoop:
         for k in range(len(self.stages)):
             start = self.signals[self.stages[k].output][0]
             width = len(self.signals[self.stages[k].output])
-            env[:, start: start + width] = self._stage_float(k, env, parameters)
-        if not isinstance(self.plant, Discrete):
-            u = env[:, [self.signals[i][0] for i in self.plant.inputs]]
+            env[:, start: start + width] = self.stage_float(k, env, parameters)
+        if isinstance(self.plant, Continuous):
+            u = env[:, [self.env_names.index(i) for i in self.plant_inputs]]
+            return self.plant.advance(env[:, : len(self.states)], u, parameters, self.plant_inputs)
+        if isinstance(self.plant, Hybrid):
+            u = env[:, [self.env_names.index(i) for i in self.plant_inputs]]
             return self.plant.advance(env[:, : len(self.states)], u, parameters)
         reads = self._plant_reads
         return _core.eval_float(self.plant.update, [self.env_names[i] for i in reads], np.ascontiguousarray(env[:, reads]),
@@ -554,7 +581,7 @@ class ClosedLoop:
         from percver.networks import Network
 
         if not isinstance(self.plant, Discrete):
-            reads = set(self.plant.inputs)
+            reads = set(self.plant_inputs)
         else:
             reads = {name for e in self.plant.update for name in e.variables()}
         fused, env = fuse(self.env_names, self.stage_inputs, self.stages, reads)
@@ -567,10 +594,10 @@ class ClosedLoop:
         if isinstance(self.plant, Continuous):
             pl = self.plant
             zero = as_expr(0.0)
-            plant = (pl.rhs + [zero] * len(pl.inputs), pl.states + pl.inputs, [env.index(self.env_names[self.signals[u][0]]) for u in pl.inputs],
+            plant = (pl.rhs + [zero] * len(self.plant_inputs), pl.states + self.plant_inputs, [env.index(u) for u in self.plant_inputs],
                      pl.period, pl.step, pl.remainder)
         elif isinstance(self.plant, Hybrid):
-            plant = self.plant._core([env.index(self.env_names[self.signals[u][0]]) for u in self.plant.inputs])
+            plant = self.plant._core([env.index(u) for u in self.plant_inputs])
         else:
             plant = self.plant.update
         return _core.ClosedLoop(self.states, stages, env, plant, safe, goal, within, steps)

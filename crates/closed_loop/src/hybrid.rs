@@ -16,6 +16,7 @@ pub(crate) const BRANCHES: usize = 64;
 #[allow(clippy::too_many_arguments)]
 pub(crate) fn run_period(
     lp: &crate::ClosedLoop,
+    step: usize,
     automaton: &Automaton,
     start: usize,
     flow: &FlowSettings,
@@ -32,7 +33,9 @@ pub(crate) fn run_period(
     let settings = FlowSettings { order: taylor::OrderPolicy::Fixed(order), ..flow.clone() };
     let reached = run(automaton, start, init, &space, &settings, &limits)?;
     for (mode, segment) in &reached.segments {
-        if let Some(reason) = unsafe_segment(lp, [segment])? {
+        // A period's length varies with its mode sequence: a condition with a time window is
+        // checked on the whole period that meets the window (stronger, so still sound).
+        if let Some(reason) = unsafe_segment(lp, [segment], |c, _| c.applies(step as f64, step as f64 + 1.0))? {
             return Ok(Err(format!("{reason} (mode '{}')", automaton.modes[*mode].name)));
         }
     }

@@ -15,8 +15,12 @@ pub enum Verdict {
 pub struct CellOutcome {
     pub verdict: Verdict,
     pub reason: Option<String>,
-    /// Steps completed (the reach boxes cover steps 0..=steps_done).
+    /// Steps completed by the whole cell (the reach boxes cover steps 0..=steps_done): with
+    /// splits, the pieces still waiting when the cell stopped hold it back.
     pub steps_done: usize,
+    /// The deepest step any piece of the cell reached: where an unknown cell gave up, even
+    /// when its boxes stop earlier.
+    pub deepest_step: usize,
     /// State box per step, step 0 first.
     pub boxes: Vec<Vec<Interval>>,
     pub seconds: f64,

@@ -36,6 +36,32 @@ pub struct Condition {
     pub margin: Arc<Program>,
     pub cmp: Cmp,
     pub label: String,
+    /// A safety condition's window in steps, `[lo, hi]` (fractional for times between steps):
+    /// it is checked at the steps in it and, for a continuous plant, on every flowpipe segment
+    /// whose time span meets it. None: always.
+    pub window: Option<(f64, f64)>,
+}
+
+impl Condition {
+    /// Whether the condition applies somewhere in steps `[from, to]` (a step, or the span of a
+    /// flowpipe segment). Decided with a margin of 1e-9 steps towards applying: checking a
+    /// condition where it need not hold is only stricter, missing one where it must is unsound.
+    pub fn applies(&self, from: f64, to: f64) -> bool {
+        self.window.map_or(true, |(lo, hi)| to >= lo - 1e-9 && from <= hi + 1e-9)
+    }
+
+    /// Whether the condition applies on the flowpipe segment [t0, t1] of period `step`: where
+    /// the segment's span meets the window, except only at the period's end or start, whose
+    /// states are checked at the steps themselves (else a window from step 5 would also hold
+    /// the whole last segment before it to the condition).
+    pub fn applies_on(&self, step: usize, t0: f64, t1: f64, period: f64) -> bool {
+        let Some((lo, hi)) = self.window else { return true };
+        let k = step as f64;
+        // The period's last segment ends at or an ulp past its end (taylor::flowpipe).
+        let only_end = t1 >= period && lo == k + 1.0;
+        let only_start = t0 == 0.0 && hi == k;
+        self.applies(k + t0 / period, k + t1 / period) && !only_end && !only_start
+    }
 }
 
 /// How the state moves from one control step to the next.

@@ -2,6 +2,8 @@
 //! the library's one source of them (the Python layer reads them through `percver._core`).
 use crate::error::{ReachError, Result};
 use nn2hybrid::propagate::Settings as NnSettings;
+use std::sync::atomic::AtomicUsize;
+use std::sync::Arc;
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Method {
@@ -30,6 +32,9 @@ pub struct CellSettings {
     /// rebox): their correlations survive the loop, so a controller's correction can cancel an
     /// error instead of adding its magnitude again at every step.
     pub state_symbols: bool,
+    /// Raised to the deepest step the cell has reached so far, as it runs: a caller's live
+    /// progress display reads it from another thread.
+    pub progress: Option<Arc<AtomicUsize>>,
 }
 
 impl Default for CellSettings {
@@ -46,6 +51,7 @@ impl Default for CellSettings {
             max_splits: 16,
             rebox: false,
             state_symbols: false,
+            progress: None,
         }
     }
 }

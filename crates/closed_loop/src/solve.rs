@@ -15,7 +15,7 @@ use taylor::{Interval, TaylorModel};
 /// Runs one cell: the initial box `cell` (one interval per state variable).
 pub fn verify_cell(lp: &ClosedLoop, cell: &[Interval], settings: &CellSettings) -> CellOutcome {
     let started = Instant::now();
-    let mut out = CellOutcome { verdict: Verdict::Unknown, reason: None, steps_done: 0, boxes: Vec::new(), seconds: 0.0, nn_seconds: 0.0, branches: 0, replayed: 0, split: None };
+    let mut out = CellOutcome { verdict: Verdict::Unknown, reason: None, steps_done: 0, deepest_step: 0, boxes: Vec::new(), seconds: 0.0, nn_seconds: 0.0, branches: 0, replayed: 0, split: None };
     if let Err(e) = run(lp, cell, settings, &mut out, started) {
         out.verdict = Verdict::Unknown;
         out.reason = Some(e.to_string());

@@ -9,6 +9,7 @@ use crate::split::{arrived, Arrival, End, Piece, ARRIVAL_PATIENCE};
 use crate::tape::OnTape;
 use nn2hybrid::propagate::{self, Models};
 use nn2hybrid::{verisig, Network, NetworkError};
+use std::sync::atomic::Ordering;
 use std::time::Instant;
 use taylor::error_symbols::ErrorSymbols;
 use taylor::expr::{Intervals, Op, TaylorModels};
@@ -89,11 +90,15 @@ pub(crate) fn advance(
     let space = &ctx.space;
     loop {
         let step = piece.step;
+        out.deepest_step = out.deepest_step.max(step);
+        if let Some(progress) = &settings.progress {
+            progress.fetch_max(step, Ordering::Relaxed);
+        }
         if piece.history.last().map(|(s, _)| *s) != Some(step) {
             piece.history.push((step, piece.state.clone()));
         }
         let here = |b: &[Option<Vec<Interval>>]| describe(&lp.state_names, b[step].as_deref().unwrap_or(&[]));
-        for c in &lp.safe {
+        for c in lp.safe.iter().filter(|c| c.applies(step as f64, step as f64)) {
             match decide(c, &piece.state, ctx)? {
                 Some(true) => {}
                 Some(false) => return Ok(End::Violated(format!("step {step}: '{}' is violated by the whole set", c.label))),
@@ -160,7 +165,7 @@ pub(crate) fn advance(
         let replayed = tape.as_ref().and_then(|t| t.replay(step));
         let fresh = replayed.is_none();
         out.replayed += usize::from(!fresh);
-        let nexts = match replayed.map(|next| Ok(Ok(vec![next]))).unwrap_or_else(|| one_step(lp, &piece.state, symbols, settings, forks, out, hulls)) {
+        let nexts = match replayed.map(|next| Ok(Ok(vec![next]))).unwrap_or_else(|| one_step(lp, step, &piece.state, symbols, settings, forks, out, hulls)) {
             Ok(Ok(nexts)) => nexts,
             // Bad input stops the cell; anything else loses only this piece.
             Err(e @ (ReachError::Input(_) | ReachError::Network(NetworkError::Input(_)))) => return Err(e),
@@ -201,13 +206,14 @@ pub(crate) fn advance(
     }
 }
 
-/// One control step from `state`: the stages, then the plant. An expression stage with
+/// Control step `step` from `state`: the stages, then the plant. An expression stage with
 /// undecided conditions forks (each branch assumed in turn, see [`taylor::expr::Forking`]) while
 /// `forks` allow, so one state may have several successors. Ok(Err(reason)) when a continuous
 /// plant's flowpipe or a safety check along it fails.
 #[allow(clippy::too_many_arguments)]
 pub(crate) fn one_step(
     lp: &ClosedLoop,
+    step: usize,
     state: &[TaylorModel],
     symbols: &ErrorSymbols,
     settings: &CellSettings,
@@ -256,7 +262,7 @@ pub(crate) fn one_step(
             }
             Plant::Continuous { ode, inputs, period, flow } => {
                 let held: Vec<TaylorModel> = inputs.iter().map(|&i| env[i].clone()).collect();
-                match integrate_period(lp, ode, state, &held, *period, flow, ctx)? {
+                match integrate_period(lp, step, ode, state, &held, *period, flow, ctx)? {
                     Ok(next) => vec![next],
                     Err(reason) => return Ok(Err(reason)),
                 }
@@ -268,7 +274,7 @@ pub(crate) fn one_step(
                 // steps (`within`) could not follow.
                 let contract = if lp.goal_within { vec![] } else { (1..=symbols.domain.space.nvars).collect() };
                 let limits = taylor::hybrid::Limits { max_time: *max_time, max_jumps: *max_jumps, max_branches: crate::hybrid::BRANCHES, max_exits: most, contract };
-                match crate::hybrid::run_period(lp, automaton, *start, flow, limits, state, &held, ctx, hulls)? {
+                match crate::hybrid::run_period(lp, step, automaton, *start, flow, limits, state, &held, ctx, hulls)? {
                     Ok(next) => next,
                     Err(reason) => return Ok(Err(reason)),
                 }
@@ -333,10 +339,12 @@ pub(crate) fn shift_vars(model: &TaylorModel, from: &Space, to: &Space, shift: i
     Ok(t)
 }
 
-/// One control period of a continuous plant from the state's Taylor models; Ok(Err(reason))
+/// Control period `step` of a continuous plant from the state's Taylor models; Ok(Err(reason))
 /// when the flowpipe or a safety check along it fails.
+#[allow(clippy::too_many_arguments)]
 pub(crate) fn integrate_period(
     lp: &ClosedLoop,
+    step: usize,
     ode: &Ode,
     state: &[TaylorModel],
     held: &[TaylorModel],
@@ -355,7 +363,7 @@ pub(crate) fn integrate_period(
     if let Some(f) = &fp.failure {
         return Ok(Err(f.to_string()));
     }
-    if let Some(reason) = unsafe_segment(lp, &fp.segments)? {
+    if let Some(reason) = unsafe_segment(lp, &fp.segments, |c, seg| c.applies_on(step, seg.t0, seg.t1, period))? {
         return Ok(Err(reason));
     }
     let next = fp.final_state[..n].iter().map(|t| {
@@ -366,12 +374,16 @@ pub(crate) fn integrate_period(
     Ok(Ok(next.collect::<Result<_>>()?))
 }
 
-/// Why a safety condition fails on some flowpipe segment (over the states, the segment's first
-/// variables), if it does.
-pub(crate) fn unsafe_segment<'a>(lp: &ClosedLoop, segments: impl IntoIterator<Item = &'a Segment>) -> Result<Option<String>> {
+/// Why a safety condition that `applies` on a flowpipe segment fails there (over the states,
+/// the segment's first variables), if one does.
+pub(crate) fn unsafe_segment<'a>(
+    lp: &ClosedLoop,
+    segments: impl IntoIterator<Item = &'a Segment>,
+    applies: impl Fn(&Condition, &Segment) -> bool,
+) -> Result<Option<String>> {
     let n = lp.state_names.len();
     for seg in segments {
-        for c in &lp.safe {
+        for c in lp.safe.iter().filter(|c| applies(c, seg)) {
             let margin = c.margin.eval(&Intervals, &seg.bounds[..n])?;
             if c.cmp.decide(margin[0]) != Some(true) {
                 return Ok(Some(format!("'{}' could not be proved over t in [{:.4}, {:.4}] of the period", c.label, seg.t0, seg.t1)));

@@ -27,7 +27,7 @@ fn feedback_loop(gain: f64, steps: usize) -> (ClosedLoop, Network) {
         state_names: names[..2].to_vec(),
         stages: vec![Stage { component: Component::Network(Arc::new(net.clone())), inputs: vec![0, 1] }],
         plant: Plant::Discrete(Arc::new(plant)),
-        safe: vec![Condition { margin: Arc::new(safe), cmp: Cmp::Le, label: "x <= 2".into() }],
+        safe: vec![Condition { margin: Arc::new(safe), cmp: Cmp::Le, label: "x <= 2".into(), window: None }],
         goal: None,
         goal_within: false,
         steps,
@@ -47,6 +47,7 @@ fn loop_settings(state_symbols: bool) -> CellSettings {
         max_splits: 0,
         rebox: false,
         state_symbols,
+        progress: None,
     }
 }
 
@@ -105,6 +106,7 @@ fn reach_loop(update: &str, steps: usize) -> ClosedLoop {
             margin: Arc::new(Program::compile(&[parse_expr("x - 1").unwrap()], &names).unwrap()),
             cmp: Cmp::Ge,
             label: "x >= 1".into(),
+            window: None,
         }),
         goal_within: true,
         steps,
@@ -135,6 +137,7 @@ fn reach_verdict(update: &str, x0: (f64, f64), steps: usize) -> CellOutcome {
         max_splits: 0,
         rebox: false,
         state_symbols: true,
+        progress: None,
     };
     verify_cell(&reach_loop(update, steps), &[Interval::new(x0.0, x0.1).unwrap()], &settings)
 }
@@ -223,4 +226,23 @@ fn pieces_that_hit_a_wall_at_different_steps_replay_one_climb_inside_the_simulat
             state = plant.eval(&Intervals, &point).unwrap().iter().map(|iv| iv.mid()).collect();
         }
     }
+}
+
+/// A cell whose parts stop at different steps: a fork at step 0 (x >= 0.5 or not), then the
+/// part run first violates the step-20 window x <= -5 while the other waits at step 1. The
+/// boxes are complete up to step 1 only; deepest_step says where the cell gave up. Before
+/// step 20 the window does not apply, so nothing stops the parts earlier.
+#[test]
+fn deepest_step_is_where_a_part_gave_up() {
+    let names = vec!["x".to_string()];
+    let (x, half) = (Expr::var("x"), Expr::constant(0.5));
+    let update = Expr::select(&x, Cmp::Ge, &half, &parse_expr("x + 0.1").unwrap(), &parse_expr("x - 0.1").unwrap());
+    let plant = Program::compile(&[update], &names).unwrap();
+    let margin = Arc::new(Program::compile(&[parse_expr("x + 5").unwrap()], &names).unwrap());
+    let late = Condition { margin, cmp: Cmp::Le, label: "x <= -5 at step 20".into(), window: Some((20.0, 20.0)) };
+    let lp = ClosedLoop { state_names: names, stages: vec![], plant: Plant::Discrete(Arc::new(plant)), safe: vec![late], goal: None, goal_within: false, steps: 20 };
+    let out = verify_cell(&lp, &[Interval::new(0.0, 1.0).unwrap()], &CellSettings { max_splits: 1, ..loop_settings(false) });
+    assert_eq!(out.verdict, Verdict::Unknown, "{:?}", out.reason);
+    assert!(out.reason.as_deref().unwrap_or("").starts_with("step 20:"), "{:?}", out.reason);
+    assert_eq!((out.steps_done, out.boxes.len(), out.deepest_step), (1, 2, 20));
 }

@@ -7,6 +7,7 @@ use crate::network::PyNetwork;
 use closed_loop::{CellOutcome, CellSettings, ClosedLoop, Component, Condition, Method, Plant, ReachError, Stage, Verdict};
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
+use std::sync::atomic::{AtomicUsize, Ordering};
 use std::sync::{Arc, Mutex};
 use taylor::hybrid::{Automaton, Constraint, Jump, Mode, Target};
 use taylor::{Cmp, Interval};
@@ -81,15 +82,37 @@ fn cmp(op: &str) -> PyResult<Cmp> {
     })
 }
 
-fn condition(state: &[String], (margin, op, label): (PyExpr, String, String)) -> PyResult<Condition> {
-    Ok(Condition { margin: Arc::new(compile(&[margin], state)?), cmp: cmp(&op)?, label })
+/// A condition (margin, op, label) and its window in steps (None: always).
+type ConditionArg = (PyExpr, String, String, Option<(f64, f64)>);
+
+fn condition(state: &[String], (margin, op, label, window): ConditionArg) -> PyResult<Condition> {
+    Ok(Condition { margin: Arc::new(compile(&[margin], state)?), cmp: cmp(&op)?, label, window })
+}
+
+/// The deepest step of the cells running with it (`verify_cells(progress=...)`), readable while
+/// they run: a progress bar shows how far a long cell has got.
+#[pyclass(name = "StepCounter", module = "percver._core", frozen)]
+pub struct PyStepCounter(Arc<AtomicUsize>);
+
+#[pymethods]
+impl PyStepCounter {
+    #[new]
+    fn new() -> Self {
+        PyStepCounter(Arc::new(AtomicUsize::new(0)))
+    }
+    fn get(&self) -> usize {
+        self.0.load(Ordering::Relaxed)
+    }
+    fn reset(&self) {
+        self.0.store(0, Ordering::Relaxed)
+    }
 }
 
 #[pymethods]
 impl PyClosedLoop {
     /// `stages`: (component, indices of its inputs in the environment = state ++ stage outputs);
-    /// `plant`: next-state expressions over `env_names`; conditions: (margin, op, label) meaning
-    /// `margin op 0` over the state.
+    /// `plant`: next-state expressions over `env_names`; conditions: (margin, op, label, window)
+    /// meaning `margin op 0` over the state, at the steps in the window (None: always).
     #[new]
     #[pyo3(signature = (state_names, stages, env_names, plant, safe, goal, goal_within, steps))]
     #[allow(clippy::too_many_arguments)]
@@ -98,8 +121,8 @@ impl PyClosedLoop {
         stages: Vec<(ComponentArg<'_>, Vec<usize>)>,
         env_names: Vec<String>,
         plant: PlantArg,
-        safe: Vec<(PyExpr, String, String)>,
-        goal: Option<(PyExpr, String, String)>,
+        safe: Vec<ConditionArg>,
+        goal: Option<ConditionArg>,
         goal_within: bool,
         steps: usize,
     ) -> PyResult<Self> {
@@ -147,6 +170,7 @@ fn outcome_dict<'py>(py: Python<'py>, o: &CellOutcome) -> PyResult<Bound<'py, Py
     )?;
     d.set_item("reason", o.reason.clone())?;
     d.set_item("steps_done", o.steps_done)?;
+    d.set_item("deepest_step", o.deepest_step)?;
     let boxes: Vec<Vec<(f64, f64)>> = o.boxes.iter().map(|b| b.iter().map(|i| (i.lo(), i.hi())).collect()).collect();
     d.set_item("boxes", boxes)?;
     d.set_item("seconds", o.seconds)?;
@@ -189,6 +213,7 @@ impl PyCellSettings {
             rebox: rebox.unwrap_or(d.rebox),
             state_symbols: state_symbols.unwrap_or(d.state_symbols),
             nn: d.nn,
+            progress: None,
         };
         Ok(PyCellSettings(settings.with_network_order(nn_order).py_err()?))
     }
@@ -282,9 +307,9 @@ pub fn _cell_settings(kwargs: &Bound<'_, PyDict>) -> PyResult<PyCellSettings> {
 
 /// Runs `cells` (lists of (lo, hi) per state variable) with `settings` (the defaults when None);
 /// `done(index, outcome: dict) -> bool` is called as each cell finishes; returning False (or
-/// raising) stops starting new cells.
+/// raising) stops starting new cells. `progress` is raised to the deepest step reached as they run.
 #[pyfunction]
-#[pyo3(signature = (problem, cells, done, settings=None, workers=None))]
+#[pyo3(signature = (problem, cells, done, settings=None, workers=None, progress=None))]
 pub fn verify_cells(
     py: Python<'_>,
     problem: &PyClosedLoop,
@@ -292,8 +317,9 @@ pub fn verify_cells(
     done: PyObject,
     settings: Option<PyCellSettings>,
     workers: Option<usize>,
+    progress: Option<PyRef<'_, PyStepCounter>>,
 ) -> PyResult<()> {
-    let settings = settings.map_or_else(CellSettings::default, |s| s.0);
+    let settings = CellSettings { progress: progress.map(|p| p.0.clone()), ..settings.map_or_else(CellSettings::default, |s| s.0) };
     let n = problem.0.state_names.len();
     let boxes: Vec<Vec<Interval>> = cells
         .iter()

@@ -23,16 +23,22 @@ pub fn function(name: &str) -> PyResult<Func> {
     Func::from_name(name).ok_or_else(|| to_py(TaylorError::input(format!("unknown function '{name}'"))))
 }
 
+/// A number entering an expression: an infinite or NaN one makes bounds and float evaluation
+/// disagree (x * inf is bounded as [0, inf] but evaluates to NaN at x = 0), so it is refused.
+fn finite(value: f64, what: &str) -> PyResult<f64> {
+    if value.is_finite() {
+        return Ok(value);
+    }
+    Err(to_py(TaylorError::input(format!("{what} {value} is not a finite number; expressions take finite numbers only"))))
+}
+
 /// Accepts an Expr or a number.
 fn operand(value: &Bound<'_, PyAny>) -> PyResult<Expr> {
     if let Ok(e) = value.extract::<PyExpr>() {
         return Ok(e.0);
     }
     if let Ok(v) = value.extract::<f64>() {
-        if v.is_nan() {
-            return Err(to_py(TaylorError::input("NaN is not a valid constant in an expression")));
-        }
-        return Ok(Expr::constant(v));
+        return Ok(Expr::constant(finite(v, "constant")?));
     }
     Err(pyo3::exceptions::PyTypeError::new_err(format!(
         "expected an expression or a number, got {}",
@@ -55,14 +61,12 @@ impl PyExpr {
     }
     #[staticmethod]
     fn constant(value: f64) -> PyResult<Self> {
-        if value.is_nan() {
-            return Err(to_py(TaylorError::input("NaN is not a valid constant")));
-        }
-        Ok(PyExpr(Expr::constant(value)))
+        Ok(PyExpr(Expr::constant(finite(value, "constant")?)))
     }
     /// A constant known only to lie in [lo, hi].
     #[staticmethod]
     fn uncertain(lo: f64, hi: f64) -> PyResult<Self> {
+        let (lo, hi) = (finite(lo, "uncertain lower bound")?, finite(hi, "uncertain upper bound")?);
         Ok(PyExpr(Expr::uncertain(Interval::new(lo, hi).py_err()?)))
     }
     #[staticmethod]

@@ -443,6 +443,33 @@ impl Program {
         self.outputs.iter().map(|&s| values[s].clone()).collect()
     }
 
+    /// Per slot, whether its value is nonnegative by its form, whatever the inputs: an even
+    /// power, a square `x * x`, |x|, sqrt, exp, sigmoid, a nonnegative constant, and sums,
+    /// products, quotients, powers, minima and `where`s of such (a maximum needs one). Sets
+    /// enclosing such a value may dip below 0 (`0 + 0` rounded down, a square's Taylor model
+    /// bounded term by term) where the value cannot: a function defined only from 0 on (sqrt,
+    /// a fractional power) gets the enclosure's nonnegative part ([`Algebra::func_nonneg`]).
+    pub fn nonnegative_slots(&self) -> Vec<bool> {
+        let mut out: Vec<bool> = Vec::with_capacity(self.ops.len());
+        for op in &self.ops {
+            let nonneg = match *op {
+                Op::Const(c) => c >= 0.0,
+                Op::Uncertain { range, .. } => range.lo() >= 0.0,
+                Op::Input(_) | Op::Neg(_) => false,
+                Op::PowI(a, n) => n % 2 == 0 || out[a],
+                Op::PowF(..) => true, // defined only where its base is >= 0, and then >= 0
+                Op::Func(f, a) => matches!(f, Func::Abs | Func::Sqrt | Func::Exp | Func::Sigmoid) || (f == Func::Recip && out[a]),
+                Op::Binary(BinOp::Mul, a, b) if a == b => true,
+                Op::Binary(BinOp::Add | BinOp::Mul | BinOp::Div | BinOp::Min, a, b) => out[a] && out[b],
+                Op::Binary(BinOp::Max, a, b) => out[a] || out[b],
+                Op::Binary(BinOp::Sub, ..) => false,
+                Op::Where { then, otherwise, .. } => out[then] && out[otherwise],
+            };
+            out.push(nonneg);
+        }
+        out
+    }
+
     /// The value of every slot (for callers that inspect intermediate results, such as the
     /// conditions of `where`).
     pub fn eval_all<A: Algebra>(&self, alg: &A, inputs: &[A::Value]) -> Result<Vec<A::Value>> {
@@ -461,6 +488,8 @@ impl Program {
         fn get<T>(v: &[Result<T>], i: usize) -> Result<&T> {
             v[i].as_ref().map_err(|e| e.clone())
         }
+        let nonneg = self.nonnegative_slots();
+        let known = |a: usize| nonneg[a];
         for op in &self.ops {
             let value = match op {
                 Op::Const(c) => Ok(alg.constant(*c)),
@@ -469,7 +498,9 @@ impl Program {
                 Op::Neg(a) => get(&v, *a).map(|x| alg.neg(x)),
                 Op::Binary(op, a, b) => get(&v, *a).and_then(|x| alg.binary(*op, x, get(&v, *b)?)),
                 Op::PowI(a, n) => get(&v, *a).and_then(|x| alg.powi(x, *n)),
+                Op::PowF(a, r) if known(*a) => get(&v, *a).and_then(|x| alg.powf_nonneg(x, *r)),
                 Op::PowF(a, r) => get(&v, *a).and_then(|x| alg.powf(x, *r)),
+                Op::Func(f, a) if known(*a) => get(&v, *a).and_then(|x| alg.func_nonneg(*f, x)),
                 Op::Func(f, a) => get(&v, *a).and_then(|x| alg.func(*f, x)),
                 Op::Where { lhs, cmp, rhs, then, otherwise } => (|| {
                     let (l, r) = (get(&v, *lhs)?, get(&v, *rhs)?);
@@ -480,7 +511,7 @@ impl Program {
                     }
                 })(),
             };
-            v.push(value);
+            v.push(if known(v.len()) { value.map(|x| alg.nonneg(x)) } else { value });
         }
         for &o in &self.outputs {
             v[o].clone()?;
@@ -509,6 +540,19 @@ pub trait Algebra {
     fn powi(&self, a: &Self::Value, n: i32) -> Result<Self::Value>;
     fn powf(&self, a: &Self::Value, r: f64) -> Result<Self::Value>;
     fn func(&self, f: Func, a: &Self::Value) -> Result<Self::Value>;
+    /// A value nonnegative by its form ([`Program::nonnegative_slots`]): a set algebra may drop
+    /// the part of its enclosure below 0 (intervals do; a Taylor model cannot).
+    fn nonneg(&self, a: Self::Value) -> Self::Value {
+        a
+    }
+    /// `f(a)` and `a^r` for an `a` nonnegative by its form: a set algebra may drop the part of
+    /// `a`'s enclosure below 0.
+    fn func_nonneg(&self, f: Func, a: &Self::Value) -> Result<Self::Value> {
+        self.func(f, a)
+    }
+    fn powf_nonneg(&self, a: &Self::Value, r: f64) -> Result<Self::Value> {
+        self.powf(a, r)
+    }
     /// Whether `lhs cmp rhs` holds everywhere (Some(true)), nowhere (Some(false)), or either.
     fn decide(&self, lhs: &Self::Value, cmp: Cmp, rhs: &Self::Value) -> Option<bool>;
     /// Decides the condition a program asks at `question`; an algebra that follows a plan
@@ -615,6 +659,15 @@ impl Algebra for Intervals {
     fn func(&self, f: Func, a: &Interval) -> Result<Interval> {
         f.eval_interval(*a)
     }
+    fn nonneg(&self, a: Interval) -> Interval {
+        a.nonnegative_part()
+    }
+    fn func_nonneg(&self, f: Func, a: &Interval) -> Result<Interval> {
+        f.eval_interval(a.nonnegative_part())
+    }
+    fn powf_nonneg(&self, a: &Interval, r: f64) -> Result<Interval> {
+        a.nonnegative_part().powf(r)
+    }
     fn decide(&self, l: &Interval, cmp: Cmp, r: &Interval) -> Option<bool> {
         cmp.decide(*l - *r)
     }
@@ -701,6 +754,23 @@ impl Algebra for TaylorModels<'_> {
     fn func(&self, f: Func, a: &TaylorModel) -> Result<TaylorModel> {
         f.eval_tm(a, self.ctx)
     }
+    /// Expanded as usual where the model's bound is nonnegative and the expansion exists (sqrt
+    /// has none around 0); else the interval image of the bound's nonnegative part, as a
+    /// constant model (sound: every value of `a` is in that part).
+    fn func_nonneg(&self, f: Func, a: &TaylorModel) -> Result<TaylorModel> {
+        let range = a.bound(&self.ctx.space);
+        match self.func(f, a) {
+            Ok(m) if range.lo() >= 0.0 => Ok(m),
+            _ => Ok(TaylorModel::from_interval(f.eval_interval(range.nonnegative_part())?)),
+        }
+    }
+    fn powf_nonneg(&self, a: &TaylorModel, r: f64) -> Result<TaylorModel> {
+        let range = a.bound(&self.ctx.space);
+        match self.powf(a, r) {
+            Ok(m) if range.lo() >= 0.0 => Ok(m),
+            _ => Ok(TaylorModel::from_interval(range.nonnegative_part().powf(r)?)),
+        }
+    }
     fn decide(&self, l: &TaylorModel, cmp: Cmp, r: &TaylorModel) -> Option<bool> {
         cmp.decide(l.sub(r).bound(&self.ctx.space))
     }
@@ -769,6 +839,12 @@ impl Algebra for Forking<'_> {
     }
     fn func(&self, f: Func, a: &TaylorModel) -> Result<TaylorModel> {
         self.tm.func(f, a)
+    }
+    fn func_nonneg(&self, f: Func, a: &TaylorModel) -> Result<TaylorModel> {
+        self.tm.func_nonneg(f, a)
+    }
+    fn powf_nonneg(&self, a: &TaylorModel, r: f64) -> Result<TaylorModel> {
+        self.tm.powf_nonneg(a, r)
     }
     /// Without a question there is nothing to follow a plan by: decided or undecided.
     fn decide(&self, l: &TaylorModel, cmp: Cmp, r: &TaylorModel) -> Option<bool> {

@@ -248,11 +248,11 @@ fn flow_from(
         OrderPolicy::Adaptive { min, max } => (min, max),
     };
     let mut k = k_min;
+    // Every step length is a multiple of the grid, so every step time is too and every sum is
+    // exact: segments tile [0, t_end] with no float gap between one's end and the next's start
+    // (a gap would leave true states at those times in no segment), and the last ends on t_end.
+    let grid = time_grid(settings.t_end);
     let mut t = 0.0;
-    // The exact time integrated so far: the sum of the steps, rounded outward. Steps such as
-    // 0.1 are not dyadic, so the float sum may miss t_end by an ulp; the last step is then
-    // taken a little long and its end evaluated over an interval of s that holds t_end.
-    let mut t_sum = Interval::ZERO;
     let mut segments = Vec::new();
     let mut failure = None;
     let mut symbolic = SymbolicRemainder::new(n, settings.symbolic_queue);
@@ -261,10 +261,8 @@ fn flow_from(
         let r_box = symbolic.enclosure();
         let extra: Vec<f64> = r_box.iter().map(|r| r.mag()).collect();
         let pre = precondition(&state, &extra, settings.precondition, &ctx);
-        let remaining = Interval::point(settings.t_end) - t_sum;
-        // A step shorter than remaining.lo keeps the exact time below t_end; a longer one is the
-        // last, stretched to remaining.hi so that it surely reaches t_end.
-        let mut h_try = if h >= remaining.lo() * (1.0 - 1e-12) { remaining.hi() } else { h };
+        let remaining = settings.t_end - t; // exact: both on the grid
+        let mut h_try = if h >= remaining * (1.0 - 1e-12) { remaining } else { on_grid(h, grid) };
         // The remainder estimate is a tolerance while the step or order can still adapt (as
         // in Flow*); only when neither can is the estimate enlarged before giving up.
         let mut enlarge = false;
@@ -273,9 +271,11 @@ fn flow_from(
                 Ok(left) => break Some(left),
                 Err(reason) => {
                     stats.rejected_steps += 1;
-                    let can_halve = matches!(settings.step, StepSize::Adaptive { .. }) && h_try * 0.5 >= h_min;
+                    // On the grid a step of one grid unit cannot halve: it stays, so stop there too.
+                    let half = on_grid(h_try * 0.5, grid);
+                    let can_halve = matches!(settings.step, StepSize::Adaptive { .. }) && h_try * 0.5 >= h_min && half < h_try;
                     if can_halve {
-                        h_try *= 0.5;
+                        h_try = half;
                     } else if k < k_max {
                         k += 1;
                         break None;
@@ -304,14 +304,7 @@ fn flow_from(
         let mut args = vec![TaylorModel::zero()];
         args.extend(pre.right.iter().cloned());
         args.resize(space.nvars, TaylorModel::zero());
-        let last = h_try >= remaining.hi();
-        // On the last step t_end is at s = remaining / h_try, in [s_lo, 1].
-        let s_end = if last && remaining.lo() < h_try {
-            Interval::new((remaining.lo() / h_try).next_down().max(0.0), 1.0).expect("0 <= s_lo <= 1")
-        } else {
-            Interval::ONE
-        };
-        let ends: Vec<TaylorModel> = left.iter().map(|m| m.substitute(0, s_end, &ctx)).collect();
+        let ends: Vec<TaylorModel> = left.iter().map(|m| m.substitute(0, Interval::ONE, &ctx)).collect();
         // Step map on the symbolic part: its linear part A T exactly, the rest bounded.
         let a: Vec<Interval> = (0..n * n).map(|ij| Interval::point(ends[ij / n].linear_coefficient(&space, ij % n + 1))).collect();
         symbolic.transform(&mat_mul(&a, &pre.to_normalised, n));
@@ -328,13 +321,7 @@ fn flow_from(
         symbolic.push(entering);
         stats.composition_seconds += composing.elapsed().as_secs_f64();
         stats.steps += 1;
-        if last {
-            t_sum = Interval::point(settings.t_end);
-            t = settings.t_end;
-        } else {
-            t_sum = t_sum + Interval::point(h_try);
-            t = t_sum.hi();
-        }
+        t += h_try; // exact on the grid
         if let StepSize::Adaptive { max, .. } = settings.step {
             h = (h_try * 1.1).min(max);
         }
@@ -354,6 +341,18 @@ fn flow_from(
     let final_box = state.iter().map(|m| bounder(m, &space)).collect();
     stats.seconds = started.elapsed().as_secs_f64();
     Ok(Flowpipe { names: ode.names.clone(), segments, final_state: state, final_box, time_reached: t, failure, stats })
+}
+
+/// The time grid of a flowpipe to `t_end`: the float spacing just below t_end. Multiples of it
+/// up to t_end are floats (t_end / grid <= 2^53), so sums and differences of them are exact.
+fn time_grid(t_end: f64) -> f64 {
+    t_end - t_end.next_down()
+}
+
+/// The step `h` rounded to the nearest multiple of `grid` (at least one): it moves by at most
+/// half an ulp of t_end, far below any step's own accuracy.
+fn on_grid(h: f64, grid: f64) -> f64 {
+    ((h / grid).round() * grid).max(grid)
 }
 
 /// Bound of sum_j |d p / d x̂_j| shift_j over the domain, counting only monomials of degree
@@ -591,7 +590,47 @@ mod tests {
             let x = fp.final_box[0];
             assert!(x.contains(t_end) && x.width() < 1e-12, "h {h}, t_end {t_end}: {x}");
             let last = fp.segments.last().unwrap();
-            assert!(last.t1 >= t_end && last.bounds[0].contains(t_end));
+            assert!(last.t1 == t_end && last.bounds[0].contains(t_end));
+            assert_tiles(&fp, t_end);
+        }
+    }
+
+    /// Each segment starts on the same float where the previous one ends: a gap of even one
+    /// ulp would leave the true states at the times inside it in no segment.
+    fn assert_tiles(fp: &Flowpipe, t_end: f64) {
+        assert_eq!(fp.segments[0].t0, 0.0);
+        for pair in fp.segments.windows(2) {
+            assert_eq!(pair[0].t1, pair[1].t0, "gap between segments");
+        }
+        assert_eq!(fp.segments.last().unwrap().t1, t_end);
+    }
+
+    #[test]
+    fn halving_stops_at_the_time_grid() {
+        // x' = x^2 from 1 blows up at t = 1: with a minimum step below the grid of t_end (2^-12
+        // for a horizon of 2^40), halving must end at one grid unit and report the blow-up, not
+        // retry the same step forever.
+        let o = ode(&["x"], &["x^2"]);
+        let init = [Interval::new(1.0, 1.0).unwrap()];
+        let mut s = settings(1, 0.0, 3, 2f64.powi(40));
+        s.step = StepSize::Adaptive { min: 1e-300, max: 0.5 };
+        let fp = reach(&o, &init, &s, &mut |_| true).unwrap();
+        let Some(TaylorError::BlowUp { time_reached, .. }) = fp.failure else { panic!("expected blow-up") };
+        assert!(time_reached <= 1.0);
+    }
+
+    #[test]
+    fn adaptive_steps_tile_time_exactly() {
+        // Van der Pol from a box: adaptive steps grow by 1.1 (never dyadic) and halve on failure.
+        let o = ode(&["x", "y"], &["y", "(1 - x^2)*y - x"]);
+        let init = [Interval::new(1.25, 1.55).unwrap(), Interval::new(2.28, 2.32).unwrap()];
+        for t_end in [0.7, 2.9] {
+            let mut s = settings(2, 0.0, 5, t_end);
+            s.step = StepSize::Adaptive { min: 1e-4, max: 0.13 };
+            let fp = reach(&o, &init, &s, &mut |_| true).unwrap();
+            assert!(fp.failure.is_none(), "{:?}", fp.failure);
+            assert_eq!(fp.time_reached, t_end);
+            assert_tiles(&fp, t_end);
         }
     }
 

@@ -180,6 +180,10 @@ impl Interval {
             Interval { lo, hi }
         }
     }
+    /// The part at or above 0: what is left of an enclosure of a value known to be nonnegative.
+    pub fn nonnegative_part(&self) -> Interval {
+        self.intersect(&Interval { lo: 0.0, hi: f64::INFINITY })
+    }
     /// Widen both ends by a non-negative amount (rounded outward).
     pub fn inflate(&self, r: f64) -> Interval {
         Interval::raw(down(self.lo - r), up(self.hi + r))

@@ -47,6 +47,9 @@ fn lex(src: &str) -> Result<Vec<(Token, usize)>> {
             }
             let text = &src[start..i];
             let v: f64 = text.parse().map_err(|_| err(src, start, &format!("bad number '{text}'")))?;
+            if !v.is_finite() {
+                return Err(err(src, start, &format!("number '{text}' overflows to infinity; expressions take finite numbers only")));
+            }
             out.push((Token::Num(v), start));
         } else if c.is_ascii_alphabetic() || c == '_' {
             let start = i;
@@ -308,6 +311,9 @@ mod tests {
         assert!(parse_expr("x $ y").is_err());
         assert!(parse_expr("").is_err());
         assert!(parse_expr("(x + y").is_err());
+        // an overflowing literal would be an infinite constant: bounds and evaluation disagree
+        let e = parse_expr("x * 1e999").unwrap_err().to_string();
+        assert!(e.contains("'1e999' overflows to infinity") && e.contains("column 5"), "{e}");
     }
 
     #[test]

@@ -40,7 +40,7 @@ def run(args) -> int:
     row = verification.table_row(result)
     verification.plot_tube(result, args.out, verification.closed_loop("contrast", "ours"))
     doc = {"verdict": result.verdict, "init": result.init, "row": row, "reasons": verification.reasons(result),
-           "seconds": time.time() - started, "plot": args.out}
+           "seconds": time.time() - started, "plot": args.out, "domain_exits": result.domain_exits}
     if args.json:
         print(json.dumps(doc))
         return 0

@@ -15,25 +15,7 @@ The config names the plant and the property; paths in it are relative to the con
     [split]                       # cells per state (an integer) or the largest cell width (a float)
     p = 3
 
-    [property]                    # models: the file's horizon and property unless given here
-    steps = 150
-    goal = ["p >= 0.45", "r + 100 > 90"]   # a list is a conjunction
-    within = true                 # goal at some step <= steps (else at the last step)
-    safe = ["v >= -0.07", "v <= 0.07"]     # at every step
-    unsafe = ["p <= -1.3"]
-    reward = {r = "-0.1 * u^2"}   # accumulators: summed along the run, start at 0
-
-    [verify]                      # pv.verify settings
-    method = "taylor"             # or "verisig"
-    order = 5
-    refine = true
-    min_width = {p = 0.005}
-    timeout_per_cell = 600
-    falsify = 32
-    seed = 0
-    workers = 2
-    journal = "run.jsonl"
-
+{options}
     [output]
     json = "result.json"          # default (and --out): CONFIG.result.json in the current directory
 
@@ -55,17 +37,76 @@ from percver.errors import InputError, MissingFileError, PercverError
 
 EXIT = {"verified": 0, "unknown": 3, "falsified": 4}
 
-# Section -> key -> accepted types (None: any key, checked later); anything else is a typo worth an error.
+# pv.verify's keywords as config keys: (table, accepted TOML types, example value, meaning). The one
+# source of the [property] and [verify] tables, of the example in ``--help`` and of the reference
+# in docs/verify.md (``percver verify --config-reference``); a test checks it against pv.verify's
+# signature. ``loop`` is [plant], ``init`` and ``split`` are tables of their own.
 NUMBER = (int, float)
+OPTIONS = {
+    "steps": ("property", int, "150", "horizon in control steps (models: the file's)"),
+    "goal": ("property", (str, list), '["p >= 0.45", "r + 100 > 90"]', "to reach: at the last step, or at some step with within; a list is a conjunction"),
+    "within": ("property", bool, "true", "the goal at some step up to steps (else at the last step)"),
+    "safe": ("property", (str, list, dict), '["v >= -0.07", "v <= 0.07"]',
+             "must hold at every step; a list is a conjunction; {conditions = [...], time = [t0, t1]} (or steps = [a, b]): in that window"),
+    "unsafe": ("property", (str, list, dict), '["p <= -1.3"]',
+               "a set to avoid at every step; a list is one set, the conjunction of its conditions; a table as for safe: in a window"),
+    "reward": ("property", dict, '{r = "-0.1 * u^2"}', "accumulators: summed along the run from 0, readable in goal and safe"),
+    "method": ("verify", str, '"taylor"', 'network propagation: "taylor" or "verisig"'),
+    "order": ("verify", int, "5", "Taylor model order"),
+    "max_splits": ("verify", int, "16", "in-cell splits and forks per cell (0: never)"),
+    "refine": ("verify", bool, "true", "bisect unknown cells down to min_width"),
+    "min_width": ("verify", dict, "{p = 0.005}", "smallest cell width per state for refine and timeouts (default: 1/64 of init)"),
+    "rebox": ("verify", bool, "false", "restart a part from its box when a remainder is most of a state's enclosure"),
+    "state_symbols": ("verify", bool, "false", "keep feedback remainders as error symbols (Taylor method, discrete plants)"),
+    "timeout_per_cell": ("verify", NUMBER, "600", "seconds after which a cell stops at the next step and is bisected"),
+    "falsify": ("verify", int, "32", "random simulated runs per cell the engine does not verify"),
+    "seed": ("verify", int, "0", "seed of those runs"),
+    "workers": ("verify", int, "2", "local threads (default: all cores; --workers overrides)"),
+    "executor": ("verify", str, '"tcp://host:8786"', "a Dask scheduler to run the cells on (--scheduler overrides)"),
+    "batch": ("verify", int, "8", "cells per executor task (default: sized to about a quarter second)"),
+    "splitter": ("verify", (str, dict), '{kind = "adaptive", max_cells = 512}',
+                 'how cells are made: "grid", "bisection" or "adaptive" (pv.Grid, pv.Bisection, pv.Adaptive), '
+                 "or a table with kind and their keywords (instead of [split], refine, min_width)"),
+    "journal": ("verify", str, '"run.jsonl"', "append finished cells here, skip them on a rerun (--journal overrides)"),
+    "progress": ("verify", bool, "true", "the progress bar (--no-progress turns it off)"),
+}
+# Section -> key -> accepted types (None: any key, checked later); anything else is a typo worth an error.
 SCHEMA = {
     "plant": {"python": str, "model": str, "networks": list, "period": NUMBER},
     "init": None,
     "split": None,
-    "property": {"steps": int, "goal": (str, list), "within": bool, "safe": (str, list), "unsafe": (str, list), "reward": dict},
-    "verify": {"method": str, "order": int, "refine": bool, "min_width": dict, "timeout_per_cell": NUMBER, "falsify": int,
-               "seed": int, "workers": int, "journal": str},
+    **{table: {k: kind for k, (t, kind, _, _) in OPTIONS.items() if t == table} for table in ("property", "verify")},
     "output": {"json": str},
 }
+
+
+def example() -> str:
+    """The [property] and [verify] tables of the example config, one line per option."""
+    lines = []
+    for table in ("property", "verify"):
+        lines.append(f"    [{table}]")
+        lines += [f"    {k} = {ex}".ljust(46) + f"# {meaning}" for k, (t, _, ex, meaning) in OPTIONS.items() if t == table]
+        lines.append("")
+    return "\n".join(lines)
+
+
+def reference() -> str:
+    """The config reference as a Markdown table: every option with its table, type and default."""
+    import inspect
+
+    from percver.verification import verify
+
+    defaults = {k: p.default for k, p in inspect.signature(verify).parameters.items()}
+    rows = ["| key | table | type | default | meaning |", "|---|---|---|---|---|"]
+    for k, (table, kind, _, meaning) in OPTIONS.items():
+        kinds = " or ".join({"str": "string", "list": "list of strings", "dict": "table", "int": "integer", "float": "number",
+                             "bool": "boolean"}[t.__name__] for t in (kind if isinstance(kind, tuple) else (kind,)))
+        kinds = "number" if kind is NUMBER else kinds
+        default = defaults[k]
+        default = "-" if default is None else f"`{str(default).lower() if isinstance(default, bool) else default}`"
+        rows.append(f"| `{k}` | [{table}] | {kinds} | {default} | {meaning} |")
+    return "\n".join(rows) + "\n"
+
 
 def register(sub) -> None:
     parser = sub.add_parser(
@@ -74,10 +115,11 @@ def register(sub) -> None:
         description="Verify the closed loop of CONFIG.toml: split the initial set, falsify, verify each cell, "
         "print the summary table and write the result as JSON. Exit status: 0 verified, 3 unknown, 4 falsified, "
         "1 bad input.",
-        epilog=__doc__.split("\n\n", 1)[1],
+        epilog=__doc__.split("\n\n", 1)[1].replace("{options}\n", example()),
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
-    parser.add_argument("config", help="the problem: plant, initial box, split, property, settings (TOML)")
+    parser.add_argument("config", nargs="?", help="the problem: plant, initial box, split, property, settings (TOML)")
+    parser.add_argument("--config-reference", action="store_true", help="print every config option as a Markdown table and exit")
     parser.add_argument("--scheduler", metavar="ADDRESS", help="run the cells on a Dask scheduler, e.g. tcp://host:8786")
     parser.add_argument("--journal", metavar="PATH", help="append finished cells here and skip them on a rerun")
     parser.add_argument("--workers", type=int, metavar="N", help="local threads for the cells (default: all cores)")
@@ -90,6 +132,11 @@ def register(sub) -> None:
 def run(args) -> int:
     from percver.verification import verify
 
+    if args.config_reference:
+        print(reference(), end="")
+        return 0
+    if args.config is None:
+        raise InputError("give a config file: percver verify CONFIG.toml (or --config-reference)")
     config = Config(args.config)
     kwargs = config.verify_kwargs()
     if args.journal:
@@ -101,7 +148,8 @@ def run(args) -> int:
     out = Path(args.out) if args.out else config.written("[output] json", config.section("output").get("json"))
     with warnings.catch_warnings():
         warnings.showwarning = lambda message, *_a, **_k: print(f"percver verify: warning: {message}", file=sys.stderr)
-        result = verify(config.target(), progress=not args.no_progress and not args.json, **kwargs)
+        kwargs["progress"] = kwargs.get("progress", True) and not args.no_progress and not args.json
+        result = verify(config.target(), **kwargs)
     result.to_json(str(out))
     if args.json:
         print(result.to_json())
@@ -236,12 +284,15 @@ class Config:
             kwargs["within"] = prop.pop("within")
         for key in ("goal", "safe", "unsafe"):
             if key in prop:
-                texts = prop.pop(key)
-                texts = texts if isinstance(texts, list) else [texts]
-                kwargs[key] = [self._parsed(f"[property] {key}", t, condition) for t in texts]
+                items = prop.pop(key)
+                items = items if isinstance(items, list) else [items]
+                kwargs[key] = [self._window(f"[property] {key}", t) if isinstance(t, dict) else
+                               self._parsed(f"[property] {key}", t, condition) for t in items]
         if "reward" in prop:
             kwargs["reward"] = {k: self._parsed(f"[property] reward.{k}", v, _expression) for k, v in prop.pop("reward").items()}
         kwargs.update(self.section("verify"))
+        if "splitter" in kwargs:
+            kwargs["splitter"] = self._splitter(kwargs["splitter"])
         if "journal" in kwargs:
             kwargs["journal"] = str(self.written("[verify] journal", kwargs["journal"]))
         return kwargs
@@ -253,6 +304,42 @@ class Config:
         if not (self.path.parent / value).parent.is_dir():
             raise self.error(field, f"the directory of {self.path.parent / value} does not exist")
         return self.path.parent / value
+
+    def _splitter(self, spec):
+        """``"adaptive"`` or ``{kind = "adaptive", max_cells = 512, ...}`` as the splitter object."""
+        from percver.verification.splitters import Adaptive, Bisection, Grid
+
+        kinds = {"grid": Grid, "bisection": Bisection, "adaptive": Adaptive}
+        table = {"kind": spec} if isinstance(spec, str) else dict(spec)
+        kind = table.pop("kind", None)
+        if kind not in kinds:
+            raise self.error("[verify] splitter", f"kind must be one of {', '.join(kinds)}, got {kind!r}")
+        try:
+            return kinds[kind](**table)
+        except TypeError as error:
+            raise self.error("[verify] splitter", f"{kind}: {error}") from None
+        except PercverError as error:
+            raise self.error("[verify] splitter", str(error)) from None
+
+    def _window(self, field: str, table: dict):
+        """``{conditions = [...], time = [t0, t1]}`` (or ``steps = [first, last]``; one number: to
+        the horizon) as ``pv.during(all of the conditions, ...)``."""
+        from percver.properties import all_of, during
+        from percver.systems import condition
+
+        keys = set(table)
+        if "conditions" not in keys or len(keys & {"time", "steps"}) != 1 or keys - {"conditions", "time", "steps"}:
+            raise self.error(field, f"a window is {{conditions = [\"x1 >= 0\", ...], time = [t0, t1]}} or steps = [first, last]; got {table!r}")
+        texts = table["conditions"] if isinstance(table["conditions"], list) else [table["conditions"]]
+        conds = [self._parsed(f"{field} conditions", t, condition) for t in texts]
+        unit = "time" if "time" in table else "steps"
+        span = table[unit]
+        if not (isinstance(span, list) and len(span) in (1, 2) and all(map(_number, span))):
+            raise self.error(f"{field} {unit}", f"expected [start, end] or [start] (to the horizon), got {span!r}")
+        try:
+            return during(all_of(conds), **{unit: (span[0], span[1] if len(span) == 2 else None)})
+        except PercverError as error:
+            raise self.error(field, str(error)) from None
 
     def _parsed(self, field: str, text, parse):
         if not isinstance(text, str):

@@ -10,11 +10,17 @@ closes one layer. Affine operators after the last activation become the output m
 
 The input tensor is one sample: a dynamic first (batch) dimension is taken as 1 and the whole tensor,
 flattened in row-major order, is the network input; likewise for the output.
+
+The input domain (:attr:`~percver.networks.Network.domain`, the range the network was trained on)
+travels in the model's ``metadata_props`` under ``percver.domain``: a JSON list of one ``[lo, hi]``
+per input, ``null`` for an unbounded side. Files without it load with ``domain=None``.
 """
 
 from __future__ import annotations
 
 import itertools
+import json
+import math
 from pathlib import Path
 
 import numpy as np
@@ -394,13 +400,39 @@ class _GraphReader:
         return Network(self.layers, name=self.path.stem, source=self.path, **output_map)
 
 
+DOMAIN_KEY = "percver.domain"
+
+
 def read_onnx(path) -> Network:
     path = Path(path)
     try:
         model = onnx.load(str(path))
     except DecodeError as error:
         raise NetworkFormatError(f"{path}: not a readable ONNX file ({error})") from None
-    return _GraphReader(path, model).read()
+    network = _GraphReader(path, model).read()
+    text = next((p.value for p in model.metadata_props if p.key == DOMAIN_KEY), None)
+    return network if text is None else network.with_domain(_domain_from_json(text, network.n_in, path))
+
+
+def _domain_from_json(text: str, n_in: int, path: Path) -> list:
+    where = f"{path}: metadata {DOMAIN_KEY!r}"
+    try:
+        pairs = json.loads(text)
+    except ValueError as error:
+        raise NetworkFormatError(f"{where} is not JSON ({error})") from None
+    if not (isinstance(pairs, list) and all(isinstance(p, list) and len(p) == 2 for p in pairs)) or len(pairs) != n_in:
+        raise NetworkFormatError(f"{where} must list one [lo, hi] per input ({n_in}), null for an unbounded side")
+    domain = []
+    for i, (lo, hi) in enumerate(pairs):
+        lo, hi = -math.inf if lo is None else lo, math.inf if hi is None else hi
+        if not all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in (lo, hi)) or not lo <= hi:
+            raise NetworkFormatError(f"{where}: input {i} has [{lo}, {hi}]; give numbers lo <= hi (null: unbounded)")
+        domain.append((float(lo), float(hi)))
+    return domain
+
+
+def _domain_to_json(domain) -> str:
+    return json.dumps([[lo if math.isfinite(lo) else None, hi if math.isfinite(hi) else None] for lo, hi in domain])
 
 
 # IR 8 / opset 13 keep the files readable by every onnxruntime percver supports (>= 1.16).
@@ -444,5 +476,7 @@ def write_onnx(network: Network, path) -> None:
     )
     model = helper.make_model(graph, opset_imports=[helper.make_opsetid("", _OPSET)], producer_name="percver")
     model.ir_version = _IR_VERSION
+    if network.domain is not None:
+        helper.set_model_props(model, {DOMAIN_KEY: _domain_to_json(network.domain)})
     onnx.checker.check_model(model)
     onnx.save(model, str(path))

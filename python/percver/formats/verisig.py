@@ -647,10 +647,12 @@ class VerisigProblem:
         for st in self.loop.stages:
             if st.is_network:
                 net = st.component
-                lines.append(f"  stage {st.output} = network {net.name or ''} ({net.n_in} -> {net.n_out}) of {', '.join(st.input_names)}"
+                lines.append(f"  stage {st.output} = network {net.name or ''} ({net.n_in} -> {net.n_out}) of {', '.join(st.input_labels)}"
                              + (f", scale {np.asarray(net.scale).tolist()} offset {np.asarray(net.offset).tolist()}" if net.scale is not None else ""))
-            else:
+            elif st.input_names:
                 lines.append(f"  stage {st.output} = {len(st.component)} expression(s) of {', '.join(st.input_names)}")
+            else:
+                lines.append(f"  stage {st.output} = constants {', '.join(map(str, st.component))}")
         lines.append(f"  init {self.init}, {self.steps} steps")
         for c in self.safe:
             lines.append(f"  safe at every step: {short(c)}")
@@ -753,9 +755,15 @@ class _Translator:
 
     def _find_timers(self) -> dict:
         """Variables with constant rates everywhere and resets ``v := c`` or ``v := v + c``:
-        clocks and step counters, tracked as numbers instead of states."""
+        clocks and step counters, tracked as numbers instead of states. The networks' inputs
+        and outputs ``_f1.._fN`` are never timers: a constant reset (``_f1' := 30.0``, a set
+        speed) is a network input like any other, and the DNN mode writes them without a reset."""
+        width = max((max(net.n_in, net.n_out) for net in self.networks), default=0)
+        io = {f"_f{i + 1}" for i in range(width)}
         timers = {}
         for v in self.vars:
+            if v in io:
+                continue
             rates = {}
             ok = True
             for name, mode in self.modes.items():
@@ -1746,8 +1754,10 @@ class _Translator:
                         if abs(check - (b - 1.5 * a)) <= 1e-12 * max(1.0, abs(a), abs(b)):
                             renamed[vs[0]] = (u, a, b)
         for c in calls:
-            plain = [v.name() if isinstance(v, Expr) else None for v in c.inputs]
-            if all(p is not None and p in known for p in plain) and len(set(plain)) == len(plain):
+            # Plain states and signals, and constants (a set speed), wire the network directly.
+            plain = [v.name() if isinstance(v, Expr) else v if _is_num(v) else None for v in c.inputs]
+            names = [p for p in plain if isinstance(p, str)]
+            if all(p is not None and (p in known or _is_num(p)) for p in plain) and len(set(names)) == len(names):
                 wired = plain
             else:
                 in_name = self._fresh(f"{c.output}_in")

@@ -2,8 +2,8 @@
 
 The format: top-level mappings ``weights``, ``offsets`` and ``activations``, each keyed by the
 1-based layer index; ``weights[l]`` is a list of rows, row i holding the incoming weights of neuron i
-(n_out x n_in); activations ``Sigmoid``, ``Tanh``, ``Relu``, anything else linear. Other top-level keys
-are ignored, as Verisig does. Errors name the file, the layer and the field as written in the file.
+(n_out x n_in); activations ``Sigmoid``, ``Tanh``, ``Relu`` or ``Linear`` (Verisig reads any other
+name as linear; here it is an error). Other top-level keys are ignored, as Verisig does. Errors name the file, the layer and the field as written in the file.
 """
 
 from __future__ import annotations
@@ -21,7 +21,7 @@ _Loader = getattr(yaml, "CSafeLoader", yaml.SafeLoader)
 _Dumper = getattr(yaml, "CSafeDumper", yaml.SafeDumper)
 
 _SECTIONS = ("weights", "offsets", "activations")
-_FROM_VERISIG = {"Sigmoid": "sigmoid", "Tanh": "tanh", "Relu": "relu"}
+_FROM_VERISIG = {"Sigmoid": "sigmoid", "Tanh": "tanh", "Relu": "relu", "Linear": "identity"}
 _TO_VERISIG = {"sigmoid": "Sigmoid", "tanh": "Tanh", "relu": "Relu", "identity": "Linear"}
 
 
@@ -113,17 +113,16 @@ def _offsets(values, index: int, path: Path) -> np.ndarray:
 
 
 def _activation(value, index: int, path: Path) -> str:
-    if not isinstance(value, str):
-        return "identity"
-    if value in _FROM_VERISIG:
+    if isinstance(value, str) and value in _FROM_VERISIG:
         return _FROM_VERISIG[value]
-    if value.capitalize() in _FROM_VERISIG:
-        # The format reads any other name as linear; a miscased one is a typo that would silently become linear.
-        raise NetworkFormatError(
-            f"{path}: layer {index} activation {value!r}: the format names 'Sigmoid', 'Tanh' and 'Relu' "
-            f"(exact case) and reads anything else as linear; write {value.capitalize()!r} or 'Linear'"
-        )
-    return "identity"
+    # Verisig itself reads any other name as linear, so a typo or an activation it lacks (Swish, ELU)
+    # would verify a different network than the one trained; only 'Linear' means linear here.
+    supported = ", ".join(repr(name) for name in _FROM_VERISIG)
+    hint = f"; write {value.capitalize()!r}" if isinstance(value, str) and value.capitalize() in _FROM_VERISIG else ""
+    raise NetworkFormatError(
+        f"{path}: layer {index} activation {value!r} is not supported{hint}: the format names {supported} "
+        "(exact case); percver cannot bound other activations"
+    )
 
 
 def write_verisig_yaml(network: Network, path) -> None:

@@ -85,4 +85,4 @@ def train_generative(canonical, conditions, measured, hidden=(64,), *, loss: str
                  seed=seed, progress=progress, desc=name)
     if loss == "bce":
         module.append(torch.nn.Sigmoid())
-    return GenerativeModel(training.to_network(module, name, scale=scale, offset=offset), conditions.shape[1], name)
+    return GenerativeModel(training.to_network(module, name, scale=scale, offset=offset, inputs=inputs), conditions.shape[1], name)

@@ -98,7 +98,7 @@ def train_knockout(inputs, labels, hidden=(64, 64), *, knocked, epochs: int = 20
     training.fit(torch, module, inputs, labels, loss, epochs=epochs, batch=batch, lr=lr, weight_decay=0.0, seed=seed,
                  progress=progress, desc=name)
     module.append(torch.nn.Sigmoid())
-    network = training.to_network(module, name)
+    network = training.to_network(module, name, inputs=inputs)
     probabilities = network(inputs)
     if threshold_gains is None:
         thresholds = fit_thresholds(probabilities, labels > 0.5)

@@ -32,9 +32,10 @@ def mlp(torch, sizes, hidden_activation, output_activation=None):
     return torch.nn.Sequential(*layers)
 
 
-def to_network(module, name: str, *, scale=None, offset=None):
+def to_network(module, name: str, *, scale=None, offset=None, inputs=None):
     """A torch ``Sequential`` of Linear / Tanh / Sigmoid / ReLU layers as a ``percver.Network``
-    (float64 copies of the weights; ``scale`` and ``offset`` become its output map)."""
+    (float64 copies of the weights; ``scale`` and ``offset`` become its output map). Given the
+    training ``inputs`` (N x n_in), their per-input range becomes the network's ``domain``."""
     from percver.networks import Layer, Network
 
     torch = require_torch("converting torch modules")
@@ -52,7 +53,8 @@ def to_network(module, name: str, *, scale=None, offset=None):
             raise InputError(f"cannot convert {type(part).__name__} to a dense layer: use Linear, Tanh, Sigmoid, ReLU")
     if pending is not None:
         layers.append(Layer(*pending, "identity"))
-    return Network(layers, scale=scale, offset=offset, name=name)
+    domain = None if inputs is None else list(zip(np.min(inputs, axis=0), np.max(inputs, axis=0)))
+    return Network(layers, scale=scale, offset=offset, name=name, domain=domain)
 
 
 def fit(torch, module, inputs, targets, loss_fn, *, epochs, batch, lr, weight_decay, seed, progress, desc):

@@ -12,7 +12,6 @@ from typing import Optional
 from percver import _core
 from percver.errors import InputError
 from percver.sets import Box
-from percver.verification.cells import bisect, splittable
 from percver.verification.falsify import falsify
 from percver.verification.journal import cell_key
 from percver.verification.results import Cell, Counterexample
@@ -36,10 +35,11 @@ class Campaign:
 
     chunk = 128  # cells falsified together at most: one simulation batch, bounded trajectories
 
-    def __init__(self, loop, prop, init: Box, grid, count: int, journal, bar, *, refine: bool, timeout, min_width: dict,
-                 falsify: int, seed: int, lock: threading.RLock):
-        self.loop, self.prop, self.init, self.grid, self.left, self.journal, self.bar = loop, prop, init, grid, count, journal, bar
-        self.refine, self.timeout, self.min_width, self.falsify, self.seed = refine, timeout, min_width, falsify, seed
+    def __init__(self, loop, prop, init: Box, splitter, cells, journal, bar, *, timeout, falsify: int, seed: int,
+                 lock: threading.RLock):
+        self.loop, self.prop, self.init, self.splitter, self.journal, self.bar = loop, prop, init, splitter, journal, bar
+        self.grid, self.left = cells  # the splitter's initial cells (a lazy iterator) and their count
+        self.timeout, self.falsify, self.seed = timeout, falsify, seed
         self.queue: list = []  # sub-cells, last in first out: depth-first keeps the queue short
         self.ready: deque = deque()  # falsification found nothing: to be run
         self.cells: list = []
@@ -71,8 +71,9 @@ class Campaign:
                     if cex is None:
                         self.ready.append(cell)
                     else:
-                        self._finish(cell, Cell(cell.to_dict(), "falsified", counterexample=cex,
-                                                reason=f"simulation violates {cex.violated} at step {cex.step}"))
+                        c = Cell(cell.to_dict(), "falsified", counterexample=cex, reason=f"simulation violates {cex.violated} at step {cex.step}")
+                        self.journal.write(c)
+                        self._place(cell, c, None)
 
     def _draw(self, want: int) -> list:
         """Up to ``want`` cells not in the journal (the journal's are settled on the way)."""
@@ -85,7 +86,12 @@ class Campaign:
                 self.left -= 1
             known = self.journal.done.get(cell_key(cell.to_dict()))
             if known is not None:
-                self._settle(cell, known)
+                self._place(cell, known, self._again(cell, known))
+                continue
+            pieces = self.splitter.prepare(cell, self.init)
+            if len(pieces) > 1:
+                self.queue += pieces
+                self.bar.settled(None, more=len(pieces))
             else:
                 fresh.append(cell)
         return fresh
@@ -109,29 +115,28 @@ class Campaign:
             verdict = "unknown"
         c = Cell(cell.to_dict(), verdict, outcome["seconds"], outcome["nn_seconds"], outcome["branches"],
                  outcome["steps_done"], reason, cex, outcome["boxes"], outcome.get("peak_rss_mb"),
-                 None if outcome.get("split") is None else self.init.names[outcome["split"]])
+                 None if outcome.get("split") is None else self.init.names[outcome["split"]], outcome["deepest_step"])
         self.cell_seconds[0] += c.seconds
         self.cell_seconds[1] += 1
-        if self._timed_out(c) and not self._splits(cell, c):
+        halves = self._again(cell, c)
+        if self._timed_out(c) and not halves:
             c.reason += "; not split further: the cell is at min_width"
-        self._finish(cell, c)
-
-    def _finish(self, cell: Box, c: Cell):
         self.journal.write(c)
-        self._settle(cell, c)
+        self._place(cell, c, halves)
 
     def _timed_out(self, c: Cell) -> bool:
         # The engine stops a cell between steps once it has run longer than the timeout.
         return c.verdict == "unknown" and self.timeout is not None and c.seconds > self.timeout
 
-    def _splits(self, cell: Box, c: Cell) -> bool:
-        return c.verdict == "unknown" and (self.refine or self._timed_out(c)) and splittable(cell, self.init, self.min_width)
+    def _again(self, cell: Box, c: Cell) -> Optional[list]:
+        return self.splitter.again(cell, c, self.init, self._timed_out(c))
 
-    def _settle(self, cell: Box, c: Cell):
+    def _place(self, cell: Box, c: Cell, halves: Optional[list]):
         """A finished cell (fresh or from the journal) is a result, or replaced by its halves."""
-        if self._splits(cell, c):
-            self.queue += bisect(cell, self.init, self.min_width, c.split)
-            self.bar.settled(None, more=2)
+        self.splitter.learn(cell, c.verdict, self.init)
+        if halves:
+            self.queue += halves
+            self.bar.settled(None, more=len(halves))
         else:
             self.cells.append(c)
             self.bar.settled(c.verdict)
@@ -139,16 +144,47 @@ class Campaign:
 
 class Progress:
     """The progress bar of a verify call (tqdm once started, else nothing), shared by its parts:
-    cells settled and the verdicts so far over all of them. Updated under the parts' lock."""
+    cells settled and the verdicts so far over all of them, and the step each running cell has
+    reached (``steps``: deepest first, as step/horizon). Updated under the parts' ``lock``; the
+    running cells' steps are read from their engine counters once a second by a thread of its
+    own, which takes the same lock, so a long cell shows progress before it ends."""
 
-    def __init__(self):
+    SECONDS = 1.0
+
+    def __init__(self, lock: threading.RLock):
         self.tqdm = None
+        self.lock = lock
         self.counts = dict.fromkeys(("verified", "unknown", "falsified"), 0)
+        self.running: dict = {}  # thread -> (_core.StepCounter of its cell, the cell's horizon)
+        self.stopped = threading.Event()
 
     def start(self, total: int):
         from tqdm import tqdm
 
         self.tqdm = tqdm(total=total, unit="cell", desc="verify")
+        threading.Thread(target=self._watch, name="percver-progress", daemon=True).start()
+
+    def _watch(self):
+        while not self.stopped.wait(self.SECONDS):
+            with self.lock:
+                if self.tqdm is not None and self.running:
+                    self._postfix()
+                    self.tqdm.refresh()
+
+    def _postfix(self):
+        shown = dict(self.counts)
+        steps = sorted(((counter.get(), horizon) for counter, horizon in self.running.values()), reverse=True)
+        if steps:
+            shown["steps"] = " ".join(f"{s}/{h}" for s, h in steps[:4])
+        self.tqdm.set_postfix(shown, refresh=False)
+
+    def cell_started(self, counter, horizon: int):
+        with self.lock:
+            self.running[threading.get_ident()] = (counter, horizon)
+
+    def cell_ended(self):
+        with self.lock:
+            self.running.pop(threading.get_ident(), None)
 
     def settled(self, verdict: Optional[str], more: int = 0):
         """A cell is settled with ``verdict``, or (None) replaced by ``more`` sub-cells."""
@@ -156,12 +192,14 @@ class Progress:
             self.counts[verdict] += 1
         if self.tqdm is not None:
             self.tqdm.total += more
-            self.tqdm.set_postfix(self.counts, refresh=False)
+            self._postfix()
             self.tqdm.update(1)
 
     def close(self):
+        self.stopped.set()
         if self.tqdm is not None:
-            self.tqdm.close()
+            with self.lock:
+                self.tqdm.close()
 
 
 _CLEAR: dict = {}  # pid -> descriptor of /proc/self/clear_refs (a forked child opens its own)
@@ -188,20 +226,20 @@ def _peak_rss_mb() -> float:
     return peak / 2**20 if sys.platform == "darwin" else peak / 1024
 
 
-def run_cells(problem, cells: list, done, options: dict, workers: Optional[int]):
+def run_cells(problem, cells: list, done, options: dict, workers: Optional[int], progress=None):
     """``_core.verify_cells`` on cells given as lists of (lo, hi), each outcome with the peak RSS
     of this process from the batch's start to the cell's end; the one place cells run, locally
-    and on executor workers."""
+    and on executor workers. ``progress`` (a ``_core.StepCounter``) follows the deepest step."""
 
     def each(i, outcome):
         outcome["peak_rss_mb"] = _peak_rss_mb()
         return done(i, outcome)
 
     _reset_peak_rss()
-    _core.verify_cells(problem, [list(c) for c in cells], each, _core.CellSettings(**options), workers=workers)
+    _core.verify_cells(problem, [list(c) for c in cells], each, _core.CellSettings(**options), workers=workers, progress=progress)
 
 
-def run_local(jobs: list, workers: Optional[int]):
+def run_local(jobs: list, workers: Optional[int], bar: Progress):
     """The cells of all ``jobs`` (campaign, problem, options) on this machine's cores: ``workers``
     threads (the caller's among them) each take one cell at a time from the first campaign that
     has one and run it alone (a rayon pool of one), so sub-cells join in as they are made and no
@@ -229,6 +267,7 @@ def run_local(jobs: list, workers: Optional[int]):
         return None
 
     def work():
+        counter = _core.StepCounter()  # the step this thread's cell has reached, for the bar
         try:
             while not stop.is_set():
                 got = next_cell()
@@ -239,9 +278,12 @@ def run_local(jobs: list, workers: Optional[int]):
                         idle.wait(0.1)  # a running cell may be bisected into more
                     continue
                 campaign, problem, options, cell = got
+                counter.reset()
+                bar.cell_started(counter, campaign.prop.steps)
                 try:
-                    run_cells(problem, [cell.bounds], lambda i, o: campaign.record(cell, o), options, 1)
+                    run_cells(problem, [cell.bounds], lambda i, o: campaign.record(cell, o), options, 1, counter)
                 finally:
+                    bar.cell_ended()
                     with idle:
                         busy[0] -= 1
                         idle.notify_all()

@@ -55,7 +55,9 @@ def fingerprint(loop: ClosedLoop, prop: Property, settings: dict) -> str:
         else:
             h.update(repr([_expr_hash(e) for e in stage.component]).encode())
     goal = _condition_hash(prop.goal) if prop.goal is not None else None
-    h.update(repr(([_condition_hash(c) for c in prop.safe], goal, prop.within, prop.steps)).encode())
+    # A window only when given, so that journals written before windows still resume.
+    safe = [_condition_hash(r.condition) if r.window is None else (_condition_hash(r.condition), r.window) for r in prop.safe]
+    h.update(repr((safe, goal, prop.within, prop.steps)).encode())
     h.update(json.dumps(settings, sort_keys=True).encode())
     return h.hexdigest()[:16]
 

@@ -37,6 +37,7 @@ class Cell:
     seconds: float = 0.0
     nn_seconds: float = 0.0
     branches: int = 0
+    # Steps every part of the cell completed: the reach boxes cover steps 0..steps_done.
     steps_done: int = 0
     reason: Optional[str] = None
     counterexample: Optional[Counterexample] = None
@@ -46,6 +47,9 @@ class Cell:
     peak_rss_mb: Optional[float] = None
     # The state the engine would have split next when it gave up: refinement halves it.
     split: Optional[str] = None
+    # The deepest step any part of the cell reached (an unknown cell's parts stop at different
+    # steps; steps_done is the shallowest, where the boxes stop being complete).
+    deepest_step: int = 0
 
     def to_dict(self) -> dict:
         # Shallow (asdict would deep-copy the reach boxes of every journaled cell).
@@ -70,6 +74,9 @@ class Result:
     cells: list
     seconds: float = 0.0
     settings: dict = field(default_factory=dict)
+    # Where a network stage's input left the network's domain: one dict per (stage, input) with
+    # the first step, the input's box over the cells leaving there, the domain and the cell count.
+    domain_exits: list = field(default_factory=list)
 
     @property
     def verdict(self) -> str:
@@ -109,7 +116,8 @@ class Result:
 
     def to_json(self, path: Optional[str] = None) -> str:
         doc = {"states": self.states, "init": self.init, "seconds": self.seconds, "settings": self.settings,
-               "verdict": self.verdict, "coverage": self.coverage, "cells": [c.to_dict() for c in self.cells]}
+               "verdict": self.verdict, "coverage": self.coverage, "cells": [c.to_dict() for c in self.cells],
+               "domain_exits": self.domain_exits}
         text = json.dumps(doc)
         if path:
             Path(path).write_text(text)
@@ -119,7 +127,8 @@ class Result:
     def from_json(cls, text_or_path: str) -> "Result":
         text = Path(text_or_path).read_text() if os.path.exists(text_or_path) else text_or_path
         d = json.loads(text)
-        return cls(d["states"], {k: tuple(v) for k, v in d["init"].items()}, [Cell.from_dict(c) for c in d["cells"]], d["seconds"], d["settings"])
+        return cls(d["states"], {k: tuple(v) for k, v in d["init"].items()}, [Cell.from_dict(c) for c in d["cells"]], d["seconds"], d["settings"],
+                   d.get("domain_exits", []))
 
     def plot(self, x: str, path: Optional[str] = None, loop: Optional[ClosedLoop] = None, samples: int = 20, seed: int = 0):
         """Reach tube of state ``x`` over the steps (one band per cell), over simulated runs."""

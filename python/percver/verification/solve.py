@@ -15,13 +15,18 @@ from contextlib import ExitStack
 from dataclasses import dataclass, replace
 from typing import Optional, Sequence, Union
 
+import numpy as np
+
 from percver import _core
 from percver.errors import InputError
 from percver.expr import Condition
 from percver.sets import BoxLike
 from percver.systems import ClosedLoop
 from percver.verification.campaign import Campaign, Progress, run_local
-from percver.verification.cells import grid
+from percver.verification.domains import domain_checks, domain_exits, flag_exits, runs
+import copy
+
+from percver.verification.splitters import Adaptive, Bisection, Grid
 from percver.verification.journal import Journal
 from percver.verification.journal import fingerprint as fingerprint_of
 from percver.verification.property import Property
@@ -56,6 +61,7 @@ def verify(
     split: Optional[dict] = None,
     refine: bool = False,
     min_width: Optional[dict] = None,
+    splitter=None,
     method: str = "taylor",
     order: int = DEFAULTS.order,
     max_splits: int = DEFAULTS.max_splits,
@@ -69,8 +75,15 @@ def verify(
     falsify: int = 32,
     progress: bool = True,
     seed: int = 0,
+    strict: bool = False,
 ) -> Result:
     """Prove ``loop`` satisfies the property from every state of ``init`` (see module doc).
+
+    ``safe`` (stay in, every step), ``unsafe`` (avoid, every step) and ``goal`` (reach at the
+    last step, or at some step with ``within``) take a condition, a :class:`~percver.Box`, or
+    :func:`~percver.all_of` / :func:`~percver.any_of` of them; a list is their intersection (for
+    ``unsafe`` one set to avoid). :func:`~percver.during` limits a safe or unsafe set to a window
+    of steps or times (docs/verify.md, "Properties").
 
     Cells run on this machine's cores (``workers`` threads, one cell each at a time) or, with
     ``executor=``, on a ``dask.distributed.Client``, a scheduler address ``"tcp://host:8786"`` or
@@ -89,7 +102,9 @@ def verify(
     (``pv.where``, in a stage or a discrete plant, e.g. a wall that some runs hit at this step) that
     holds on part of the set forks into one part per side, up to ``max_splits`` splits and forks
     per cell (0: never; conditions then take the hull of both sides); they count as branches. An
-    unknown cell's reach boxes end at the last step every part reached. ``rebox=True`` restarts
+    unknown cell's reach boxes end at the last step every part reached (``Cell.steps_done``); its
+    ``Cell.deepest_step`` is the deepest step a part reached, where it gave up. While cells run,
+    the progress bar shows the step each has reached (``steps=18/40 3/40``). ``rebox=True`` restarts
     a part from its box whenever a remainder is most of a state's enclosure (for loops whose
     remainders feed back and grow, such as the F1/10 LiDAR loop; it loses the dependency on the
     initial state, so it can be looser elsewhere). ``state_symbols=True`` (Taylor method, discrete
@@ -97,12 +112,20 @@ def verify(
     so that an error the controller corrects cancels instead of adding its magnitude again (the
     wrapping effect of a stiff feedback); it pays where the loop's Jacobian varies little over a
     cell, and is off by default because on Mountain Car's cells it does not (bench/README.md).
+
+    A network that records its input domain (:attr:`percver.Network.domain`, the range it was
+    trained on) is checked against the initial set before the run and against every cell's reach
+    boxes after it, on the inputs that are states: where they leave it, a
+    :class:`~percver.verification.domains.DomainWarning` names the stage, input, step, box and
+    domain, and ``Result.domain_exits`` lists them. ``strict=True`` raises
+    :class:`~percver.errors.NetworkDomainError` instead (after the run, with the results as its
+    ``results`` attribute).
     """
     part = Part(init, split, order, max_splits, journal)
     return verify_parts(loop, [part], steps=steps, goal=goal, safe=safe, unsafe=unsafe, within=within, reward=reward,
-                        refine=refine, min_width=min_width, method=method, rebox=rebox, state_symbols=state_symbols,
-                        workers=workers, executor=executor, batch=batch, timeout_per_cell=timeout_per_cell,
-                        falsify=falsify, progress=progress, seed=seed)[0]
+                        refine=refine, min_width=min_width, splitter=splitter, method=method, rebox=rebox,
+                        state_symbols=state_symbols, workers=workers, executor=executor, batch=batch,
+                        timeout_per_cell=timeout_per_cell, falsify=falsify, progress=progress, seed=seed, strict=strict)[0]
 
 
 def verify_parts(
@@ -117,6 +140,7 @@ def verify_parts(
     reward: Optional[dict] = None,
     refine: bool = False,
     min_width: Optional[dict] = None,
+    splitter=None,
     method: str = "taylor",
     rebox: bool = False,
     state_symbols: bool = False,
@@ -127,6 +151,7 @@ def verify_parts(
     falsify: int = 32,
     progress: bool = True,
     seed: int = 0,
+    strict: bool = False,
 ) -> list:
     """:func:`verify` on several :class:`Part` s of an initial set (regions that need different
     cell widths or orders), one :class:`Result` per part, each with the whole call's wall time.
@@ -164,6 +189,13 @@ def verify_parts(
     if reward is not None:
         loop = loop.with_accumulators(reward)  # sums as extra states: see ClosedLoop.with_accumulators
     boxes = [loop.initial_box(p.init) for p in parts]
+    splitters = []  # each part's splitter and its initial cells, checked before any journal is opened
+    for p, box in zip(parts, boxes):
+        part_splitter = _splitter_of(p, splitter, refine, min_width)
+        splitters.append((part_splitter, part_splitter.initial(box)))
+    checks = domain_checks(loop)
+    initial_exits = domain_exits(checks, [np.array([box.bounds]) for box in boxes])
+    flag_exits(initial_exits, strict)  # before the run: strict then costs nothing
     prop = Property(loop, safe, unsafe, goal, within, steps)
     safe_r, goal_r = prop.rust()
     problem = loop.compile(safe=safe_r, goal=goal_r, within=within, steps=steps)
@@ -172,11 +204,12 @@ def verify_parts(
         from percver.executors import Runner
 
         runner = Runner(executor, slots=workers, batch=batch)  # checked (and connected) before any work
-    jobs, bar = [], Progress()
+    jobs = []
     lock = threading.RLock()  # one for all parts: they share the progress bar
+    bar = Progress(lock)
     try:
         with ExitStack() as journals:
-            for p, box in zip(parts, boxes):
+            for p, box, (part_splitter, cells) in zip(parts, boxes, splitters):
                 settings = {"steps": steps, "method": method, "order": p.order, "max_splits": p.max_splits, "rebox": bool(rebox),
                             "timeout_per_cell": timeout_per_cell, "within": within}
                 if state_symbols:  # only when on, so that journals written before the option still resume
@@ -184,17 +217,15 @@ def verify_parts(
                 fingerprint = fingerprint_of(loop, prop, settings)
                 options = {"order": p.order, "method": method, "timeout": timeout_per_cell, "max_splits": p.max_splits,
                            "rebox": bool(rebox), "state_symbols": bool(state_symbols)}
-                cells, count = grid(box, p.split or {})
                 journal = Journal(p.journal, fingerprint)
                 journals.callback(journal.close)
-                campaign = Campaign(loop, prop, box, cells, count, journal, bar, refine=refine, timeout=timeout_per_cell,
-                                     min_width={n: float(w) for n, w in (min_width or {}).items()}, falsify=falsify, seed=seed,
-                                     lock=lock)
+                campaign = Campaign(loop, prop, box, part_splitter, cells, journal, bar,
+                                    timeout=timeout_per_cell, falsify=falsify, seed=seed, lock=lock)
                 jobs.append((campaign, settings, fingerprint, options))
             if progress:
                 bar.start(sum(campaign.left for campaign, *_ in jobs))
             if runner is None:
-                run_local([(campaign, problem, options) for campaign, _, _, options in jobs], workers)
+                run_local([(campaign, problem, options) for campaign, _, _, options in jobs], workers, bar)
             else:
                 for campaign, _, fingerprint, options in jobs:
                     runner.run(campaign, (loop, safe_r, goal_r, within, steps), fingerprint, options)
@@ -203,4 +234,25 @@ def verify_parts(
             runner.close()
         bar.close()
     seconds = time.time() - started
-    return [Result(loop.states, box.to_dict(), campaign.cells, seconds, settings) for box, (campaign, settings, _, _) in zip(boxes, jobs)]
+    results = [Result(loop.states, box.to_dict(), campaign.cells, seconds, settings, domain_exits(checks, runs(campaign.cells, loop.states)))
+               for box, (campaign, settings, _, _) in zip(boxes, jobs)]
+    flagged = {(e["stage"], e["input"]) for e in initial_exits}
+    flag_exits([e for r in results for e in r.domain_exits if (e["stage"], e["input"]) not in flagged], strict, results)
+    return results
+
+
+def _splitter_of(part: Part, splitter, refine: bool, min_width: Optional[dict]):
+    """The part's own splitter (a fresh copy of ``splitter``: an adaptive one learns per part);
+    without one, ``split``/``refine``/``min_width`` name a grid or a bisection, and with none of
+    them the adaptive default applies."""
+    if splitter is not None:
+        if part.split or refine or min_width:
+            raise InputError("give splitter= or split=/refine=/min_width=, not both (a splitter carries its own grid and widths)")
+        if not all(hasattr(splitter, m) for m in ("initial", "prepare", "again", "learn")):
+            raise InputError(f"splitter= takes pv.Grid, pv.Bisection, pv.Adaptive or an object with their methods, got {splitter!r}")
+        return copy.deepcopy(splitter)
+    if refine:
+        return Bisection(part.split or {}, min_width or {})
+    if part.split or min_width:
+        return Grid(part.split or {}, min_width or {})
+    return Adaptive()

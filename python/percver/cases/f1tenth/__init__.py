@@ -12,9 +12,10 @@
 - ``verification``: the Table 1 loop and property, ``verify(y1=(lo, hi), networks=...)`` and its row.
 """
 
-from percver.cases.f1tenth import controllers, data, dynamics, estimate, loop, noise, pipeline, simulate, verification, world
+from percver.cases.f1tenth import controllers, data, dynamics, loop, noise, pipeline, simulate, verification, world
 from percver.cases.f1tenth.controllers import Controller
-from percver.cases.f1tenth.estimate import FilterSettings, estimate_poses
+from percver.cases.f1tenth import particle_filter
+from percver.cases.f1tenth.particle_filter import FilterSettings, estimate_poses
 from percver.cases.f1tenth.noise import Denoiser, NoiseModel
 from percver.cases.f1tenth.pipeline import TrainingSet, training_set
 from percver.cases.f1tenth.simulate import RealWorld
@@ -22,7 +23,7 @@ from percver.cases.f1tenth.verification import verify
 from percver.cases.f1tenth.world import from_local, right_turn, scan_exprs, square, to_local
 
 __all__ = [
-    "controllers", "data", "dynamics", "estimate", "loop", "noise", "pipeline", "simulate", "verification", "world",
+    "controllers", "data", "dynamics", "loop", "noise", "particle_filter", "pipeline", "simulate", "verification", "world",
     "Controller", "FilterSettings", "estimate_poses", "Denoiser", "NoiseModel", "TrainingSet", "training_set",
     "RealWorld", "from_local", "right_turn", "scan_exprs", "square", "to_local", "verify",
 ]

@@ -24,13 +24,12 @@ import numpy as np
 
 from percver.cases.f1tenth import world
 from percver.errors import InputError, MissingFileError
+from percver.noise import denoiser as generic_denoiser
 from percver.noise import thresholds as generic
-from percver.noise import training
 from percver.noise.knockout import POSITIVE_WEIGHT, KnockoutModel, train_knockout
 
 # Public names of this module since before percver.noise held them generically.
 from percver.noise.thresholds import fit_thresholds, label  # noqa: F401
-from percver.noise.training import to_network
 
 # Knocked-out rays read the range limit: 5 m, normalised (5 - 2.5) / 5.
 KNOCKED = 0.5
@@ -114,27 +113,17 @@ class NoiseModel(KnockoutModel):
         np.save(thresholds_path, self.thresholds)
 
 
-class Denoiser:
-    """h_d: normalised real scans -> normalised canonical scans (``DENOISER_SCALE`` x network)."""
+class Denoiser(generic_denoiser.Denoiser):
+    """h_d of the F1/10 car: 21 normalised real rays -> 21 normalised canonical rays."""
 
     def __init__(self, network, name: str | None = None):
         if network.n_in != 21 or network.n_out != 21:
             raise InputError(f"a denoiser maps 21 rays to 21 rays; '{network.name}' maps {network.n_in} -> {network.n_out}")
-        self.network = network
-        self.name = name or network.name
+        super().__init__(network, DENOISER_SCALE, name)
 
     @classmethod
     def load(cls, path) -> "Denoiser":
         return cls(_network(path), Path(path).stem)
-
-    def save(self, path) -> None:
-        self.network.to_onnx(path)
-
-    def __call__(self, normalised) -> np.ndarray:
-        return DENOISER_SCALE * self.network(normalised)
-
-    def __repr__(self) -> str:
-        return f"Denoiser({self.name!r}, {self.network!r})"
 
 
 # ------------------------------------------------------------------------------------------ training
@@ -156,16 +145,7 @@ def train_denoiser(real_normalised, canonical_normalised, *, hidden: int = 100, 
                    lr: float = 2e-3, weight_decay: float = 1e-5, seed: int = 0, threads: int | None = None,
                    progress: bool = False) -> Denoiser:
     """Train h_d on pairs (real, canonical) of normalised 21-ray scans."""
-    torch = training.require_torch()
-    training.session(torch, seed, threads)
-    module = training.mlp(torch, (21, hidden, 21), torch.nn.Tanh, torch.nn.Tanh)
-    bce = torch.nn.BCELoss()
-
-    def loss(output, target):
-        # tanh output times 0.5 is the normalised scan in [-0.5, 0.5]; shifted to [0, 1] for BCE.
-        return bce((DENOISER_SCALE * output + 0.5).clamp(1e-7, 1 - 1e-7), target + 0.5)
-
-    target = np.clip(np.asarray(canonical_normalised, dtype=float), -0.5, 0.5)
-    training.fit(torch, module, real_normalised, target, loss, epochs=epochs, batch=batch, lr=lr,
-                 weight_decay=weight_decay, seed=seed, progress=progress, desc="denoiser")
-    return Denoiser(to_network(module, f"denoiser1x{hidden}"))
+    model = generic_denoiser.train_denoiser(real_normalised, canonical_normalised, scale=DENOISER_SCALE, hidden=hidden,
+                                            epochs=epochs, batch=batch, lr=lr, weight_decay=weight_decay, seed=seed,
+                                            threads=threads, progress=progress)
+    return Denoiser(model.network)

@@ -102,7 +102,7 @@ class TrainingSet:
 
 
 def training_set(runs: loop.Runs, poses) -> TrainingSet:
-    """D from recorded runs and the estimated poses of their scans (``estimate.PoseEstimate``
+    """D from recorded runs and the estimated poses of their scans (``particle_filter.PoseEstimate``
     or an N x 3 array)."""
     poses = getattr(poses, "poses", poses)
     if len(poses) != len(runs.run):

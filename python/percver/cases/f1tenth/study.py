@@ -20,7 +20,7 @@ import numpy as np
 
 from percver.cases.f1tenth import controllers as ctl
 from percver.cases.f1tenth import data as f1data
-from percver.cases.f1tenth import estimate as f1estimate
+from percver.cases.f1tenth import particle_filter
 from percver.cases.f1tenth import noise, pipeline, plots, simulate, world
 from percver.errors import InputError, MissingFileError
 from percver.measurements import Measurements
@@ -57,12 +57,12 @@ def load_runs(path):
 def run_estimate(runs_path, out, *, particles: int = 300, seed: int = 0, progress: bool = False) -> dict:
     runs = load_runs(runs_path)
     began = time.perf_counter()
-    settings = f1estimate.FilterSettings(particles=particles)
-    poses = f1estimate.estimate_poses(runs.scans, runs.controls, runs.run, runs.time, settings=settings, seed=seed, progress=progress)
+    settings = particle_filter.FilterSettings(particles=particles)
+    poses = particle_filter.estimate_poses(runs.scans, runs.controls, runs.run, runs.time, settings=settings, seed=seed, progress=progress)
     seconds = time.perf_counter() - began
     # The simulator's true states are used here only to report how good the filter is.
     settled = runs.time >= 1.0
-    errors = {"all": poses.errors(runs.states), "after_1s": f1estimate.PoseEstimate(
+    errors = {"all": poses.errors(runs.states), "after_1s": particle_filter.PoseEstimate(
         poses.poses[settled], poses.speed[settled], poses.spread[settled]).errors(runs.states[settled])}
     dataset = pipeline.training_set(runs, poses)
     dataset.meta["pose_error"] = errors

@@ -38,7 +38,7 @@ from percver.cases.f1tenth import data as f1data
 from percver.cases.f1tenth import dynamics, noise, world
 from percver.errors import InputError
 from percver.sets import Box
-from percver.verification.cells import grid as cell_grid
+from percver.verification.splitters import grid as cell_grid
 from percver.verification.falsify import falsify as falsify_cells
 from percver.verification.journal import Journal, cell_key, fingerprint
 from percver.verification.property import Property, holds
@@ -149,7 +149,7 @@ def knockout_cases(control, classifier, denoiser, *, max_rays: int = 2, near: fl
         rng = np.random.default_rng(0)
         env = b[:, 0] + (b[:, 1] - b[:, 0]) * np.vstack([np.zeros(len(b)), np.ones(len(b)), rng.random((samples, len(b)))])
         for k in range(upto):
-            env = np.concatenate([env, base._stage_float(k, env)], axis=1)
+            env = np.concatenate([env, base.stage_float(k, env)], axis=1)
         margin = env[:, columns] - classifier.thresholds
         close = (margin.min(0) < near) & (margin.max(0) > -near)
         rays = sorted(np.flatnonzero(close), key=lambda i: np.abs(margin[:, i]).min())[:max_rays]

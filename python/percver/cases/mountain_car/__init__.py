@@ -1,7 +1,8 @@
 """Image-based Mountain Car under benign noise (paper, section 5.1 and Appendix A).
 
 - :mod:`~percver.cases.mountain_car.dynamics`: plant, reward, property and the rows of Table 1;
-- :mod:`~percver.cases.mountain_car.dataset`: gymnasium images, the paper's contrast and blur, data set D;
+- :mod:`~percver.cases.mountain_car.camera`: the canonical camera g_c (gymnasium's scene), the paper's contrast and blur;
+- :mod:`~percver.cases.mountain_car.dataset`: the paper's data set D;
 - :mod:`~percver.cases.mountain_car.training`: the torch models, exported to ONNX (needs torch;
   imported on first use of ``train``);
 - :mod:`~percver.cases.mountain_car.networks`: the chain of networks, the authors' or ours;
@@ -18,7 +19,8 @@
     res = mc.verify("contrast", p0=(-0.5, -0.49), networks="paper")   # a slice of Table 1's contrast row
 """
 
-from percver.cases.mountain_car.dataset import SHAPE, Camera, Dataset, blur, camera, contrast, generate, observe, render
+from percver.cases.mountain_car.camera import SHAPE, Camera, blur, camera, contrast, observe, render
+from percver.cases.mountain_car.dataset import Dataset, generate
 from percver.cases.mountain_car.dynamics import NOISES, ROWS, Trajectories, equations, noise_row, simulate, step
 from percver.cases.mountain_car.evaluation import Evaluation, evaluate
 from percver.cases.mountain_car.networks import Networks, load, paper_dir

@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from percver.cases.mountain_car import dynamics
-from percver.cases.mountain_car.dataset import camera
+from percver.cases.mountain_car.camera import camera
 from percver.cases.mountain_car.networks import Networks, load
 from percver.errors import InputError, MissingDependencyError
 

@@ -15,7 +15,8 @@ from pathlib import Path
 
 import numpy as np
 
-from percver.cases.mountain_car.dataset import PIXELS
+from percver.cases.mountain_car import dynamics
+from percver.cases.mountain_car.camera import PIXELS
 from percver.errors import InputError, MissingFileError
 from percver.networks import Network, load_network
 
@@ -34,6 +35,23 @@ PACKAGED = Path(__file__).resolve().parent / "data"
 # Inputs and outputs of each role: (n_in, n_out).
 SHAPES = {"generator": (1, PIXELS), "contrast": (PIXELS + 1, PIXELS), "blur": (PIXELS + 1, PIXELS),
           "estimator": (PIXELS, 1), "controller": (2, 1)}  # fmt: skip
+
+
+def training_domain(role: str) -> list:
+    """The input range each role's training data was drawn from (:mod:`percver.cases.mountain_car.training`):
+    positions over [P_MIN, P_MAX], pixels in [0, 1], noise levels over the row's range, velocities
+    within +-V_MAX. Training writes it into each ONNX file as the network's ``domain``."""
+    p, pixel = (dynamics.P_MIN, dynamics.P_MAX), (0.0, 1.0)
+    domains = {
+        "generator": [p],
+        "contrast": [pixel] * PIXELS + [dynamics.CONTRAST_RANGE],
+        "blur": [pixel] * PIXELS + [dynamics.BLUR_RANGE],
+        "estimator": [pixel] * PIXELS,
+        "controller": [p, (-dynamics.V_MAX, dynamics.V_MAX)],
+    }
+    if role not in domains:
+        raise InputError(f"unknown model role '{role}'; roles are {list(ROLES)}")
+    return domains[role]
 
 
 def default_shared() -> Path:

@@ -24,41 +24,10 @@ from percver.errors import InputError, MissingFileError
 NOISE_STATES = {"canonical": (), "contrast": ("dc",), "blur": ("db",), "composite": ("dc", "db")}
 KEYWORDS = {"dc": "delta_c", "db": "delta_b"}
 # The cells each row starts from, as bands (a region of the initial set, cell widths, in-cell
-# splits, Taylor order), for the authors' chain ("paper") and for ours (any other set). Runs from
-# p0 above about -0.415 touch the left wall (p = -1.2) near step 50; where a cell's runs hit it at
-# different steps (or some not at all), each case is a branch of its own, so those cells are
-# narrow in p0 and may branch more. In the composite row, low contrast (dc < 0.8) makes the
-# estimate at the left turning point depend so nonlinearly on dc and db that cells of p0 0.005 x
-# dc 0.1 x db 0.05 spend their 16 in-cell splits and stay unknown, while cells of a quarter of
-# that size in each noise direction and half in p0 verify without a split. The composite's cells
-# need no wall band: the engine now forks the wall condition once for p and v (it used to fork
-# each `where` on it, into four parts, two of which mixed the sides); in p0 [-0.41, -0.405] the
-# 0.005 cells took 44 s where 0.001 cells took 136 s. Order 6 where the composite's cells split
-# at order 5 (the left edge, the approach to the wall, most of high contrast): near the wall
-# (p0 [-0.425, -0.42] x dc [0.5, 0.6], 24 cells, one worker) 169 engine s, all verified, against
-# 453 s and 3 unknown at order 5; where order 5 needs no split, order 6 costs 1.3x more per cell.
-# Low contrast in p0 [-0.4175, -0.41), where the runs reach the wall at different steps, took a
-# fifth of the slice p0 [-0.45, -0.4] with ~10 splits per cell: cells half as wide in p0 verify
-# there without bisection (p0 [-0.4125, -0.41] x dc [0.5, 0.6]: 24 cells 158 engine s, all
-# verified, against 12 cells 144 s with 4 unknown ones to bisect). Low contrast in p0
-# [-0.53, -0.46), where the cells of p0 0.0025 almost never split, in cells twice as wide in p0:
-# per p0 slice of 0.01 (144 narrow cells or 72 wide ones), 117-177 engine s against 210-230 s.
-# High contrast just above LOW_CONTRAST (dc [0.8, 0.9)) with blur db >= 0.05 left of p0 -0.5 split
-# its cells 7-16 times (up to 53 s a cell): in cells of dc 0.05 x db 0.025 (p0 0.005 as before)
-# they verify without a split (p0 [-0.55, -0.53] x db [0.1, 0.15]: 28 engine s against 193 s;
-# p0 [-0.52, -0.5] x db [0.05, 0.15]: 63 s against 141 s); halving dc or db alone does not do it
-# (66 s and 77 s against 28 s). The same cells for the next hardest, dc [0.9, 1.0) with db >= 0.1
-# left of p0 -0.53: 25 engine s against 71 s. Right of p0 -0.475, high contrast at dc >= 1.4 in
-# cells of dc 0.2: p0 [-0.475, -0.465] 58 s against 87 s, [-0.44, -0.43] 79 s against 137 s,
-# [-0.425, -0.42] 64 s against ~120 s (below dc 1.4 such cells cost more: 210 s against 137 s);
-# right of the wall's runs (p0 [-0.41, -0.4]) at every dc: 93 s against 171 s, while in p0
-# [-0.415, -0.41] they left 7 of 18 cells unknown (engine s with two workers, against the
-# whole-row run of 68b4484).
-# The other rows' bands were measured before these changes.
-# Our controller (whatever the perception) needs narrow cells everywhere: it coasts as soon as the
-# estimated energy suffices, so the car arrives with little margin and when it coasts depends on
-# the estimate; the bands follow the controller's set (:func:`layout_of`).
-# Measured in bench/mountain_car.py (bench/README.md, "Mountain Car").
+# splits, Taylor order), for the authors' chain ("paper") and for ours (any other set): narrow in
+# p0 where runs reach the left wall (p = -1.2) at different steps, and finer in the noise
+# dimensions where the estimate depends nonlinearly on them. The measurements behind each band are
+# in bench/README.md ("Mountain Car: the measurements behind the layout").
 WALL = -0.415
 LOW_CONTRAST = 0.8
 

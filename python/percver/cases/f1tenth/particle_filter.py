@@ -1,4 +1,5 @@
-"""Pose estimation for runs without ground truth: a particle filter (Thrun et al., ch. 4 and 6).
+"""Pose estimation for labelling runs without ground truth (not the estimator h_e of the loop): a
+particle filter (Thrun et al., ch. 4 and 6).
 
 Motion: the bicycle model (``dynamics``) driven by the logged steering, with process noise.
 Measurement: a beam model on a subset of the raw 1081 rays, each echo a mixture of a Gaussian

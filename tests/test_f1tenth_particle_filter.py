@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from percver.cases.f1tenth import controllers as ctl
-from percver.cases.f1tenth import estimate, simulate, world
+from percver.cases.f1tenth import particle_filter, simulate, world
 from percver.errors import InputError
 
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "f1tenth"
@@ -54,19 +54,19 @@ def test_runs_round_trip_as_measurements(runs, tmp_path):
 
 
 def test_particle_filter_converges_without_the_true_states(runs):
-    settings = estimate.FilterSettings(particles=150)
+    settings = particle_filter.FilterSettings(particles=150)
     # The filter's inputs: scans, controls, run ids and times. No states.
-    est = estimate.estimate_poses(runs.scans, runs.controls, runs.run, runs.time, settings=settings, seed=0)
+    est = particle_filter.estimate_poses(runs.scans, runs.controls, runs.run, runs.time, settings=settings, seed=0)
     assert est.poses.shape == (len(runs.run), 3)
     late = runs.time >= 2.0
-    errors = estimate.PoseEstimate(est.poses[late], est.speed[late], est.spread[late]).errors(runs.states[late])
+    errors = particle_filter.PoseEstimate(est.poses[late], est.speed[late], est.spread[late]).errors(runs.states[late])
     assert errors["position_median_m"] < 0.05
     assert errors["heading_mean_deg"] < 1.0
     for r in range(len(runs.outcomes)):
         last = runs.rows(r)[-1]
         assert np.hypot(*(est.poses[last, :2] - runs.states[last, :2])) < 0.15
     with pytest.raises(InputError, match="1081"):
-        estimate.estimate_poses(runs.scans[:, :21], runs.controls, runs.run, runs.time)
+        particle_filter.estimate_poses(runs.scans[:, :21], runs.controls, runs.run, runs.time)
 
 
 def test_calibration_report(runs):
