@@ -626,4 +626,33 @@ mod tests {
         assert!(x.contains(0.9 * factor) && x.contains(1.1 * factor), "{x}");
         assert!(x.width() < 0.2 * factor + 1e-6, "{x}");
     }
+
+    #[test]
+    fn an_urgent_jump_ends_the_flow_once_every_run_has_taken_it() {
+        // x' = 1 with no invariant: only urgency stops the flow; every run leaves at x = 0.5.
+        let names: Vec<String> = vec!["x".into()];
+        let ode = Ode::new(names.clone(), vec![parse_expr("1").unwrap()]).unwrap();
+        let guard = vec![Constraint { margin: program(&["x - 0.5"], &names), cmp: Cmp::Ge }];
+        let space = Space::get(3, 4, 1).unwrap();
+        let ctx = Ctx::new(space.clone(), 4, 1e-12);
+        let init = vec![TaylorModel::affine(&ctx, 0.05, 1, 0.05)];
+        let mut s = settings(4);
+        s.remainder_estimate = vec![1e-3];
+        for urgent in [true, false] {
+            let aut = Automaton {
+                modes: vec![Mode { name: "go".into(), ode: ode.clone(), invariant: vec![] }],
+                jumps: vec![Jump { source: 0, target: Target::Exit, guard: guard.clone(), reset: None, urgent }],
+                names: names.clone(),
+            };
+            let run = run(&aut, 0, init.clone(), &space, &s, &Limits { max_time: 2.0, max_jumps: 2, max_branches: 4, max_exits: 1, contract: vec![1] }).unwrap();
+            if !urgent {
+                assert!(run.failure.is_some_and(|f| f.contains("still in mode 'go'")));
+                continue;
+            }
+            assert!(run.failure.is_none(), "{:?}", run.failure);
+            let x = run.exits[0][0].bound(&space);
+            // Sound (holds 0.5); each candidate carries its step's time spread, so not tight.
+            assert!(x.contains(0.5) && x.lo() >= 0.4 && x.hi() <= 0.62, "{x}");
+        }
+    }
 }
