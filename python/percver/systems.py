@@ -100,6 +100,180 @@ class Continuous:
         return sol.y[:, -1].reshape(n, count).T
 
 
+def _constraints(conditions: Sequence[Condition], where: str) -> list:
+    out = []
+    for c in conditions:
+        if isinstance(c, str):
+            c = condition(c)
+        if not isinstance(c, Condition):
+            raise InputError(f"{where}: {c!r} is not a condition such as x >= 0 (or the text 'x >= 0')")
+        out.append(c)
+    return out
+
+
+def _signed(c: Condition, value: np.ndarray) -> np.ndarray:
+    """The condition's margin turned so that >= 0 means it holds (equality counts as holding)."""
+    return value if c.op in (">=", ">") else -value
+
+
+class Mode:
+    """A mode of a :class:`Hybrid` plant: ``x' = rhs`` while ``invariant`` (conditions that all
+    hold) holds; a state missing from ``rhs`` stays constant there."""
+
+    def __init__(self, rhs: Mapping[Union[Expr, str], ExprLike], invariant: Sequence[Union[Condition, str]] = ()):
+        self.rhs = {name_of(k): as_expr(v) for k, v in rhs.items()}
+        self.invariant = _constraints(invariant, "invariant")
+
+
+class Jump:
+    """A jump of a :class:`Hybrid` plant from mode ``source`` to ``target`` (``None``: control
+    returns to the controller and the period ends), possible whenever all of ``guard`` hold
+    (forced then if ``urgent``; otherwise forced only by the source's invariant); ``reset`` gives
+    new values of some states, the others keep theirs."""
+
+    def __init__(self, source: str, target: Optional[str], guard: Sequence[Union[Condition, str]] = (),
+                 reset: Optional[Mapping[Union[Expr, str], ExprLike]] = None, urgent: bool = False):
+        self.source, self.target, self.urgent = source, target, bool(urgent)
+        self.guard = _constraints(guard, f"jump {source} -> {target}: guard")
+        self.reset = {name_of(k): as_expr(v) for k, v in (reset or {}).items()}
+
+
+class Hybrid:
+    """A hybrid plant: each control period starts in mode ``start`` with the inputs held, flows
+    through modes and jumps, and ends at a jump whose target is ``None``; the states then are the
+    next step's. Verification carries Taylor models through the jumps and follows every mode
+    sequence the set may take (``max_splits`` bounds the branches; beyond, they are aggregated).
+    A period fails if a run flows longer than ``max_time`` or jumps more than ``max_jumps`` times.
+    """
+
+    def __init__(self, modes: Mapping[str, Mode], jumps: Sequence[Jump], inputs: Sequence[Union[Expr, str]] = (), *,
+                 start: Optional[str] = None, max_time: float, step: float, remainder: float = 1e-4, max_jumps: int = 100):
+        if not modes:
+            raise InputError("a hybrid plant needs at least one mode, e.g. {'fly': pv.Mode({x: v, v: -9.81})}")
+        self.modes = dict(modes)
+        bad = [k for k, m in self.modes.items() if not isinstance(m, Mode)]
+        if bad:
+            raise InputError(f"modes {bad} must be pv.Mode(...)")
+        self.jumps = list(jumps)
+        self.inputs = [name_of(i) for i in inputs]
+        self.start = start if start is not None else next(iter(self.modes))
+        self.states = list(dict.fromkeys(n for m in self.modes.values() for n in m.rhs))
+        for j in self.jumps:
+            if not isinstance(j, Jump):
+                raise InputError(f"jumps must be pv.Jump(...), got {j!r}")
+            missing = [m for m in (j.source, j.target) if m is not None and m not in self.modes]
+            if missing:
+                raise InputError(f"jump {j.source} -> {j.target} names mode(s) {missing}; modes are {list(self.modes)}")
+            unknown = set(j.reset) - set(self.states)
+            if unknown:
+                raise InputError(f"jump {j.source} -> {j.target} resets {sorted(unknown)}, which are not states ({self.states})")
+        if self.start not in self.modes:
+            raise InputError(f"start mode '{self.start}' is not one of {list(self.modes)}")
+        if not any(j.target is None for j in self.jumps):
+            raise InputError("no jump returns to the controller: give one with target None, e.g. pv.Jump('fly', None, guard=['c >= 0.1'])")
+        clash = set(self.states) & set(self.inputs)
+        if clash:
+            raise InputError(f"{sorted(clash)} are declared both as states and as inputs")
+        if not max_time > 0 or not 0 < step <= max_time:
+            raise InputError(f"need max_time > 0 and an integration step in (0, max_time], got {max_time}, {step}")
+        self.max_time, self.step, self.remainder, self.max_jumps = float(max_time), float(step), float(remainder), int(max_jumps)
+        names = set(self.states) | set(self.inputs)
+        for e in self.expressions():
+            unknown = set(e.variables()) - names
+            if unknown:
+                raise InputError(f"the hybrid plant uses {sorted(unknown)}, which are neither its states nor its inputs")
+
+    def rhs_of(self, mode: str) -> list:
+        """The mode's right-hand sides in state order (0 for states it does not list)."""
+        m = self.modes[mode]
+        return [m.rhs.get(n, as_expr(0.0)) for n in self.states]
+
+    def expressions(self) -> list:
+        """Every expression of the plant (for checks, parameters and fingerprints)."""
+        out = []
+        for name, m in self.modes.items():
+            out += self.rhs_of(name) + [c.margin() for c in m.invariant]
+        for j in self.jumps:
+            out += [c.margin() for c in j.guard] + list(j.reset.values())
+        return out
+
+    def signature(self) -> tuple:
+        """The plant's structure and numbers, beside its expressions (for fingerprints)."""
+        return (list(self.modes), [(j.source, j.target, [c.op for c in j.guard], list(j.reset), j.urgent) for j in self.jumps],
+                [[c.op for c in m.invariant] for m in self.modes.values()], self.start, self.max_time, self.step, self.remainder,
+                self.max_jumps)
+
+    def _core(self, input_indices: list) -> tuple:
+        names = self.states + self.inputs
+        zero = as_expr(0.0)
+        order = list(self.modes)
+        modes = [(n, self.rhs_of(n) + [zero] * len(self.inputs), [(c.margin(), c.op) for c in m.invariant]) for n, m in self.modes.items()]
+        jumps = [(order.index(j.source), None if j.target is None else order.index(j.target), [(c.margin(), c.op) for c in j.guard],
+                  [j.reset.get(n, Expr.var(n)) for n in names] if j.reset else None, j.urgent) for j in self.jumps]
+        return (names, modes, jumps, order.index(self.start), input_indices, self.max_time, self.step, self.remainder, self.max_jumps)
+
+    def advance(self, x: np.ndarray, u: np.ndarray, parameters: Optional[dict] = None) -> np.ndarray:
+        """States at the end of one period from the rows of x with the inputs u held (scipy DOP853
+        with events, one run per row): a jump is taken as soon as its guard holds, the first listed
+        when several do (one of the runs the plant allows)."""
+        return np.array([self._run(np.concatenate([xi, ui]), {k: v[r] for k, v in (parameters or {}).items()})
+                         for r, (xi, ui) in enumerate(zip(np.atleast_2d(x), np.atleast_2d(u)))]).reshape(len(x), len(self.states))
+
+    def _run(self, z: np.ndarray, parameters: dict) -> np.ndarray:
+        from scipy.integrate import solve_ivp
+
+        names = self.states + self.inputs
+        n = len(self.states)
+
+        def values(exprs, z):
+            if not exprs:
+                return np.zeros(0)
+            params = {k: np.array([v]) for k, v in parameters.items()} or None
+            return _core.eval_float(exprs, names, np.ascontiguousarray(z.reshape(1, -1)), params)[0]
+
+        def holds(conds, z, tol=1e-9):
+            return all(_signed(c, v) >= -tol for c, v in zip(conds, values([c.margin() for c in conds], z)))
+
+        mode, elapsed = self.start, 0.0
+        for _ in range(self.max_jumps + 1):
+            outgoing = [j for j in self.jumps if j.source == mode]
+            taken = next((j for j in outgoing if holds(j.guard, z)), None)
+            if taken is None:
+                rhs = self.rhs_of(mode)
+                inv = self.modes[mode].invariant
+
+                def f(_t, y):
+                    return np.concatenate([values(rhs, y), np.zeros(len(self.inputs))])
+
+                def event(conds, sign):
+                    def g(_t, y):
+                        v = values([c.margin() for c in conds], y)
+                        return sign * min(_signed(c, vi) for c, vi in zip(conds, v)) + (1e-9 if sign > 0 else 0.0)
+                    g.terminal, g.direction = True, -1.0 if sign < 0 else 1.0
+                    return g
+
+                events = [event(j.guard, 1.0) for j in outgoing if j.guard]
+                if inv:
+                    events.append(event(inv, 1.0))
+                    events[-1].direction = -1.0
+                sol = solve_ivp(f, (0.0, self.max_time - elapsed), z, method="DOP853", rtol=1e-11, atol=1e-12, events=events)
+                if not sol.success:
+                    raise InputError(f"float simulation of the hybrid plant failed in mode '{mode}': {sol.message}")
+                if sol.status != 1:
+                    raise InputError(f"float simulation: the run is still in mode '{mode}' after {self.max_time} time units")
+                z, elapsed = sol.y[:, -1], elapsed + sol.t[-1]
+                taken = next((j for j in outgoing if holds(j.guard, z, 1e-7)), None)
+                if taken is None:
+                    raise InputError(f"float simulation: the run leaves the invariant of mode '{mode}' with no jump enabled")
+            if taken.reset:
+                new = values([taken.reset.get(v, Expr.var(v)) for v in names], z)
+                z = np.asarray(new, float)
+            if taken.target is None:
+                return z[:n]
+            mode = taken.target
+        raise InputError(f"float simulation: more than {self.max_jumps} jumps in one period")
+
+
 @dataclass
 class Stage:
     """One block of the perception-control chain: ``output = scale * component(inputs) + offset``.
@@ -196,11 +370,11 @@ def _with_output_map(net, output_map):
 class ClosedLoop:
     """``plant`` plus ``stages`` evaluated in order each step; the plant reads the stage outputs."""
 
-    def __init__(self, plant: Union[Discrete, Continuous], stages: Sequence[Stage] = ()):
-        if not isinstance(plant, (Discrete, Continuous)):
+    def __init__(self, plant: Union[Discrete, Continuous, Hybrid], stages: Sequence[Stage] = ()):
+        if not isinstance(plant, (Discrete, Continuous, Hybrid)):
             hint = (" (a pv.diagnose result gives one: pv.ClosedLoop(diagnosis.model, ...), or diagnosis.system(uncertainty='ci95'))"
                     if type(plant).__module__.startswith("percver.validate") else "")
-            raise InputError(f"plant must be pv.Discrete(...) or pv.Continuous(...){hint}")
+            raise InputError(f"plant must be pv.Discrete(...), pv.Continuous(...) or pv.Hybrid(...){hint}")
         self.plant = plant
         self.states = list(plant.states)
         self.accumulators: list = []  # states added by with_accumulators (they start at 0)
@@ -221,12 +395,16 @@ class ClosedLoop:
             raise InputError(f"the plant's inputs {missing} are not produced by any stage (outputs: {[s.output for s in self.stages]})")
         # The plant's inputs as scalar signals: a vector input is its components T_0, T_1, ...
         self.plant_inputs = [self.env_names[i] for u in plant.inputs for i in (self.signals[u] if u in self.signals else [index[u]])]
-        used = plant.update if isinstance(plant, Discrete) else plant.rhs
+        used = plant.update if isinstance(plant, Discrete) else plant.expressions() if isinstance(plant, Hybrid) else plant.rhs
         allowed = set(self.env_names) if isinstance(plant, Discrete) else set(plant.states) | set(self.plant_inputs)
         for e in used:
             unknown = set(e.variables()) - allowed
             if unknown:
                 raise InputError(f"the plant uses {sorted(unknown)}, which are neither states nor its declared inputs{self._vector_hint(unknown)}")
+        if isinstance(plant, Hybrid):
+            wide = [u for u in plant.inputs if len(self.signals.get(u, [0])) != 1]
+            if wide:
+                raise InputError(f"hybrid plant inputs must be scalar signals; {wide} are vectors")
         # Column maps of the float simulation, fixed once wired: a stage's consecutive inputs (an
         # image) are read as a view, not gathered; a discrete plant gets only the columns it reads.
         self._float_inputs = [slice(i[0], i[0] + len(i)) if i and i == list(range(i[0], i[0] + len(i))) else i
@@ -304,6 +482,8 @@ class ClosedLoop:
         if not added:
             raise InputError("give accumulators as {name: expression}, e.g. {'r': -0.1 * u**2}")
         plant, stages = self.plant, [s for s in self.stages if s is not self._constants]
+        if isinstance(plant, Hybrid):
+            raise InputError("accumulators (reward=) are not supported with a hybrid plant; add the sum as a state of every mode")
         if isinstance(plant, Discrete):
             update = dict(zip(plant.states, plant.update))
             update.update({n: Expr.var(n) + e for n, e in added.items()})
@@ -355,7 +535,8 @@ class ClosedLoop:
 
     def parameters(self) -> list:
         """The uncertain parameters (``pv.uncertain``) the loop reads, as ``(id, lo, hi)``, each once."""
-        exprs = list(self.plant.rhs if isinstance(self.plant, Continuous) else self.plant.update)
+        plant = self.plant
+        exprs = list(plant.rhs if isinstance(plant, Continuous) else plant.expressions() if isinstance(plant, Hybrid) else plant.update)
         for stage in self.stages:
             if not stage.is_network:
                 exprs += list(stage.component)
@@ -378,6 +559,9 @@ class ClosedLoop:
         if isinstance(self.plant, Continuous):
             u = env[:, [self.env_names.index(i) for i in self.plant_inputs]]
             return self.plant.advance(env[:, : len(self.states)], u, parameters, self.plant_inputs)
+        if isinstance(self.plant, Hybrid):
+            u = env[:, [self.env_names.index(i) for i in self.plant_inputs]]
+            return self.plant.advance(env[:, : len(self.states)], u, parameters)
         reads = self._plant_reads
         return _core.eval_float(self.plant.update, [self.env_names[i] for i in reads], np.ascontiguousarray(env[:, reads]),
                                 parameters)
@@ -398,7 +582,7 @@ class ClosedLoop:
         from percver.fusion import fuse
         from percver.networks import Network
 
-        if isinstance(self.plant, Continuous):
+        if not isinstance(self.plant, Discrete):
             reads = set(self.plant_inputs)
         else:
             reads = {name for e in self.plant.update for name in e.variables()}
@@ -414,6 +598,8 @@ class ClosedLoop:
             zero = as_expr(0.0)
             plant = (pl.rhs + [zero] * len(self.plant_inputs), pl.states + self.plant_inputs, [env.index(u) for u in self.plant_inputs],
                      pl.period, pl.step, pl.remainder)
+        elif isinstance(self.plant, Hybrid):
+            plant = self.plant._core([env.index(u) for u in self.plant_inputs])
         else:
             plant = self.plant.update
         return _core.ClosedLoop(self.states, stages, env, plant, safe, goal, within, steps)

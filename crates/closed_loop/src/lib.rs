@@ -25,9 +25,10 @@
 //!
 //! The modules, in the order a cell meets them: [`problem`] (the loop and its property),
 //! [`settings`], [`solve`] (cells in parallel; a cell's worklist of pieces), [`step`] (one piece
-//! step by step), [`split`] (where a lost piece is split; arrivals at a goal), [`tape`] (replayed
+//! step by step; [`hybrid`] for plants with modes and jumps), [`split`] (where a lost piece is split; arrivals at a goal), [`tape`] (replayed
 //! steps, summed and symbolic states), [`outcome`].
 pub mod error;
+mod hybrid;
 pub mod outcome;
 pub mod problem;
 pub mod settings;

@@ -4,6 +4,7 @@ use crate::error::{ReachError, Result};
 use nn2hybrid::Network;
 use std::sync::Arc;
 use taylor::flowpipe::{Ode, Settings as FlowSettings};
+use taylor::hybrid::Automaton;
 use taylor::{Cmp, Program};
 
 #[derive(Clone, Debug)]
@@ -72,23 +73,38 @@ pub enum Plant {
     /// followed by the inputs (whose right-hand sides are 0); `inputs` are their environment
     /// indices. Safety is checked on every flowpipe segment of the period.
     Continuous { ode: Arc<Ode>, inputs: Vec<usize>, period: f64, flow: FlowSettings },
+    /// Each control period runs the hybrid automaton from mode `start` until it exits (the jumps
+    /// that return control to the controller), its variables the states followed by the held
+    /// inputs; every exit state is a successor. Safety is checked on every flowpipe segment.
+    Hybrid { automaton: Arc<Automaton>, start: usize, inputs: Vec<usize>, flow: FlowSettings, max_time: f64, max_jumps: usize },
 }
 
 impl Plant {
     /// A continuous plant integrated with fixed steps of `step` over each period, each step's
     /// remainder first estimated at `remainder` per variable (the cell's Taylor order is used).
     pub fn continuous(ode: Ode, inputs: Vec<usize>, period: f64, step: f64, remainder: f64) -> Plant {
-        let flow = FlowSettings {
-            step: taylor::StepSize::Fixed(step),
-            order: taylor::OrderPolicy::Fixed(1),
-            t_end: period,
-            cutoff: 1e-12,
-            remainder_estimate: vec![remainder; ode.dim()],
-            precondition: taylor::Precondition::Identity,
-            refinements: 30,
-            symbolic_queue: 100,
-        };
+        let flow = FlowSettings { t_end: period, ..flow_settings(ode.dim(), step, remainder) };
         Plant::Continuous { ode: Arc::new(ode), inputs, period, flow }
+    }
+
+    /// A hybrid plant integrated like [`Plant::continuous`]; a period fails if a run flows for
+    /// longer than `max_time` or takes more than `max_jumps` jumps.
+    pub fn hybrid(automaton: Automaton, start: usize, inputs: Vec<usize>, max_time: f64, step: f64, remainder: f64, max_jumps: usize) -> Plant {
+        let flow = flow_settings(automaton.names.len(), step, remainder);
+        Plant::Hybrid { automaton: Arc::new(automaton), start, inputs, flow, max_time, max_jumps }
+    }
+}
+
+fn flow_settings(dim: usize, step: f64, remainder: f64) -> FlowSettings {
+    FlowSettings {
+        step: taylor::StepSize::Fixed(step),
+        order: taylor::OrderPolicy::Fixed(1),
+        t_end: 0.0,
+        cutoff: 1e-12,
+        remainder_estimate: vec![remainder; dim],
+        precondition: taylor::Precondition::Identity,
+        refinements: 30,
+        symbolic_queue: 100,
     }
 }
 
@@ -143,6 +159,21 @@ impl ClosedLoop {
                 }
                 if !(*period > 0.0) {
                     return Err(ReachError::input(format!("the control period must be positive, got {period}")));
+                }
+            }
+            Plant::Hybrid { automaton, start, inputs, max_time, .. } => {
+                automaton.validate()?;
+                if automaton.names.len() != n + inputs.len() || inputs.iter().any(|&i| i >= env) {
+                    return Err(ReachError::input(format!(
+                        "the hybrid plant's variables must be the {n} states then the {} inputs",
+                        inputs.len()
+                    )));
+                }
+                if *start >= automaton.modes.len() {
+                    return Err(ReachError::input("the hybrid plant's start mode does not exist"));
+                }
+                if !(*max_time > 0.0) {
+                    return Err(ReachError::input(format!("the hybrid plant's time bound per period must be positive, got {max_time}")));
                 }
             }
             _ => {}

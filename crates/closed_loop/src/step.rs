@@ -13,7 +13,7 @@ use std::sync::atomic::Ordering;
 use std::time::Instant;
 use taylor::error_symbols::ErrorSymbols;
 use taylor::expr::{Intervals, Op, TaylorModels};
-use taylor::flowpipe::{reach_from, Ode, Settings as FlowSettings};
+use taylor::flowpipe::{reach_from, Ode, Segment, Settings as FlowSettings};
 use taylor::{Ctx, Interval, Program, Space, TaylorModel};
 
 pub(crate) fn decide(c: &Condition, state: &[TaylorModel], ctx: &Ctx) -> Result<Option<bool>> {
@@ -267,6 +267,18 @@ pub(crate) fn one_step(
                     Err(reason) => return Ok(Err(reason)),
                 }
             }
+            Plant::Hybrid { automaton, start, inputs, flow, max_time, max_jumps } => {
+                let held: Vec<TaylorModel> = inputs.iter().map(|&i| env[i].clone()).collect();
+                let most = (1 + forks).saturating_sub(nexts.len() + envs.len() - k - 1).max(1);
+                // Contracting the domain re-parameterises it, which the goal's margins kept across
+                // steps (`within`) could not follow.
+                let contract = if lp.goal_within { vec![] } else { (1..=symbols.domain.space.nvars).collect() };
+                let limits = taylor::hybrid::Limits { max_time: *max_time, max_jumps: *max_jumps, max_branches: crate::hybrid::BRANCHES, max_exits: most, contract };
+                match crate::hybrid::run_period(lp, step, automaton, *start, flow, limits, state, &held, ctx, hulls)? {
+                    Ok(next) => next,
+                    Err(reason) => return Ok(Err(reason)),
+                }
+            }
         };
         for mut next in successors {
             for m in next.iter_mut() {
@@ -351,13 +363,8 @@ pub(crate) fn integrate_period(
     if let Some(f) = &fp.failure {
         return Ok(Err(f.to_string()));
     }
-    for seg in &fp.segments {
-        for c in lp.safe.iter().filter(|c| c.applies_on(step, seg.t0, seg.t1, period)) {
-            let margin = c.margin.eval(&Intervals, &seg.bounds[..n])?;
-            if c.cmp.decide(margin[0]) != Some(true) {
-                return Ok(Err(format!("'{}' could not be proved over t in [{:.4}, {:.4}] of the period", c.label, seg.t0, seg.t1)));
-            }
-        }
+    if let Some(reason) = unsafe_segment(lp, &fp.segments, |c, seg| c.applies_on(step, seg.t0, seg.t1, period))? {
+        return Ok(Err(reason));
     }
     let next = fp.final_state[..n].iter().map(|t| {
         let mut t = shift_vars(t, &flow_space, &ctx.space, -1)?;
@@ -365,6 +372,25 @@ pub(crate) fn integrate_period(
         Ok(t)
     });
     Ok(Ok(next.collect::<Result<_>>()?))
+}
+
+/// Why a safety condition that `applies` on a flowpipe segment fails there (over the states,
+/// the segment's first variables), if one does.
+pub(crate) fn unsafe_segment<'a>(
+    lp: &ClosedLoop,
+    segments: impl IntoIterator<Item = &'a Segment>,
+    applies: impl Fn(&Condition, &Segment) -> bool,
+) -> Result<Option<String>> {
+    let n = lp.state_names.len();
+    for seg in segments {
+        for c in lp.safe.iter().filter(|c| applies(c, seg)) {
+            let margin = c.margin.eval(&Intervals, &seg.bounds[..n])?;
+            if c.cmp.decide(margin[0]) != Some(true) {
+                return Ok(Some(format!("'{}' could not be proved over t in [{:.4}, {:.4}] of the period", c.label, seg.t0, seg.t1)));
+            }
+        }
+    }
+    Ok(None)
 }
 
 /// Number of `where` conditions and min/max choices (clip) of the plant that are undecided on

@@ -9,6 +9,7 @@ use pyo3::prelude::*;
 use pyo3::types::PyDict;
 use std::sync::atomic::{AtomicUsize, Ordering};
 use std::sync::{Arc, Mutex};
+use taylor::hybrid::{Automaton, Constraint, Jump, Mode, Target};
 use taylor::{Cmp, Interval};
 
 #[pyclass(name = "ClosedLoop", module = "percver._core", frozen)]
@@ -21,6 +22,43 @@ pub struct PyClosedLoop(pub ClosedLoop);
 pub enum PlantArg {
     Discrete(Vec<PyExpr>),
     Continuous((Vec<PyExpr>, Vec<String>, Vec<usize>, f64, f64, f64)),
+    Hybrid(HybridArg),
+}
+
+/// A hybrid plant: (variable names = states then inputs, modes, jumps, start mode index, input
+/// indices in the environment, time bound per period, integration step, remainder estimate,
+/// most jumps per period). A mode: (name, right-hand sides, invariant); a jump: (source index,
+/// target index or None for "back to the controller", guard, reset of every variable or None,
+/// urgent); a constraint: (margin, op) meaning `margin op 0`.
+type HybridArg = (Vec<String>, Vec<(String, Vec<PyExpr>, Vec<(PyExpr, String)>)>, Vec<JumpArg>, usize, Vec<usize>, f64, f64, f64, usize);
+type JumpArg = (usize, Option<usize>, Vec<(PyExpr, String)>, Option<Vec<PyExpr>>, bool);
+
+fn automaton(names: Vec<String>, modes: Vec<(String, Vec<PyExpr>, Vec<(PyExpr, String)>)>, jumps: Vec<JumpArg>) -> PyResult<Automaton> {
+    let constraints = |list: Vec<(PyExpr, String)>| -> PyResult<Vec<Constraint>> {
+        list.into_iter().map(|(margin, op)| Ok(Constraint { margin: Arc::new(compile(&[margin], &names)?), cmp: cmp(&op)? })).collect()
+    };
+    let modes = modes
+        .into_iter()
+        .map(|(name, rhs, invariant)| {
+            let ode = taylor::Ode::new(names.clone(), rhs.into_iter().map(|e| e.0).collect()).py_err()?;
+            Ok(Mode { name, ode, invariant: constraints(invariant)? })
+        })
+        .collect::<PyResult<_>>()?;
+    let jumps = jumps
+        .into_iter()
+        .map(|(source, target, guard, reset, urgent)| {
+            Ok(Jump {
+                source,
+                target: target.map_or(Target::Exit, Target::Mode),
+                guard: constraints(guard)?,
+                reset: reset.map(|r| compile(&r, &names).map(Arc::new)).transpose()?,
+                urgent,
+            })
+        })
+        .collect::<PyResult<_>>()?;
+    let automaton = Automaton { names: names.clone(), modes, jumps };
+    automaton.validate().py_err()?;
+    Ok(automaton)
 }
 
 /// A stage's component: a network, or expressions over named inputs.
@@ -101,6 +139,9 @@ impl PyClosedLoop {
             PlantArg::Continuous((rhs, names, inputs, period, step, remainder)) => {
                 let ode = taylor::Ode::new(names, rhs.into_iter().map(|e| e.0).collect()).py_err()?;
                 Plant::continuous(ode, inputs, period, step, remainder)
+            }
+            PlantArg::Hybrid((names, modes, jumps, start, inputs, max_time, step, remainder, max_jumps)) => {
+                Plant::hybrid(automaton(names, modes, jumps)?, start, inputs, max_time, step, remainder, max_jumps)
             }
         };
         let lp = ClosedLoop {

@@ -234,7 +234,20 @@ pub fn reach(ode: &Ode, init: &[Interval], settings: &Settings, observer: &mut d
 /// the ODE's dimension). This is how a closed loop integrates its plant from a state that
 /// depends on the cell's variables.
 pub fn reach_from(ode: &Ode, state: Vec<TaylorModel>, space: &Arc<Space>, settings: &Settings, observer: &mut dyn FnMut(f64) -> bool) -> Result<Flowpipe> {
-    flow_from(ode, state, space, settings, observer, crate::bound::range)
+    flow_from(ode, state, space, settings, &mut |t, _, _| observer(t), crate::bound::range)
+}
+
+/// [`reach_from`] that hands `on_step(t, segment, state)` the state at time t (the end of the
+/// step, as Taylor models with the symbolic remainder folded in) after every step: hybrid
+/// automata take jumps from the states between the segments.
+pub fn reach_from_steps(
+    ode: &Ode,
+    state: Vec<TaylorModel>,
+    space: &Arc<Space>,
+    settings: &Settings,
+    on_step: &mut dyn FnMut(f64, &Segment, Vec<TaylorModel>) -> bool,
+) -> Result<Flowpipe> {
+    flow_from(ode, state, space, settings, &mut |t, seg, state| on_step(t, seg, state()), crate::bound::range)
 }
 
 /// [`reach_from`] with `final_box` the naive bound of each final model (monomial by monomial,
@@ -248,15 +261,19 @@ pub fn reach_from_naive_box(
     settings: &Settings,
     observer: &mut dyn FnMut(f64) -> bool,
 ) -> Result<Flowpipe> {
-    flow_from(ode, state, space, settings, observer, TaylorModel::bound)
+    flow_from(ode, state, space, settings, &mut |t, _, _| observer(t), TaylorModel::bound)
 }
+
+/// What the step loop hands its observer: the time, the step's segment, and a way to build the
+/// state at that time (built only by observers that want it).
+type StepObserver<'a> = dyn FnMut(f64, &Segment, &dyn Fn() -> Vec<TaylorModel>) -> bool + 'a;
 
 fn flow_from(
     ode: &Ode,
     mut state: Vec<TaylorModel>,
     space: &Arc<Space>,
     settings: &Settings,
-    observer: &mut dyn FnMut(f64) -> bool,
+    observer: &mut StepObserver,
     bounder: fn(&TaylorModel, &Space) -> Interval,
 ) -> Result<Flowpipe> {
     let n = ode.dim();
@@ -362,7 +379,8 @@ fn flow_from(
             failure = Some(TaylorError::BlowUp { time_reached: t, reason: "the state enclosure became unbounded".into() });
             break;
         }
-        if !observer(t) {
+        let now = || state.iter().zip(symbolic.enclosure()).map(|(m, r)| TaylorModel { coef: m.coef.clone(), rem: m.rem + r }).collect();
+        if !observer(t, segments.last().expect("a segment per step"), &now) {
             break;
         }
     }

@@ -3,7 +3,8 @@
 //! Layers, each in its own module and usable alone:
 //! intervals ([`interval`]) -> monomial layout ([`space`]) -> Taylor models ([`tm`]) ->
 //! elementary functions ([`functions`]) and range bounding ([`bound`]) -> expressions
-//! ([`expr`], [`parser`]) -> ODE flowpipes ([`flowpipe`], [`precondition`]);
+//! ([`expr`], [`parser`]) -> ODE flowpipes ([`flowpipe`], [`precondition`]) -> hybrid automata
+//! ([`hybrid`]);
 //! discrete-time error symbols ([`error_symbols`], [`parallelotope`]).
 pub mod bound;
 pub mod error;
@@ -11,6 +12,7 @@ pub mod error_symbols;
 pub mod expr;
 pub mod flowpipe;
 pub mod functions;
+pub mod hybrid;
 pub mod interval;
 pub mod parallelotope;
 pub mod parser;

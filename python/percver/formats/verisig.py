@@ -44,7 +44,7 @@ from percver import _core
 from percver.errors import MissingFileError, ParseError
 from percver.expr import Condition, Expr
 from percver.formats.flowstar import _block
-from percver.systems import ClosedLoop, Continuous, Discrete, Stage
+from percver.systems import ClosedLoop, Continuous, Discrete, Hybrid, Jump, Mode, Stage
 
 __all__ = ["load_verisig", "VerisigProblem"]
 
@@ -601,7 +601,7 @@ class VerisigProblem:
 
     @property
     def kind(self) -> str:
-        return "continuous" if isinstance(self.loop.plant, Continuous) else "discrete"
+        return "continuous" if isinstance(self.loop.plant, Continuous) else "hybrid" if isinstance(self.loop.plant, Hybrid) else "discrete"
 
     @property
     def states(self) -> list:
@@ -636,6 +636,11 @@ class VerisigProblem:
         lines = [f"{Path(self.path).name}: {self.kind} plant, states {', '.join(self.states)}"]
         if isinstance(plant, Discrete):
             lines += [f"  {s}+ = {opaque(e)}" for s, e in zip(plant.states, plant.update)]
+        elif isinstance(plant, Hybrid):
+            for name in plant.modes:
+                lines.append(f"  mode {name}: " + "; ".join(f"{s}' = {short(e, 60)}" for s, e in zip(plant.states, plant.rhs_of(name))))
+            lines += [f"  jump {j.source} -> {j.target or 'the networks'} when {' and '.join(map(str, j.guard)) or 'always'}" for j in plant.jumps]
+            lines.append(f"  inputs {', '.join(plant.inputs)} held for {self.period} s")
         else:
             lines += [f"  {s}' = {short(e)}" for s, e in zip(plant.states, plant.rhs)]
             lines.append(f"  inputs {', '.join(plant.inputs)} held for {self.period} s")
@@ -813,10 +818,11 @@ class _Translator:
         return min(bounds) if bounds else None
 
     def _find_flow_mode(self) -> Optional[str]:
+        """The mode that integrates the plant; with several (a period through plant modes with
+        guards), the first of them, the others in ``self.region`` (see :meth:`_hybrid`)."""
         flows = [m for m, mode in self.modes.items()
                  if m not in self.terminal and not self._solvable(mode) and (self._inv_bound(mode) or 0.0) > 0]
-        if len(flows) > 1:
-            raise self.src.error(self.modes[flows[1]].pos, f"modes {', '.join(flows)} all integrate nonlinear dynamics; one continuous plant mode per period is supported")
+        self.region = flows
         return flows[0] if flows else None
 
     # --- symbolic execution ---------------------------------------------------------------
@@ -908,28 +914,13 @@ class _Translator:
             if depth > 0:
                 raise self.src.error(mode.pos, f"DNN mode '{name}' is reached on only some branches of a period; every period must evaluate each network once")
             self._call_network(name, state)
-        bound = self._inv_bound(mode)
-        if bound is None:
-            raise self.src.error(mode.pos, f"mode '{name}' has no clock invariant ('clock <= c'), so its dwell time is unknown")
-        clocks = [lhs[1] for lhs, op, rhs, _ in mode.inv if lhs[0] == "var" and lhs[1] in self.timers and op in ("<=", "<")]
-        dwell = math.inf
-        for c in clocks:
-            t = state.timers[c]
-            if isinstance(t, _Rel):
-                raise _NeedAbsolute(c, mode.pos)
-            rate = self.timers[c][name]
-            b = self._const([rhs for lhs, op, rhs, _ in mode.inv if lhs[0] == "var" and lhs[1] == c][0])
-            if rate > 0:
-                dwell = min(dwell, (b - t) / rate)
-        if dwell == math.inf or dwell < -_TOL:
-            raise self.src.error(mode.pos, f"mode '{name}' is entered with its clock past the invariant bound")
-        dwell = max(dwell, 0.0)
-        state.dwell = dwell
+        dwell = state.dwell = self._dwell(name, state.timers)
         if dwell > _TOL:
             if name == self.flow_mode:
                 raise AssertionError("the plant mode is handled by the caller")
             if not self._solvable(mode):
-                raise self.src.error(mode.pos, f"mode '{name}' flows for {dwell} with non-constant dynamics inside a period; only one continuous plant mode is supported")
+                raise self.src.error(mode.pos, f"mode '{name}' flows for {dwell} with non-constant dynamics between the networks of a period; "
+                                               f"the plant modes ({', '.join(self.region)}) must follow one another")
             lookup = self._lookup(state)
             updates = {}
             for v in self.vars:
@@ -949,6 +940,25 @@ class _Translator:
                 state.timers[v] = t + rates[name] * dwell
             state.elapsed += dwell
         return state
+
+    def _dwell(self, name: str, timers: dict) -> float:
+        """How long a run stays in the mode: until its clock invariant runs out."""
+        mode = self.modes[name]
+        if self._inv_bound(mode) is None:
+            raise self.src.error(mode.pos, f"mode '{name}' has no clock invariant ('clock <= c'), so its dwell time is unknown")
+        clocks = [lhs[1] for lhs, op, rhs, _ in mode.inv if lhs[0] == "var" and lhs[1] in self.timers and op in ("<=", "<")]
+        dwell = math.inf
+        for c in clocks:
+            t = timers[c]
+            if isinstance(t, _Rel):
+                raise _NeedAbsolute(c, mode.pos)
+            rate = self.timers[c][name]
+            b = self._const([rhs for lhs, op, rhs, _ in mode.inv if lhs[0] == "var" and lhs[1] == c][0])
+            if rate > 0:
+                dwell = min(dwell, (b - t) / rate)
+        if dwell == math.inf or dwell < -_TOL:
+            raise self.src.error(mode.pos, f"mode '{name}' is entered with its clock past the invariant bound")
+        return max(dwell, 0.0)
 
     def _call_network(self, mode: str, state: _Path):
         k = self.dnn_modes.index(mode)
@@ -1188,6 +1198,8 @@ class _Translator:
             self.notes.append("no 'max jumps' setting; the horizon comes from 'time' alone")
         if self.flow_mode is None:
             return self._discrete(init_timers)
+        if len(self.region) > 1:
+            return self._hybrid(init_timers)
         return self._continuous(init_timers)
 
     def _property_edges(self, source: str) -> tuple:
@@ -1492,6 +1504,167 @@ class _Translator:
         loop = ClosedLoop(plant_obj, stages)
         self._jump_note(H - 1, end.max_jumps, pre.jumps, bool(finals))  # the prefix already enters the first flow
         return self._problem(loop, init, H, goal, safe, within, P)
+
+    def _through(self, R: set, first: str, last: str, timers: dict) -> tuple:
+        """The plant modes' time-triggered sequence from ``first`` (entered with ``timers``) to
+        ``last``: (timers on leaving ``last``, [(mode, timers on entry, dwell)])."""
+        node, t, seq = first, dict(timers), []
+        for _ in range(4 * len(R)):
+            dwell = self._dwell(node, t)
+            seq.append((node, dict(t), dwell))
+            t = {v: t[v] + self.timers[v][node] * dwell for v in t}
+            if node == last:
+                return t, seq
+            inner = [j for j in self.out[node] if j.dst in R]
+            fire = []
+            for j in inner:
+                if any(not (_ast_vars(l, set()) | _ast_vars(r, set())) <= set(self.timers) for l, _, r, _ in j.guard):
+                    raise self.src.error(j.pos, f"jump {j.src} -> {j.dst} between plant modes has a state guard; only clock-triggered jumps between plant modes are supported")
+                if self._timer_holds(j.guard, _Path({}, t)):
+                    fire.append(j)
+            if len(fire) != 1:
+                raise self.src.error(self.modes[node].pos, f"plant mode '{node}' must leave by exactly one jump into the next plant mode when its clock runs out, found {len(fire)}")
+            j = fire[0]
+            for v, ast in j.reset.items():
+                if v in self.timers:
+                    kind, c = self._timer_reset(v, ast)
+                    t[v] = c if kind == "set" else t[v] + c
+            node = j.dst
+        raise self.src.error(self.modes[first].pos, f"the plant modes from '{first}' never reach '{last}'")
+
+    def _conditions(self, atoms: list, where: str) -> list:
+        """Constraint atoms as conditions over the variables ('=' as two)."""
+        out = []
+        for lhs, op, rhs, pos in atoms:
+            lv, rv = (_build(self.src, a, lambda n, p: Expr.var(n)) for a in (lhs, rhs))
+            for o in (["<=", ">="] if op == "=" else [op]):
+                c = _condition(lv, o, rv)
+                if c is False:
+                    raise self.src.error(pos, f"{where}: the constraint never holds")
+                if c is not True:
+                    out.append(c)
+        return out
+
+    def _hybrid(self, init_timers: dict) -> VerisigProblem:
+        """A period through several plant modes (Verisig 2.0's quadrotor MPC: one mode per
+        segment), as a :class:`Hybrid` plant: the plant modes with their invariants, the clocked
+        jumps between them and the jumps back to the networks (which end the period)."""
+        aut = self.aut
+        R = set(self.region)
+        entering = {j.dst for j in aut.jumps if j.dst in R and j.src not in R}
+        leaving = [j for j in aut.jumps if j.src in R and j.dst not in R and j.dst not in self.terminal]
+        if len(entering) != 1 or len({j.src for j in leaving}) != 1:
+            raise self.src.error(self.modes[self.region[0]].pos, f"the plant modes {', '.join(self.region)} must be entered through one mode and left "
+                                                                 f"(back to the networks) from one mode")
+        first, last = entering.pop(), leaving[0].src
+        if any(j.dst in R for j in self.out[last]):
+            raise self.src.error(self.modes[last].pos, f"plant mode '{last}' leaves to the networks and to plant modes; not supported")
+        plant = [v for v in self.vars if v not in self.timers and any(self._const(self.modes[m].ode.get(v, ("num", 0.0))) != 0.0 for m in R)]
+        plant_set = set(plant)
+        if aut.init_mode in R:
+            raise self.src.error(aut.init_pos, f"the run starts in the plant mode '{aut.init_mode}'; start before the controller (as Verisig's generated files do)")
+        pre = self._run(aut.init_mode, _Path(dict(self.sym), dict(init_timers)), first, plant_set)
+        pre_calls = self.calls
+        for v in plant:
+            if pre.env[v] is not self.sym[v]:
+                raise self.src.error(aut.init_pos, f"the jumps before the first flow change the plant state '{v}'; not supported")
+        self._check_entry_clock(pre.timers, first)
+        entry0 = pre.timers
+        exit0, seq = self._through(R, first, last, entry0)
+        period = sum(d for _, _, d in seq)
+        self.flow_mode = last  # the networks' part of the period starts where the plant modes end
+        end = self._cycle(last, first, exit0, plant_set)
+        self._check_entry_clock(end.timers, first)
+        for v in plant:
+            if end.env[v] is not self.sym[v]:
+                raise self.src.error(self.modes[first].pos, f"the jumps between the plant modes' visits change the plant state '{v}'; not supported")
+        self._same_controller(pre_calls, pre.env, self.calls, end.env, plant)
+        calls = self.calls
+        H = self._steps(end.elapsed + period, end.max_jumps + len(seq) - 1, pre.jumps)
+        entries = [dict(entry0)]
+        for _ in range(H):
+            out_t, _ = self._through(R, first, last, entries[-1])
+            entries.append({v: out_t[v] + e.c if isinstance(e := end.timers[v], _Rel) else e for v in self.timers})
+        inner = [j for j in aut.jumps if j.src in R and j.dst in R]
+        # Clocks the plant modes test become states of the plant; each period must enter them at the same values.
+        tested = set()
+        for m in R:
+            for lhs, _, rhs, _ in self.modes[m].inv:
+                tested |= _ast_vars(lhs, set()) | _ast_vars(rhs, set())
+        for j in inner + leaving:
+            for lhs, _, rhs, _ in j.guard:
+                tested |= _ast_vars(lhs, set()) | _ast_vars(rhs, set())
+        clocks = [v for v in self.vars if v in self.timers and v in tested]
+        for v in clocks:
+            if any(abs(e[v] - entry0[v]) > _TOL for e in entries):
+                raise ParseError(f"{self.src.path}: the clock '{v}' enters the plant mode '{first}' at different values in different periods; not supported")
+        read = set()
+        for m in R:
+            for v in plant:
+                read |= _ast_vars(self.modes[m].ode.get(v, ("num", 0.0)), set())
+        read |= tested
+        for j in inner:
+            for ast in j.reset.values():
+                read |= _ast_vars(ast, set())
+        if read & set(self.timers) - set(clocks):
+            raise self.src.error(self.modes[first].pos, f"the plant modes read the counters {sorted(read & set(self.timers) - set(clocks))}; not supported")
+        inputs, params = [], []
+        for v in self.vars:
+            if v in read and v not in plant_set and v not in self.timers:
+                (params if end.env[v] is self.sym[v] else inputs).append(v)
+        states = plant + params + clocks
+        state_set = set(states)
+        build = lambda ast: _build(self.src, ast, lambda n, p: Expr.var(n))  # noqa: E731
+        modes = {}
+        for m in self.region:
+            mode = self.modes[m]
+            rhs = {v: build(mode.ode.get(v, ("num", 0.0))) for v in plant + clocks}
+            modes[m] = Mode(rhs, invariant=self._conditions(mode.inv, f"invariant of '{m}'"))
+        jumps = []
+        for j in inner + leaving:
+            resets = {}
+            for v, ast in j.reset.items():
+                if v in state_set:
+                    resets[v] = build(ast)
+                elif j in inner:
+                    raise self.src.error(j.pos, f"jump {j.src} -> {j.dst} between plant modes assigns '{v}', which is not a plant state; not supported")
+            jumps.append(Jump(j.src, j.dst if j in inner else None, guard=self._conditions(j.guard, f"jump {j.src} -> {j.dst}"), reset=resets))
+        # The property: jumps into unsafe modes leave the last plant mode at the end of a period, or at any time.
+        unsafe, absorbing = self._property_edges(last)
+        at = _Path(dict(self.sym), {v: 0.0 for v in self.timers})
+        safe = [_negate(conds, self.src, None) for conds, _ in self.obligations]
+        finals = []
+        last_entries = [self._through(R, first, last, e)[1][-1][1] for e in entries[:H]] + [None]
+        for j in unsafe + absorbing:
+            if j in absorbing:
+                raise self.src.error(j.pos, f"jump {j.src} -> {j.dst} ends the run early (an absorbing goal) in a hybrid model; not supported")
+            timer_atoms, conds = self._edge_conditions(j, at)
+            dwell = seq[-1][2]
+            trig = self._flow_trigger(timer_atoms, last_entries, last, dwell, H)
+            ends = {n + 1 for n in range(H) if self._timer_holds(timer_atoms, _Path({}, self._through(R, first, last, entries[n])[0]))}
+            if trig != "always" and set(trig) != ends:
+                raise self.src.error(j.pos, f"jump {j.src} -> {j.dst} fires inside a period; only at the ends of periods or at all times is supported")
+            kind = self._classify(trig, f"jump {j.src} -> {j.dst}", j.pos, H)
+            if kind == "always":
+                safe.append(_negate(conds, self.src, j))
+            elif kind is not None:
+                finals.append((j, conds, kind[1]))
+        H = self._horizon(finals, safe, H)
+        goal, within = self._final_goal(finals, [], last)
+        for c in safe + ([goal] if goal is not None else []):
+            extra = set(c.margin().variables()) - state_set
+            if extra:
+                raise ParseError(f"{self.src.path}: the property reads {sorted(extra)}, which are not plant states")
+        stages, _ = self._stages(calls, state_set, {u: end.env[u] for u in inputs})
+        ordered = [v for v in self.vars if v in state_set]
+        init = {**self._init_box([v for v in ordered if v not in clocks]), **{v: (entry0[v], entry0[v]) for v in clocks}}
+        init = {v: init[v] for v in ordered}
+        step = min(d for _, _, d in seq if d > _TOL) / 10
+        hybrid = Hybrid(modes, jumps, inputs=inputs, start=first, max_time=2 * period, step=step, max_jumps=4 * len(seq))
+        loop = ClosedLoop(hybrid, stages)
+        self.notes.append(f"plant modes {' -> '.join(m for m, _, _ in seq)} per period, verified as a hybrid plant (Taylor models through the jumps)")
+        self._jump_note(H - 1, end.max_jumps + len(seq) - 1, pre.jumps, bool(finals))
+        return self._problem(loop, init, H, goal, safe, within, period)
 
     def _check_entry_clock(self, timers: dict, F: str):
         for lhs, op, rhs, pos in self.modes[F].inv:

@@ -40,7 +40,10 @@ def fingerprint(loop: ClosedLoop, prop: Property, settings: dict) -> str:
     be exponentially long when subexpressions are shared)."""
     h = hashlib.sha256()
     plant = loop.plant
-    equations = plant.update if hasattr(plant, "update") else plant.rhs + [plant.period, plant.step, plant.remainder]
+    if hasattr(plant, "modes"):
+        equations = plant.expressions() + [repr(plant.signature())]
+    else:
+        equations = plant.update if hasattr(plant, "update") else plant.rhs + [plant.period, plant.step, plant.remainder]
     h.update(repr((loop.states, loop.env_names, [_expr_hash(e) for e in equations])).encode())
     for stage in loop.stages:
         if stage.is_network:
