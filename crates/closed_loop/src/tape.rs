@@ -30,6 +30,8 @@ pub(crate) fn symbol_states(lp: &ClosedLoop, settings: &CellSettings) -> Vec<usi
             let deps = ode.program.dependencies();
             states.filter(|&i| steers(lp, &deps, i)).collect()
         }
+        // Jumps and guards are decided on the state's models over the cell's variables only.
+        Plant::Hybrid { .. } => vec![],
     }
 }
 
