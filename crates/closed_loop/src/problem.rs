@@ -47,7 +47,7 @@ impl Condition {
     /// flowpipe segment). Decided with a margin of 1e-9 steps towards applying: checking a
     /// condition where it need not hold is only stricter, missing one where it must is unsound.
     pub fn applies(&self, from: f64, to: f64) -> bool {
-        self.window.map_or(true, |(lo, hi)| to >= lo - 1e-9 && from <= hi + 1e-9)
+        self.window.is_none_or(|(lo, hi)| to >= lo - 1e-9 && from <= hi + 1e-9)
     }
 
     /// Whether the condition applies on the flowpipe segment [t0, t1] of period `step`: where
@@ -89,7 +89,15 @@ impl Plant {
 
     /// A hybrid plant integrated like [`Plant::continuous`]; a period fails if a run flows for
     /// longer than `max_time` or takes more than `max_jumps` jumps.
-    pub fn hybrid(automaton: Automaton, start: usize, inputs: Vec<usize>, max_time: f64, step: f64, remainder: f64, max_jumps: usize) -> Plant {
+    pub fn hybrid(
+        automaton: Automaton,
+        start: usize,
+        inputs: Vec<usize>,
+        max_time: f64,
+        step: f64,
+        remainder: f64,
+        max_jumps: usize,
+    ) -> Plant {
         let flow = flow_settings(automaton.names.len(), step, remainder);
         Plant::Hybrid { automaton: Arc::new(automaton), start, inputs, flow, max_time, max_jumps }
     }
@@ -138,7 +146,11 @@ impl ClosedLoop {
                 Component::Expr(p) => p.inputs.len(),
             };
             if want != stage.inputs.len() {
-                return Err(ReachError::input(format!("stage {}: the component takes {want} inputs but {} are wired to it", k + 1, stage.inputs.len())));
+                return Err(ReachError::input(format!(
+                    "stage {}: the component takes {want} inputs but {} are wired to it",
+                    k + 1,
+                    stage.inputs.len()
+                )));
             }
             env += stage.n_out();
         }

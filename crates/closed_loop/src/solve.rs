@@ -6,7 +6,7 @@ use crate::problem::ClosedLoop;
 use crate::settings::CellSettings;
 use crate::split::{precise, restrict_half, split_variable, End, Piece};
 use crate::step::{advance, box_models};
-use crate::tape::{symbol_states, sums, OnTape, Tape};
+use crate::tape::{sums, symbol_states, OnTape, Tape};
 use rayon::prelude::*;
 use std::time::Instant;
 use taylor::error_symbols::ErrorSymbols;
@@ -15,7 +15,18 @@ use taylor::{Interval, TaylorModel};
 /// Runs one cell: the initial box `cell` (one interval per state variable).
 pub fn verify_cell(lp: &ClosedLoop, cell: &[Interval], settings: &CellSettings) -> CellOutcome {
     let started = Instant::now();
-    let mut out = CellOutcome { verdict: Verdict::Unknown, reason: None, steps_done: 0, deepest_step: 0, boxes: Vec::new(), seconds: 0.0, nn_seconds: 0.0, branches: 0, replayed: 0, split: None };
+    let mut out = CellOutcome {
+        verdict: Verdict::Unknown,
+        reason: None,
+        steps_done: 0,
+        deepest_step: 0,
+        boxes: Vec::new(),
+        seconds: 0.0,
+        nn_seconds: 0.0,
+        branches: 0,
+        replayed: 0,
+        split: None,
+    };
     if let Err(e) = run(lp, cell, settings, &mut out, started) {
         out.verdict = Verdict::Unknown;
         out.reason = Some(e.to_string());
@@ -56,7 +67,8 @@ pub(crate) fn run(lp: &ClosedLoop, cell: &[Interval], settings: &CellSettings, o
     while let Some(mut piece) = work.pop() {
         let forks = settings.max_splits.saturating_sub(splits);
         let mut on_tape = (!sums.is_empty()).then(|| {
-            let start: Vec<TaylorModel> = piece.state.iter().enumerate().filter(|(i, _)| !sums.contains(i)).map(|(_, m)| m.clone()).collect();
+            let start: Vec<TaylorModel> =
+                piece.state.iter().enumerate().filter(|(i, _)| !sums.contains(i)).map(|(_, m)| m.clone()).collect();
             let k = tapes.iter().position(|t| t.encloses(&start)).unwrap_or_else(|| {
                 tapes.push(Tape { start, steps: Vec::new() });
                 tapes.len() - 1
@@ -86,7 +98,8 @@ pub(crate) fn run(lp: &ClosedLoop, cell: &[Interval], settings: &CellSettings, o
                 // A piece lost after part of it reached the goal is split where that happened,
                 // along the variable that decides arrival, if its polynomial part still tells the
                 // arrived part apart there; otherwise where the enclosure was last precise.
-                let arrival = piece.arrival.take().filter(|a| precise(std::slice::from_ref(&a.margin), &symbols.domain.space, &|m| m.rem.width()));
+                let arrival =
+                    piece.arrival.take().filter(|a| precise(std::slice::from_ref(&a.margin), &symbols.domain.space, &|m| m.rem.width()));
                 let (history, v) = match arrival {
                     Some(arrival) => {
                         let v = split_variable(&[std::slice::from_ref(&arrival.margin)], &symbols.domain.space, symbols.nvars());
@@ -94,9 +107,13 @@ pub(crate) fn run(lp: &ClosedLoop, cell: &[Interval], settings: &CellSettings, o
                     }
                     None => {
                         let before = piece.history.iter().filter(|(s, _)| *s < step.max(1)).count().max(1);
-                        let at = piece.history[..before].iter().rposition(|(_, st)| precise(st, &space, &|m| symbols.error_width(m))).unwrap_or(0);
+                        let at = piece.history[..before]
+                            .iter()
+                            .rposition(|(_, st)| precise(st, &space, &|m| symbols.error_width(m)))
+                            .unwrap_or(0);
                         // The split state first; the later ones when it shows no dependence yet.
-                        let later: Vec<&[TaylorModel]> = piece.history[at..].iter().map(|(_, st)| &st[..]).chain([&piece.state[..]]).collect();
+                        let later: Vec<&[TaylorModel]> =
+                            piece.history[at..].iter().map(|(_, st)| &st[..]).chain([&piece.state[..]]).collect();
                         let v = split_variable(&later, &space, symbols.nvars());
                         piece.history.truncate(at + 1);
                         (piece.history, v)

@@ -21,7 +21,12 @@ pub(crate) struct Piece {
 }
 
 impl Piece {
-    pub(crate) fn new(step: usize, state: Vec<TaylorModel>, history: Vec<(usize, Vec<TaylorModel>)>, margins: Vec<(usize, TaylorModel)>) -> Piece {
+    pub(crate) fn new(
+        step: usize,
+        state: Vec<TaylorModel>,
+        history: Vec<(usize, Vec<TaylorModel>)>,
+        margins: Vec<(usize, TaylorModel)>,
+    ) -> Piece {
         Piece { step, state, history, arrival: None, margins }
     }
 }
@@ -183,7 +188,8 @@ pub(crate) fn arrived(margins: &[(usize, TaylorModel)], cmp: &Cmp, ctx: &Ctx) ->
 /// x_v stays as it is, not widened by the composition's rounding: the halves' parameters (a noise
 /// level) keep the models of their parent, so their pieces can share tapes ([`Tape`]).
 pub(crate) fn restrict_half(state: &[TaylorModel], v: usize, half: f64, ctx: &Ctx) -> Vec<TaylorModel> {
-    let args: Vec<TaylorModel> = (0..ctx.space.nvars).map(|w| if w == v { TaylorModel::affine(ctx, half, v, 0.5) } else { TaylorModel::var(ctx, w) }).collect();
+    let args: Vec<TaylorModel> =
+        (0..ctx.space.nvars).map(|w| if w == v { TaylorModel::affine(ctx, half, v, 0.5) } else { TaylorModel::var(ctx, w) }).collect();
     let reads_v = |m: &TaylorModel| m.coef.iter().enumerate().any(|(k, &c)| c != 0.0 && ctx.space.exponents(k)[v] > 0);
     state.iter().map(|m| if reads_v(m) { m.compose(&args, ctx) } else { m.clone() }).collect()
 }

@@ -24,7 +24,12 @@ pub(crate) fn decide(c: &Condition, state: &[TaylorModel], ctx: &Ctx) -> Result<
 
 /// Output Taylor models of a network in `ctx`; the Verisig route adds a time variable, which
 /// is evaluated at t = 1 and dropped again.
-pub(crate) fn apply_network(net: &Network, inputs: &[TaylorModel], symbols: &ErrorSymbols, settings: &CellSettings) -> Result<Vec<TaylorModel>> {
+pub(crate) fn apply_network(
+    net: &Network,
+    inputs: &[TaylorModel],
+    symbols: &ErrorSymbols,
+    settings: &CellSettings,
+) -> Result<Vec<TaylorModel>> {
     if settings.method == Method::Taylor {
         return Ok(propagate::propagate(net, &Models::from_state(inputs, symbols)?, &settings.nn)?.to_state(symbols));
     }
@@ -165,7 +170,10 @@ pub(crate) fn advance(
         let replayed = tape.as_ref().and_then(|t| t.replay(step));
         let fresh = replayed.is_none();
         out.replayed += usize::from(!fresh);
-        let nexts = match replayed.map(|next| Ok(Ok(vec![next]))).unwrap_or_else(|| one_step(lp, step, &piece.state, symbols, settings, forks, out, hulls)) {
+        let nexts = match replayed
+            .map(|next| Ok(Ok(vec![next])))
+            .unwrap_or_else(|| one_step(lp, step, &piece.state, symbols, settings, forks, out, hulls))
+        {
             Ok(Ok(nexts)) => nexts,
             // Bad input stops the cell; anything else loses only this piece.
             Err(e @ (ReachError::Input(_) | ReachError::Network(NetworkError::Input(_)))) => return Err(e),
@@ -180,10 +188,15 @@ pub(crate) fn advance(
             }
             let b: Vec<Interval> = next.iter().map(|m| m.bound(space)).collect();
             if let Some((i, w)) = b.iter().enumerate().find(|(_, w)| !w.is_bounded() || w.width() > settings.blow_up_width) {
-                let reason = format!("step {}: the enclosure of '{}' blew up ({w}); split the cell or raise the order", step + 1, lp.state_names[i]);
+                let reason =
+                    format!("step {}: the enclosure of '{}' blew up ({w}); split the cell or raise the order", step + 1, lp.state_names[i]);
                 return Ok(End::Lost { step: step + 1, reason });
             }
-            let next = if settings.rebox && next.iter().zip(&b).any(|(m, r)| m.rem.width() > 0.5 * r.width()) { box_models(&b, ctx) } else { next };
+            let next = if settings.rebox && next.iter().zip(&b).any(|(m, r)| m.rem.width() > 0.5 * r.width()) {
+                box_models(&b, ctx)
+            } else {
+                next
+            };
             let slot = &mut boxes[step + 1];
             *slot = Some(match slot.take() {
                 None => b,
@@ -194,7 +207,13 @@ pub(crate) fn advance(
         if states.len() > 1 {
             let forked = states
                 .into_iter()
-                .map(|state| Piece { step: step + 1, state, history: piece.history.clone(), arrival: piece.arrival.clone(), margins: piece.margins.clone() })
+                .map(|state| Piece {
+                    step: step + 1,
+                    state,
+                    history: piece.history.clone(),
+                    arrival: piece.arrival.clone(),
+                    margins: piece.margins.clone(),
+                })
                 .collect();
             return Ok(End::Forked(forked));
         }
@@ -273,7 +292,13 @@ pub(crate) fn one_step(
                 // Contracting the domain re-parameterises it, which the goal's margins kept across
                 // steps (`within`) could not follow.
                 let contract = if lp.goal_within { vec![] } else { (1..=symbols.domain.space.nvars).collect() };
-                let limits = taylor::hybrid::Limits { max_time: *max_time, max_jumps: *max_jumps, max_branches: crate::hybrid::BRANCHES, max_exits: most, contract };
+                let limits = taylor::hybrid::Limits {
+                    max_time: *max_time,
+                    max_jumps: *max_jumps,
+                    max_branches: crate::hybrid::BRANCHES,
+                    max_exits: most,
+                    contract,
+                };
                 match crate::hybrid::run_period(lp, step, automaton, *start, flow, limits, state, &held, ctx, hulls)? {
                     Ok(next) => next,
                     Err(reason) => return Ok(Err(reason)),

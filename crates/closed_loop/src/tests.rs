@@ -1,16 +1,16 @@
 //! The engine's own tests: loops whose runs are simulated in plain floats.
+use crate::outcome::{CellOutcome, Verdict};
 use crate::problem::{ClosedLoop, Component, Condition, Plant, Stage};
 use crate::settings::{CellSettings, Method};
-use crate::outcome::{CellOutcome, Verdict};
 use crate::solve::verify_cell;
 use nn2hybrid::network::{Activation, LayerArrays};
 use nn2hybrid::propagate::Settings as NnSettings;
 use nn2hybrid::Network;
 use std::sync::Arc;
 use taylor::expr::Intervals;
-use taylor::{Cmp, Interval, Program};
 use taylor::parser::parse_expr;
 use taylor::Expr;
+use taylor::{Cmp, Interval, Program};
 
 /// x+ = x + 0.1 v, v+ = v + 0.1 u, u = tanh(-g x - g v) over `steps` steps, safe while x <= 2.
 fn feedback_loop(gain: f64, steps: usize) -> (ClosedLoop, Network) {
@@ -182,7 +182,15 @@ fn a_sum_of_renewed_errors_encloses_simulations() {
     let exprs = ["0.8*y + x*y", "-0.8*x + x*y", "s + x"].map(|e| parse_expr(e).unwrap());
     let plant = Program::compile(&exprs, &names).unwrap();
     let steps = 25;
-    let lp = ClosedLoop { state_names: names, stages: vec![], plant: Plant::Discrete(Arc::new(plant.clone())), safe: vec![], goal: None, goal_within: false, steps };
+    let lp = ClosedLoop {
+        state_names: names,
+        stages: vec![],
+        plant: Plant::Discrete(Arc::new(plant.clone())),
+        safe: vec![],
+        goal: None,
+        goal_within: false,
+        steps,
+    };
     let cell = [Interval::new(0.3, 0.4).unwrap(), Interval::new(0.1, 0.2).unwrap(), Interval::point(0.0)];
     let out = verify_cell(&lp, &cell, &CellSettings { order: 1, cutoff: 0.0, ..loop_settings(true) });
     assert_eq!(out.steps_done, steps);
@@ -213,7 +221,15 @@ fn pieces_that_hit_a_wall_at_different_steps_replay_one_climb_inside_the_simulat
     let sum = Expr::binary(taylor::BinOp::Add, &s, &x);
     let plant = Program::compile(&[at_wall(&zero, &y), at_wall(&zero, &v1), sum], &names).unwrap();
     let steps = 30;
-    let lp = ClosedLoop { state_names: names, stages: vec![], plant: Plant::Discrete(Arc::new(plant.clone())), safe: vec![], goal: None, goal_within: false, steps };
+    let lp = ClosedLoop {
+        state_names: names,
+        stages: vec![],
+        plant: Plant::Discrete(Arc::new(plant.clone())),
+        safe: vec![],
+        goal: None,
+        goal_within: false,
+        steps,
+    };
     let cell = [Interval::new(0.5, 1.2).unwrap(), Interval::point(-0.3), Interval::point(0.0)];
     let out = verify_cell(&lp, &cell, &CellSettings { max_splits: 16, ..loop_settings(false) });
     assert_eq!(out.verdict, Verdict::Verified, "{:?}", out.reason);
@@ -240,7 +256,15 @@ fn deepest_step_is_where_a_part_gave_up() {
     let plant = Program::compile(&[update], &names).unwrap();
     let margin = Arc::new(Program::compile(&[parse_expr("x + 5").unwrap()], &names).unwrap());
     let late = Condition { margin, cmp: Cmp::Le, label: "x <= -5 at step 20".into(), window: Some((20.0, 20.0)) };
-    let lp = ClosedLoop { state_names: names, stages: vec![], plant: Plant::Discrete(Arc::new(plant)), safe: vec![late], goal: None, goal_within: false, steps: 20 };
+    let lp = ClosedLoop {
+        state_names: names,
+        stages: vec![],
+        plant: Plant::Discrete(Arc::new(plant)),
+        safe: vec![late],
+        goal: None,
+        goal_within: false,
+        steps: 20,
+    };
     let out = verify_cell(&lp, &[Interval::new(0.0, 1.0).unwrap()], &CellSettings { max_splits: 1, ..loop_settings(false) });
     assert_eq!(out.verdict, Verdict::Unknown, "{:?}", out.reason);
     assert!(out.reason.as_deref().unwrap_or("").starts_with("step 20:"), "{:?}", out.reason);

@@ -154,7 +154,11 @@ impl Smooth {
             Smooth::Tanh => Interval::point(2.0 * a).exp(),
         };
         let m = (e * (Interval::ONE - e).recip().unwrap_or(Interval::ENTIRE)).hi();
-        if *self == Smooth::Tanh { mul_up(2.0, m) } else { m }
+        if *self == Smooth::Tanh {
+            mul_up(2.0, m)
+        } else {
+            m
+        }
     }
 
     /// (M, ln M) of the saturated discs for each a in SATURATED, computed once.
@@ -372,7 +376,8 @@ enum Disc {
 /// afterwards.
 fn plan(f: Smooth, h: f64, distance: f64, tail: f64, degree: usize) -> Option<(usize, usize, Disc)> {
     let (ln_h, ln_tail) = (h.ln(), tail.ln());
-    let mut discs: Vec<(Disc, f64, f64)> = f.log_discs().iter().enumerate().map(|(i, &(ln_rho, ln_m))| (Disc::Fixed(i), ln_rho, ln_m)).collect();
+    let mut discs: Vec<(Disc, f64, f64)> =
+        f.log_discs().iter().enumerate().map(|(i, &(ln_rho, ln_m))| (Disc::Fixed(i), ln_rho, ln_m)).collect();
     for (k, (&a, &(_, ln_m))) in SATURATED.iter().zip(f.saturated()).enumerate() {
         let rho = distance + a;
         if rho > 0.0 {
@@ -494,7 +499,19 @@ mod tests {
     fn enclosures_hold_and_are_tight() {
         for f in [Smooth::Sigmoid, Smooth::Tanh] {
             // Ranges away from 0 take the saturated discs (see `Smooth::saturated_m`).
-            for &(lo, hi) in &[(-0.01, 0.02), (0.3, 1.1), (-2.0, 2.0), (-4.0, 4.0), (-1.0, 7.0), (5.0, 12.0), (-30.0, 25.0), (-9.0, -4.0), (2.5, 2.6), (-12.5, -10.0), (1.0, 4.0)] {
+            for &(lo, hi) in &[
+                (-0.01, 0.02),
+                (0.3, 1.1),
+                (-2.0, 2.0),
+                (-4.0, 4.0),
+                (-1.0, 7.0),
+                (5.0, 12.0),
+                (-30.0, 25.0),
+                (-9.0, -4.0),
+                (2.5, 2.6),
+                (-12.5, -10.0),
+                (1.0, 4.0),
+            ] {
                 for d in [1, 3, 5, 8] {
                     check(f, lo, hi, d);
                 }

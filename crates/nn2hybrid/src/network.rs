@@ -132,7 +132,12 @@ impl Network {
             let activations = match a.activations.len() {
                 1 => vec![a.activations[0]; a.n_out],
                 n if n == a.n_out => a.activations,
-                n => return shape("activations", format!("lists {n} activations for {} neurons; give one per neuron or one for the layer", a.n_out)),
+                n => {
+                    return shape(
+                        "activations",
+                        format!("lists {n} activations for {} neurons; give one per neuron or one for the layer", a.n_out),
+                    )
+                }
             };
             check_finite(&a.weight, index, "weight")?;
             check_finite(&a.bias, index, "bias")?;
@@ -145,7 +150,11 @@ impl Network {
         for (field, map) in [("output scale", &scale), ("output offset", &offset)] {
             if let Some(values) = map {
                 if values.len() != n_out {
-                    return Err(NetworkError::Shape { layer: last, field, problem: format!("has {} entries for {n_out} outputs", values.len()) });
+                    return Err(NetworkError::Shape {
+                        layer: last,
+                        field,
+                        problem: format!("has {} entries for {n_out} outputs", values.len()),
+                    });
                 }
                 check_finite(values, last, field)?;
             }
@@ -226,7 +235,13 @@ mod tests {
 
     #[test]
     fn forward_pass_uses_row_major_weights() {
-        let l = LayerArrays { n_out: 2, n_in: 2, weight: vec![1.0, 2.0, 3.0, 4.0], bias: vec![0.0, 1.0], activations: vec![Activation::Identity, Activation::Relu] };
+        let l = LayerArrays {
+            n_out: 2,
+            n_in: 2,
+            weight: vec![1.0, 2.0, 3.0, 4.0],
+            bias: vec![0.0, 1.0],
+            activations: vec![Activation::Identity, Activation::Relu],
+        };
         let net = Network::new(vec![l], Some(vec![2.0, 1.0]), Some(vec![0.0, -1.0])).unwrap();
         assert_eq!(net.eval(&[1.0, -1.0]).unwrap(), vec![-2.0, -1.0]);
         assert_eq!(net.eval(&[1.0, 1.0]).unwrap(), vec![6.0, 7.0]);

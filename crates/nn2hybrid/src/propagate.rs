@@ -41,9 +41,9 @@ use crate::network::{Activation, Layer, Network};
 use nalgebra::DMatrix;
 use rayon::prelude::*;
 use std::sync::Arc;
+use taylor::error_symbols::ErrorSymbols;
 use taylor::interval::{add_up, mul_up};
 use taylor::tm::{gamma, U};
-use taylor::error_symbols::ErrorSymbols;
 use taylor::{Ctx, Interval, Space, TaylorModel};
 
 /// Smallest subnormal: the absolute error a product may lose to underflow.
@@ -83,21 +83,41 @@ pub struct Settings {
 
 impl Default for Settings {
     fn default() -> Settings {
-        Settings { order: 5, cutoff: 1e-15, symbolic: true, max_symbols: 4096, symbol_min: 1e-4, max_vars: 4, narrow_symbols: Some(128), splits: vec![] }
+        Settings {
+            order: 5,
+            cutoff: 1e-15,
+            symbolic: true,
+            max_symbols: 4096,
+            symbol_min: 1e-4,
+            max_vars: 4,
+            narrow_symbols: Some(128),
+            splits: vec![],
+        }
     }
 }
 
 impl Settings {
     pub fn validate(&self) -> Result<()> {
         if self.order == 0 || self.order > taylor::space::MAX_ORDER {
-            return Err(NetworkError::input(format!("Taylor-model order must be between 1 and {}, got {}", taylor::space::MAX_ORDER, self.order)));
+            return Err(NetworkError::input(format!(
+                "Taylor-model order must be between 1 and {}, got {}",
+                taylor::space::MAX_ORDER,
+                self.order
+            )));
         }
         let valid = |x: f64, hi: f64| (0.0..hi).contains(&x);
         if !valid(self.cutoff, 1.0) || !valid(self.symbol_min, f64::INFINITY) {
-            return Err(NetworkError::input(format!("cutoff must be in [0, 1) and symbol_min >= 0, got {} and {}", self.cutoff, self.symbol_min)));
+            return Err(NetworkError::input(format!(
+                "cutoff must be in [0, 1) and symbol_min >= 0, got {} and {}",
+                self.cutoff, self.symbol_min
+            )));
         }
         if self.max_vars == 0 || self.max_vars > taylor::space::MAX_VARS - 1 {
-            return Err(NetworkError::input(format!("max_vars must be between 1 and {}, got {}", taylor::space::MAX_VARS - 1, self.max_vars)));
+            return Err(NetworkError::input(format!(
+                "max_vars must be between 1 and {}, got {}",
+                taylor::space::MAX_VARS - 1,
+                self.max_vars
+            )));
         }
         if let Some(&(i, p)) = self.splits.iter().find(|&&(_, p)| p == 0 || p > 4096) {
             return Err(NetworkError::input(format!("input {i} is split into {p} pieces; use 1 to 4096")));
@@ -248,7 +268,13 @@ impl Models {
 
     /// `split` turns a model of `ctx` into a polynomial of `domain` and `pinned` linear symbol
     /// coefficients.
-    fn from_parts(inputs: &[TaylorModel], ctx: &Ctx, domain: &Ctx, pinned: usize, split: &dyn Fn(TaylorModel) -> (TaylorModel, Vec<f64>)) -> Result<Models> {
+    fn from_parts(
+        inputs: &[TaylorModel],
+        ctx: &Ctx,
+        domain: &Ctx,
+        pinned: usize,
+        split: &dyn Fn(TaylorModel) -> (TaylorModel, Vec<f64>),
+    ) -> Result<Models> {
         if inputs.is_empty() {
             return Err(NetworkError::input("no input Taylor models given"));
         }
@@ -315,7 +341,8 @@ impl Models {
         let nv = old.nvars;
         let space = Space::get(nv + 1, 2 * self.ctx.order, old.unit_mask | 1 << nv)?;
         let m = space.len_upto(self.ctx.order);
-        let index: std::collections::HashMap<&[u8], usize> = (0..m).filter(|&k| space.exponent(k, nv) == 0).map(|k| (&space.exponents(k)[..nv], k)).collect();
+        let index: std::collections::HashMap<&[u8], usize> =
+            (0..m).filter(|&k| space.exponent(k, nv) == 0).map(|k| (&space.exponents(k)[..nv], k)).collect();
         let s = self.symbols();
         let mut coef = DMatrix::zeros(m + s, self.n());
         for i in 0..self.n() {
@@ -328,7 +355,16 @@ impl Models {
             }
         }
         let ctx = Ctx::new(space, self.ctx.order, self.ctx.cutoff);
-        Ok(Models { ctx, m, coef, own: None, rem: self.rem.clone(), variables: self.variables.clone(), time_var: Some(nv), pinned: self.pinned })
+        Ok(Models {
+            ctx,
+            m,
+            coef,
+            own: None,
+            rem: self.rem.clone(),
+            variables: self.variables.clone(),
+            time_var: Some(nv),
+            pinned: self.pinned,
+        })
     }
 
     /// Neuron i as a Taylor model: polynomial plus remainder plus the symbols' range.
@@ -380,7 +416,8 @@ impl Models {
         // error and the remainders together; the remainders' midpoints enter as W mid. (A
         // neuron's own symbol is part of its column C_j; its products g_j W_ij are exact to u.)
         let g = gamma(n_in);
-        let v: Vec<f64> = (0..n_in).map(|j| add_up(mul_up(g, add_up(abs_sum(self.column(j)), self.own_mag(j))), self.rem[j].radius())).collect();
+        let v: Vec<f64> =
+            (0..n_in).map(|j| add_up(mul_up(g, add_up(abs_sum(self.column(j)), self.own_mag(j))), self.rem[j].radius())).collect();
         let mids: Vec<f64> = self.rem.iter().map(|r| r.mid()).collect();
         let abs_mids: Vec<f64> = mids.iter().map(|m| m.abs()).collect();
         let mut out = self.product(layer);
@@ -403,7 +440,16 @@ impl Models {
                 Interval::symmetric(err)
             })
             .collect();
-        Ok(Models { ctx: self.ctx.clone(), m: self.m, coef: out, own: None, rem, variables: self.variables.clone(), time_var: self.time_var, pinned: self.pinned })
+        Ok(Models {
+            ctx: self.ctx.clone(),
+            m: self.m,
+            coef: out,
+            own: None,
+            rem,
+            variables: self.variables.clone(),
+            time_var: self.time_var,
+            pinned: self.pinned,
+        })
     }
 
     /// C W^T with the own symbols as rows of their own: the shared part is one dense product,
@@ -524,7 +570,10 @@ fn assemble(models: &Models, outs: Vec<NeuronOut>, settings: &Settings) -> Model
         .iter()
         .map(|o| {
             let r = o.error.radius();
-            settings.symbolic && o.symbolic && r > SYMBOL_FLOOR && r > settings.symbol_min * (o.poly.poly_bound(space).width() + o.error.width())
+            settings.symbolic
+                && o.symbolic
+                && r > SYMBOL_FLOOR
+                && r > settings.symbol_min * (o.poly.poly_bound(space).width() + o.error.width())
         })
         .collect();
     let mut coef = DMatrix::zeros(m + old, n);
@@ -554,7 +603,16 @@ fn assemble(models: &Models, outs: Vec<NeuronOut>, settings: &Settings) -> Model
         rem.push(r);
     }
     let own = new_symbol.contains(&true).then_some(own);
-    let mut out = Models { ctx: models.ctx.clone(), m, coef, own, rem, variables: models.variables.clone(), time_var: models.time_var, pinned: models.pinned };
+    let mut out = Models {
+        ctx: models.ctx.clone(),
+        m,
+        coef,
+        own,
+        rem,
+        variables: models.variables.clone(),
+        time_var: models.time_var,
+        pinned: models.pinned,
+    };
     cap_symbols(&mut out, settings.max_symbols);
     out
 }
@@ -725,16 +783,18 @@ fn smooth_neuron(f: Smooth, models: &Models, i: usize) -> NeuronOut {
     let delta = models.rem[i].inflate(symbols);
     let y = range + delta;
     let (image, slope) = image_and_derivative(f, y);
-    let constant = || NeuronOut { poly: TaylorModel::constant(image.mid()), sym_factor: 0.0, error: image - Interval::point(image.mid()), symbolic: true };
+    let constant = || NeuronOut {
+        poly: TaylorModel::constant(image.mid()),
+        sym_factor: 0.0,
+        error: image - Interval::point(image.mid()),
+        symbolic: true,
+    };
     if !y.is_bounded() {
         return constant();
     }
     let enc = enclose(f, range, ctx.order, TRUNCATION_SHARE * slope.mag() * delta.mag());
-    let mut poly = if enc.scale == 0.0 {
-        TaylorModel::constant(enc.coef[0])
-    } else {
-        compose(&enc.coef, enc.centre, enc.scale, &p.coef, ctx)
-    };
+    let mut poly =
+        if enc.scale == 0.0 { TaylorModel::constant(enc.coef[0]) } else { compose(&enc.coef, enc.centre, enc.scale, &p.coef, ctx) };
     let mut error = Interval::symmetric(enc.err) + poly.rem;
     poly.rem = Interval::ZERO;
     let mut sym_factor = 0.0;
@@ -1082,12 +1142,20 @@ mod tests {
         let mut weights = |n_out: usize, n_in: usize| (0..n_out * n_in).map(|_| noise(&mut state)).collect::<Vec<f64>>();
         let layers = vec![
             LayerArrays { n_out: wide, n_in: 2, weight: weights(wide, 2), bias: vec![0.1; wide], activations: vec![Activation::Sigmoid] },
-            LayerArrays { n_out: narrow, n_in: wide, weight: weights(narrow, wide), bias: vec![0.0; narrow], activations: vec![Activation::Tanh] },
+            LayerArrays {
+                n_out: narrow,
+                n_in: wide,
+                weight: weights(narrow, wide),
+                bias: vec![0.0; narrow],
+                activations: vec![Activation::Tanh],
+            },
         ];
         let net = Network::new(layers, None, None).unwrap();
         let settings = Settings { order: 3, symbol_min: 0.0, ..Settings::default() };
         let input = [Interval::new(-1.0, 1.0).unwrap(), Interval::new(0.5, 1.5).unwrap()];
-        let first = activate(&Models::from_box(&input, &settings, false).unwrap().affine(&net.layers()[0]).unwrap(), &net.layers()[0], &settings).unwrap();
+        let first =
+            activate(&Models::from_box(&input, &settings, false).unwrap().affine(&net.layers()[0]).unwrap(), &net.layers()[0], &settings)
+                .unwrap();
         assert!(first.own.is_some() && first.symbols() == wide, "every sigmoid neuron has its own symbol");
         (net, first)
     }
@@ -1138,7 +1206,8 @@ mod tests {
     /// and own symbol part of neuron i) over all symbol values in [-1, 1].
     fn support(models: &Models, w: &[f64]) -> f64 {
         let m = models.m;
-        let shared: f64 = (m..models.coef.nrows()).map(|k| w.iter().enumerate().map(|(i, wi)| wi * models.column(i)[k]).sum::<f64>().abs()).sum();
+        let shared: f64 =
+            (m..models.coef.nrows()).map(|k| w.iter().enumerate().map(|(i, wi)| wi * models.column(i)[k]).sum::<f64>().abs()).sum();
         shared + w.iter().enumerate().map(|(i, wi)| (wi * models.own_mag(i)).abs()).sum::<f64>()
     }
 

@@ -70,7 +70,9 @@ fn terms(n: usize, order: usize) -> usize {
 
 impl Mode {
     fn new(models: &Models, cutoff: f64) -> Result<Mode> {
-        let t = models.time_var().ok_or_else(|| NetworkError::input("Verisig propagation needs models with a time variable; build them with Models::with_time_var"))?;
+        let t = models.time_var().ok_or_else(|| {
+            NetworkError::input("Verisig propagation needs models with a time variable; build them with Models::with_time_var")
+        })?;
         let space = models.space();
         if t + 1 != space.nvars {
             return Err(NetworkError::input("the Verisig time variable must be the models' last variable"));
@@ -188,7 +190,10 @@ fn activate(models: &Models, layer: &Layer, index: usize, settings: &Settings) -
 fn verisig_settings(settings: &Settings) -> Result<Settings> {
     settings.validate()?;
     if 2 * settings.order > taylor::space::MAX_ORDER {
-        return Err(NetworkError::input(format!("the Verisig translation integrates at twice the order: use order <= {}", taylor::space::MAX_ORDER / 2)));
+        return Err(NetworkError::input(format!(
+            "the Verisig translation integrates at twice the order: use order <= {}",
+            taylor::space::MAX_ORDER / 2
+        )));
     }
     Ok(Settings { symbolic: false, ..settings.clone() })
 }
@@ -210,7 +215,11 @@ mod tests {
     use super::*;
 
     fn activation(f: Smooth, y: f64) -> f64 {
-        if f == Smooth::Sigmoid { 1.0 / (1.0 + (-y).exp()) } else { y.tanh() }
+        if f == Smooth::Sigmoid {
+            1.0 / (1.0 + (-y).exp())
+        } else {
+            y.tanh()
+        }
     }
 
     /// The neuron's enclosure for a = c + r x over x in [-1, 1] (one input and the time variable),

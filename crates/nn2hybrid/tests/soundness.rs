@@ -60,7 +60,17 @@ fn samples(rng: &mut Rng, net: &Network, bx: &[Interval], count: usize) -> Vec<V
             let x: Vec<f64> = bx
                 .iter()
                 .enumerate()
-                .map(|(i, b)| if k < 2 { if (k + i) % 2 == 0 { b.lo() } else { b.hi() } } else { rng.range(b.lo(), b.hi()) })
+                .map(|(i, b)| {
+                    if k < 2 {
+                        if (k + i) % 2 == 0 {
+                            b.lo()
+                        } else {
+                            b.hi()
+                        }
+                    } else {
+                        rng.range(b.lo(), b.hi())
+                    }
+                })
                 .collect();
             net.eval(&x).unwrap()
         })
@@ -94,7 +104,8 @@ const IDENTITY: Activation = Activation::Identity;
 fn direct_and_interval_bounds_contain_samples() {
     let mut rng = Rng(1);
     let shapes: [&[usize]; 5] = [&[2, 8, 1], &[3, 16, 16, 2], &[2, 50, 600, 3], &[4, 20, 20, 20, 20, 1], &[6, 32, 8]];
-    let kinds: [(&[Activation], bool); 5] = [(&[SIGMOID], false), (&[TANH], false), (&[RELU], false), (&[SIGMOID, TANH, RELU, IDENTITY], true), (&[TANH, RELU], false)];
+    let kinds: [(&[Activation], bool); 5] =
+        [(&[SIGMOID], false), (&[TANH], false), (&[RELU], false), (&[SIGMOID, TANH, RELU, IDENTITY], true), (&[TANH, RELU], false)];
     for shape in shapes {
         for (acts, mixed) in kinds {
             for radius in [1e-6, 1e-3, 0.05, 0.5] {
@@ -187,7 +198,8 @@ fn narrow_layers_and_truncated_activations_stay_sound() {
             let out = propagate::propagate_taylor_models(&net, &inputs, &ctx, &Settings { order: 4, ..Settings::default() }).unwrap();
             for _ in 0..3000 {
                 let a: Vec<f64> = (0..shape[0]).map(|_| rng.range(-1.0, 1.0)).collect();
-                let x: Vec<f64> = bx.iter().zip(&a).map(|(b, a)| b.mid() + 0.8 * b.radius() * a + rng.range(-0.2, 0.2) * b.radius()).collect();
+                let x: Vec<f64> =
+                    bx.iter().zip(&a).map(|(b, a)| b.mid() + 0.8 * b.radius() * a + rng.range(-0.2, 0.2) * b.radius()).collect();
                 let truth = net.eval(&x).unwrap();
                 let at: Vec<Interval> = a.iter().map(|&a| Interval::point(a)).collect();
                 for (j, model) in out.iter().enumerate() {

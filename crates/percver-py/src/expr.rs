@@ -4,7 +4,7 @@ use numpy::{PyArray2, PyReadonlyArray2, ToPyArray};
 use pyo3::prelude::*;
 use pyo3::types::PyAnyMethods;
 use taylor::expr::{FloatBatch, Intervals, TaylorModels};
-use taylor::{BinOp, Cmp, Ctx, Expr, Func, Interval, Program, Space, TaylorModel, TaylorError};
+use taylor::{BinOp, Cmp, Ctx, Expr, Func, Interval, Program, Space, TaylorError, TaylorModel};
 
 #[pyclass(name = "Expr", module = "percver._core", frozen)]
 #[derive(Clone)]
@@ -40,10 +40,7 @@ fn operand(value: &Bound<'_, PyAny>) -> PyResult<Expr> {
     if let Ok(v) = value.extract::<f64>() {
         return Ok(Expr::constant(finite(v, "constant")?));
     }
-    Err(pyo3::exceptions::PyTypeError::new_err(format!(
-        "expected an expression or a number, got {}",
-        value.get_type().name()?
-    )))
+    Err(pyo3::exceptions::PyTypeError::new_err(format!("expected an expression or a number, got {}", value.get_type().name()?)))
 }
 
 fn cond(lhs: &Expr, cmp: Cmp, rhs: &Bound<'_, PyAny>) -> PyResult<PyCondition> {
@@ -256,9 +253,7 @@ impl PyCondition {
         PyExpr(self.rhs.clone())
     }
     fn __bool__(&self) -> PyResult<bool> {
-        Err(pyo3::exceptions::PyTypeError::new_err(
-            "a symbolic condition has no truth value; use it in pv.where(...) or as a property",
-        ))
+        Err(pyo3::exceptions::PyTypeError::new_err("a symbolic condition has no truth value; use it in pv.where(...) or as a property"))
     }
     fn __repr__(&self) -> String {
         format!("{} {} {}", self.lhs.describe(1000), self.cmp.symbol(), self.rhs.describe(1000))
@@ -339,7 +334,14 @@ pub struct PyTaylorModels {
 
 #[pyfunction]
 #[pyo3(signature = (exprs, names, bounds, order=6, cutoff=0.0))]
-pub fn taylor_models(py: Python<'_>, exprs: Vec<PyExpr>, names: Vec<String>, bounds: Vec<(f64, f64)>, order: usize, cutoff: f64) -> PyResult<PyTaylorModels> {
+pub fn taylor_models(
+    py: Python<'_>,
+    exprs: Vec<PyExpr>,
+    names: Vec<String>,
+    bounds: Vec<(f64, f64)>,
+    order: usize,
+    cutoff: f64,
+) -> PyResult<PyTaylorModels> {
     let program = compile(&exprs, &names)?;
     let b = to_intervals(&bounds, &names)?;
     let space = Space::get(names.len(), order, 0).py_err()?;
@@ -368,7 +370,11 @@ impl PyTaylorModels {
         self.models.iter().map(|m| m.degree(&self.space)).collect()
     }
     /// Rigorous enclosures (lo, hi arrays, N x m) of the models at the given points of the box.
-    fn enclose<'py>(&self, py: Python<'py>, points: PyReadonlyArray2<'py, f64>) -> PyResult<(Bound<'py, PyArray2<f64>>, Bound<'py, PyArray2<f64>>)> {
+    fn enclose<'py>(
+        &self,
+        py: Python<'py>,
+        points: PyReadonlyArray2<'py, f64>,
+    ) -> PyResult<(Bound<'py, PyArray2<f64>>, Bound<'py, PyArray2<f64>>)> {
         let a = points.as_array();
         let nv = self.centre.len();
         if a.ncols() != nv {
@@ -385,7 +391,11 @@ impl PyTaylorModels {
             }
             // Normalised coordinates as intervals: (x - c) / r, enclosed.
             let z: Vec<Interval> = (0..nv)
-                .map(|v| ((Interval::point(a[(i, v)]) - Interval::point(self.centre[v])) * Interval::point(self.radius[v]).recip().unwrap_or(Interval::ENTIRE)).intersect(&Interval::SYMMETRIC))
+                .map(|v| {
+                    ((Interval::point(a[(i, v)]) - Interval::point(self.centre[v]))
+                        * Interval::point(self.radius[v]).recip().unwrap_or(Interval::ENTIRE))
+                    .intersect(&Interval::SYMMETRIC)
+                })
                 .collect();
             for (j, model) in self.models.iter().enumerate() {
                 let e = model.eval_interval(&self.space, &z);

@@ -49,9 +49,7 @@ pub fn flowpipe(
         "identity" => Precondition::Identity,
         "qr" => Precondition::Qr,
         other => {
-            return Err(crate::error::to_py(taylor::TaylorError::input(format!(
-                "unknown precondition '{other}' (use 'identity' or 'qr')"
-            ))))
+            return Err(crate::error::to_py(taylor::TaylorError::input(format!("unknown precondition '{other}' (use 'identity' or 'qr')"))))
         }
     };
     let settings = Settings {
@@ -159,14 +157,30 @@ impl PyFlowpipe {
         fp.final_state
             .iter()
             .map(|m| {
-                let terms = m.coef.iter().enumerate().filter(|(_, c)| **c != 0.0).map(|(i, &c)| (fp.space.exponents(i)[1..=n].to_vec(), c)).collect();
+                let terms = m
+                    .coef
+                    .iter()
+                    .enumerate()
+                    .filter(|(_, c)| **c != 0.0)
+                    .map(|(i, &c)| (fp.space.exponents(i)[1..=n].to_vec(), c))
+                    .collect();
                 (terms, (m.rem.lo(), m.rem.hi()))
             })
             .collect()
     }
     /// (c_i, r_i) of the map x0_i = c_i + r_i z_i from the normalised initial set.
     fn initial_map(&self) -> Vec<(f64, f64)> {
-        self.1.iter().map(|iv| if iv.lo() == iv.hi() { (iv.lo(), 0.0) } else { let m = iv.mid(); (m, (iv.hi() - m).max(m - iv.lo()).next_up()) }).collect()
+        self.1
+            .iter()
+            .map(|iv| {
+                if iv.lo() == iv.hi() {
+                    (iv.lo(), 0.0)
+                } else {
+                    let m = iv.mid();
+                    (m, (iv.hi() - m).max(m - iv.lo()).next_up())
+                }
+            })
+            .collect()
     }
     /// The final box with a chosen bounder: "dominated", "interval", "subdivision" (split
     /// pieces per variable) or "bernstein".

@@ -1,9 +1,9 @@
 //! `percver._core.Network`: the network IR and its sound bounds; the GIL is released while
 //! propagating (rayon works across neurons and pieces meanwhile).
 use crate::error::IntoPy;
-use numpy::{PyReadonlyArray1, PyReadonlyArray2};
 use nn2hybrid::propagate::{self, Models, Settings};
 use nn2hybrid::{verisig, Activation, LayerArrays, Network, NetworkError};
+use numpy::{PyReadonlyArray1, PyReadonlyArray2};
 use pyo3::prelude::*;
 use std::sync::Arc;
 use taylor::Interval;
@@ -35,7 +35,14 @@ fn pairs(bounds: &[Interval]) -> Vec<(f64, f64)> {
 }
 
 #[allow(clippy::too_many_arguments)]
-fn settings(order: usize, cutoff: f64, symbolic: bool, max_vars: usize, max_symbols: usize, splits: Vec<(usize, usize)>) -> PyResult<Settings> {
+fn settings(
+    order: usize,
+    cutoff: f64,
+    symbolic: bool,
+    max_vars: usize,
+    max_symbols: usize,
+    splits: Vec<(usize, usize)>,
+) -> PyResult<Settings> {
     let s = Settings { order, cutoff, symbolic, max_symbols, max_vars, splits, ..Settings::default() };
     s.validate().py_err()?;
     Ok(s)
@@ -50,16 +57,32 @@ impl PyNetwork {
     /// `layers`: (weight n_out x n_in, bias, activations: one name per neuron or one per layer).
     #[new]
     #[pyo3(signature = (layers, scale=None, offset=None))]
-    fn new(layers: Vec<(PyReadonlyArray2<'_, f64>, PyReadonlyArray1<'_, f64>, Vec<String>)>, scale: Option<Vec<f64>>, offset: Option<Vec<f64>>) -> PyResult<Self> {
+    fn new(
+        layers: Vec<(PyReadonlyArray2<'_, f64>, PyReadonlyArray1<'_, f64>, Vec<String>)>,
+        scale: Option<Vec<f64>>,
+        offset: Option<Vec<f64>>,
+    ) -> PyResult<Self> {
         let mut arrays = Vec::with_capacity(layers.len());
         for (index, (weight, bias, names)) in layers.iter().enumerate() {
             let w = weight.as_array();
             let activations = names
                 .iter()
-                .map(|n| Activation::from_name(n).ok_or_else(|| NetworkError::Shape { layer: index + 1, field: "activations", problem: format!("name the unknown activation '{n}'; use sigmoid, tanh, relu or identity") }))
+                .map(|n| {
+                    Activation::from_name(n).ok_or_else(|| NetworkError::Shape {
+                        layer: index + 1,
+                        field: "activations",
+                        problem: format!("name the unknown activation '{n}'; use sigmoid, tanh, relu or identity"),
+                    })
+                })
                 .collect::<Result<Vec<_>, _>>()
                 .py_err()?;
-            arrays.push(LayerArrays { n_out: w.nrows(), n_in: w.ncols(), weight: w.iter().copied().collect(), bias: bias.as_array().to_vec(), activations });
+            arrays.push(LayerArrays {
+                n_out: w.nrows(),
+                n_in: w.ncols(),
+                weight: w.iter().copied().collect(),
+                bias: bias.as_array().to_vec(),
+                activations,
+            });
         }
         Ok(PyNetwork(Arc::new(Network::new(arrays, scale, offset).py_err()?)))
     }
@@ -78,7 +101,19 @@ impl PyNetwork {
     /// `leaves` > 1 refines a box's Taylor bounds by branch and bound on the input.
     #[pyo3(signature = (input, method="taylor", order=5, cutoff=1e-15, symbolic=true, max_vars=4, max_symbols=4096, splits=vec![], leaves=1))]
     #[allow(clippy::too_many_arguments)]
-    fn bounds(&self, py: Python<'_>, input: Input<'_>, method: &str, order: usize, cutoff: f64, symbolic: bool, max_vars: usize, max_symbols: usize, splits: Vec<(usize, usize)>, leaves: usize) -> PyResult<Vec<(f64, f64)>> {
+    fn bounds(
+        &self,
+        py: Python<'_>,
+        input: Input<'_>,
+        method: &str,
+        order: usize,
+        cutoff: f64,
+        symbolic: bool,
+        max_vars: usize,
+        max_symbols: usize,
+        splits: Vec<(usize, usize)>,
+        leaves: usize,
+    ) -> PyResult<Vec<(f64, f64)>> {
         let net = self.0.clone();
         let s = settings(order, cutoff, symbolic, max_vars, max_symbols, splits)?;
         let result = match input {
@@ -106,7 +141,17 @@ impl PyNetwork {
     /// The output Taylor models over a box (or over earlier models), to propagate further.
     #[pyo3(signature = (input, method="taylor", order=5, cutoff=1e-15, symbolic=true, max_vars=4, max_symbols=4096))]
     #[allow(clippy::too_many_arguments)]
-    fn models(&self, py: Python<'_>, input: Input<'_>, method: &str, order: usize, cutoff: f64, symbolic: bool, max_vars: usize, max_symbols: usize) -> PyResult<PyNetworkModels> {
+    fn models(
+        &self,
+        py: Python<'_>,
+        input: Input<'_>,
+        method: &str,
+        order: usize,
+        cutoff: f64,
+        symbolic: bool,
+        max_vars: usize,
+        max_symbols: usize,
+    ) -> PyResult<PyNetworkModels> {
         let net = self.0.clone();
         let s = settings(order, cutoff, symbolic, max_vars, max_symbols, vec![])?;
         let verisig = match method {

@@ -68,7 +68,11 @@ fn lower(p: &TaylorModel, space: &Space) -> f64 {
                 let nr = (0.5 * delta * r).next_up();
                 let nc = if linear[v] > 0.0 { end + nr } else { end - nr };
                 // The new box must still contain the region [end, end +- delta r].
-                let covers = if linear[v] > 0.0 { nc - nr <= end && nc + nr >= end + delta * r } else { nc + nr >= end && nc - nr <= end - delta * r };
+                let covers = if linear[v] > 0.0 {
+                    nc - nr <= end && nc + nr >= end + delta * r
+                } else {
+                    nc + nr >= end && nc - nr <= end - delta * r
+                };
                 if covers {
                     boxes[v] = (nc, nr);
                     shrunk = true;
@@ -201,7 +205,10 @@ fn bernstein(full: &TaylorModel, full_space: &Arc<Space>) -> Result<Interval> {
     if used.is_empty() {
         return Ok(m.bound(space));
     }
-    let degree: Vec<usize> = used.iter().map(|&v| (0..m.coef.len()).filter(|&i| m.coef[i] != 0.0).map(|i| space.exponent(i, v) as usize).max().unwrap_or(0)).collect();
+    let degree: Vec<usize> = used
+        .iter()
+        .map(|&v| (0..m.coef.len()).filter(|&i| m.coef[i] != 0.0).map(|i| space.exponent(i, v) as usize).max().unwrap_or(0))
+        .collect();
     let size = degree.iter().try_fold(1usize, |s, d| s.checked_mul(d + 1).filter(|&q| q <= MAX_PIECES));
     let Some(size) = size else {
         return Err(TaylorError::input(format!(
@@ -211,13 +218,18 @@ fn bernstein(full: &TaylorModel, full_space: &Arc<Space>) -> Result<Interval> {
     // Over u in [0, 1]^n: x_v = 2 u_v - 1 for the symmetric variables.
     let all_unit = Space::get(space.nvars, space.order, (1u64 << space.nvars) - 1)?;
     let ctx = Ctx::new(all_unit.clone(), space.order, 0.0);
-    let args: Vec<TaylorModel> = (0..space.nvars).map(|v| if space.is_unit(v) { TaylorModel::var(&ctx, v) } else { TaylorModel::affine(&ctx, -1.0, v, 2.0) }).collect();
+    let args: Vec<TaylorModel> = (0..space.nvars)
+        .map(|v| if space.is_unit(v) { TaylorModel::var(&ctx, v) } else { TaylorModel::affine(&ctx, -1.0, v, 2.0) })
+        .collect();
     let q = compose_all(std::slice::from_ref(m), &args, &ctx).pop().expect("one model");
-    let strides: Vec<usize> = degree.iter().scan(1, |s, d| {
-        let here = *s;
-        *s *= d + 1;
-        Some(here)
-    }).collect();
+    let strides: Vec<usize> = degree
+        .iter()
+        .scan(1, |s, d| {
+            let here = *s;
+            *s *= d + 1;
+            Some(here)
+        })
+        .collect();
     let mut t = vec![Interval::ZERO; size];
     for (i, &c) in q.coef.iter().enumerate() {
         if c == 0.0 {
@@ -232,8 +244,9 @@ fn bernstein(full: &TaylorModel, full_space: &Arc<Space>) -> Result<Interval> {
     // Power to Bernstein basis one variable at a time: b_j = sum_{i<=j} C(j,i) / C(d,i) a_i.
     for (u, &d) in degree.iter().enumerate() {
         let s = strides[u];
-        let ratio: Vec<Vec<Interval>> = (0..=d).map(|j| (0..=j).map(|i| binomial(j, i) * binomial(d, i).recip().expect("C(d, i) >= 1")).collect()).collect();
-        for start in (0..size).filter(|&x| (x / s) % (d + 1) == 0) {
+        let ratio: Vec<Vec<Interval>> =
+            (0..=d).map(|j| (0..=j).map(|i| binomial(j, i) * binomial(d, i).recip().expect("C(d, i) >= 1")).collect()).collect();
+        for start in (0..size).filter(|&x| (x / s).is_multiple_of(d + 1)) {
             let a: Vec<Interval> = (0..=d).map(|i| t[start + i * s]).collect();
             for j in 0..=d {
                 t[start + j * s] = (0..=j).fold(Interval::ZERO, |acc, i| acc + ratio[j][i] * a[i]);
@@ -292,7 +305,12 @@ mod tests {
         let space = Space::get(3, 4, 1).unwrap();
         let ctx = Ctx::new(space.clone(), 4, 0.0);
         let (s, x, y) = (TaylorModel::var(&ctx, 0), TaylorModel::var(&ctx, 1), TaylorModel::var(&ctx, 2));
-        let mut p = x.scale(0.8).add(&y.scale(-0.3)).add(&x.mul(&y, &ctx).scale(0.5)).add(&x.square(&ctx).mul(&x, &ctx).scale(-0.4)).add(&s.mul(&y, &ctx).scale(0.2));
+        let mut p = x
+            .scale(0.8)
+            .add(&y.scale(-0.3))
+            .add(&x.mul(&y, &ctx).scale(0.5))
+            .add(&x.square(&ctx).mul(&x, &ctx).scale(-0.4))
+            .add(&s.mul(&y, &ctx).scale(0.2));
         p.rem = Interval::symmetric(1e-3);
         let models = vec![p.clone()];
         let naive = bound_all(&models, &space, Bounder::Interval).unwrap()[0];

@@ -73,13 +73,7 @@ impl ErrorSymbols {
                 }
             })
             .collect();
-        Ok(ErrorSymbols {
-            ctx: Ctx::new(full, order, cutoff),
-            domain: Ctx::new(dom, order, cutoff),
-            states,
-            to_full,
-            kind,
-        })
+        Ok(ErrorSymbols { ctx: Ctx::new(full, order, cutoff), domain: Ctx::new(dom, order, cutoff), states, to_full, kind })
     }
 
     pub fn count(&self) -> usize {
@@ -217,10 +211,12 @@ mod tests {
             seed = seed.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
             ((seed >> 11) as f64 / (1u64 << 53) as f64) * 2.0 - 1.0
         };
-        let mut runs: Vec<(f64, [f64; 2])> = (0..2000).map(|_| {
-            let z = uniform();
-            (z, [0.1 * z, 0.0])
-        }).collect();
+        let mut runs: Vec<(f64, [f64; 2])> = (0..2000)
+            .map(|_| {
+                let z = uniform();
+                (z, [0.1 * z, 0.0])
+            })
+            .collect();
         for _ in 0..30 {
             let step = |x: &[TaylorModel]| {
                 let mut y = vec![x[0].scale(c).sub(&x[1].scale(s)), x[0].scale(s).add(&x[1].scale(c))];
@@ -242,7 +238,8 @@ mod tests {
         }
         let w = |x: &[TaylorModel]| x[0].bound(&ctx.space).width();
         // The true hull of x: the rotated segment plus the 30 rotated error boxes (0.2585).
-        let exact = 0.2 * 9.0f64.cos().abs() + 2e-3 * (0..30).map(|k| (0.3 * k as f64).cos().abs() + (0.3 * k as f64).sin().abs()).sum::<f64>();
+        let exact =
+            0.2 * 9.0f64.cos().abs() + 2e-3 * (0..30).map(|k| (0.3 * k as f64).cos().abs() + (0.3 * k as f64).sin().abs()).sum::<f64>();
         assert!(w(&state) < 1.2 * exact, "symbols: {} against the true {exact}", w(&state));
         assert!(w(&boxed) > 10.0 * w(&state), "boxing: {} against {}", w(&boxed), w(&state));
         assert!(w(&boxed) > 2.0 * w(&state), "boxing: {} against {}", w(&boxed), w(&state));

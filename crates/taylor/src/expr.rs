@@ -71,7 +71,10 @@ pub enum Node {
     /// A constant known only to an interval (uncertain parameter), as in Flow*'s `[a, b]`. `id`
     /// is its identity: two parameters with the same range are different quantities, and a
     /// simulation draws each one's value by id ([`FloatBatch::parameters`]).
-    Uncertain { range: Interval, id: u64 },
+    Uncertain {
+        range: Interval,
+        id: u64,
+    },
     Var(String),
     Neg(Expr),
     Binary(BinOp, Expr, Expr),
@@ -79,7 +82,13 @@ pub enum Node {
     PowF(Expr, f64),
     Func(Func, Expr),
     /// `where(lhs cmp rhs, then, otherwise)`: piecewise definitions (limits, walls, modes).
-    Where { lhs: Expr, cmp: Cmp, rhs: Expr, then: Expr, otherwise: Expr },
+    Where {
+        lhs: Expr,
+        cmp: Cmp,
+        rhs: Expr,
+        then: Expr,
+        otherwise: Expr,
+    },
 }
 
 #[derive(Clone, Debug)]
@@ -137,13 +146,7 @@ impl Expr {
         Expr::new(Node::Func(f, a.clone()))
     }
     pub fn select(lhs: &Expr, cmp: Cmp, rhs: &Expr, then: &Expr, otherwise: &Expr) -> Expr {
-        Expr::new(Node::Where {
-            lhs: lhs.clone(),
-            cmp,
-            rhs: rhs.clone(),
-            then: then.clone(),
-            otherwise: otherwise.clone(),
-        })
+        Expr::new(Node::Where { lhs: lhs.clone(), cmp, rhs: rhs.clone(), then: then.clone(), otherwise: otherwise.clone() })
     }
     /// min(max(x, lo), hi)
     pub fn clip(&self, lo: &Expr, hi: &Expr) -> Expr {
@@ -255,9 +258,7 @@ impl Expr {
                 Node::PowI(a, n) => (5u8, go(a), n).hash(&mut s),
                 Node::PowF(a, r) => (6u8, go(a), r.to_bits()).hash(&mut s),
                 Node::Func(f, a) => (7u8, *f as u8, go(a)).hash(&mut s),
-                Node::Where { lhs, cmp, rhs, then, otherwise } => {
-                    (8u8, *cmp as u8, go(lhs), go(rhs), go(then), go(otherwise)).hash(&mut s)
-                }
+                Node::Where { lhs, cmp, rhs, then, otherwise } => (8u8, *cmp as u8, go(lhs), go(rhs), go(then), go(otherwise)).hash(&mut s),
             }
             let h = s.finish();
             memo.insert(key, h);
@@ -728,10 +729,28 @@ impl Algebra for TaylorModels<'_> {
             BinOp::Div => div_tm(a, b, self.ctx)?,
             BinOp::Min | BinOp::Max => {
                 let d = a.sub(b).bound(space);
-                let a_smaller = if d.hi() <= 0.0 { Some(true) } else if d.lo() >= 0.0 { Some(false) } else { None };
+                let a_smaller = if d.hi() <= 0.0 {
+                    Some(true)
+                } else if d.lo() >= 0.0 {
+                    Some(false)
+                } else {
+                    None
+                };
                 match (a_smaller, op == BinOp::Min) {
-                    (Some(s), true) => if s { a.clone() } else { b.clone() },
-                    (Some(s), false) => if s { b.clone() } else { a.clone() },
+                    (Some(s), true) => {
+                        if s {
+                            a.clone()
+                        } else {
+                            b.clone()
+                        }
+                    }
+                    (Some(s), false) => {
+                        if s {
+                            b.clone()
+                        } else {
+                            a.clone()
+                        }
+                    }
                     (None, min) => {
                         let (ra, rb) = (a.bound(space), b.bound(space));
                         let range = if min { ra.min(&rb) } else { ra.max(&rb) };
@@ -882,11 +901,7 @@ mod tests {
     fn vdp() -> (Expr, Expr) {
         let (x, y) = (Expr::var("x"), Expr::var("y"));
         let one = Expr::constant(1.0);
-        let fy = Expr::binary(
-            BinOp::Sub,
-            &Expr::binary(BinOp::Mul, &Expr::binary(BinOp::Sub, &one, &x.powi(2)), &y),
-            &x,
-        );
+        let fy = Expr::binary(BinOp::Sub, &Expr::binary(BinOp::Mul, &Expr::binary(BinOp::Sub, &one, &x.powi(2)), &y), &x);
         (y, fy)
     }
 
@@ -975,7 +990,8 @@ mod tests {
         let (a, b) = (Expr::uncertain(range), Expr::uncertain(range));
         let input = [TaylorModel::affine(&ctx, 0.5, 0, 0.5), TaylorModel::affine(&ctx, 0.5, 1, 0.5)];
         for (p, q) in [(sx, sy), (a.clone(), b)] {
-            let e = Expr::binary(BinOp::Add, &Expr::select(&p, Cmp::Le, &zero, &one, &none), &Expr::select(&q, Cmp::Le, &zero, &none, &one));
+            let e =
+                Expr::binary(BinOp::Add, &Expr::select(&p, Cmp::Le, &zero, &one, &none), &Expr::select(&q, Cmp::Le, &zero, &none, &one));
             let prog = Program::compile(&[e], &["x".into(), "y".into()]).unwrap();
             let mut found = plans(&prog, &input, &ctx);
             found.sort();
@@ -1000,7 +1016,7 @@ mod tests {
         assert_eq!(ids.len(), 2);
         assert_ne!(ids[0], ids[1]);
         // Equal ranges, different quantities: not merged, and the hash tells a + a from a + b.
-        let prog = Program::compile(&[sum.clone()], &[]).unwrap();
+        let prog = Program::compile(std::slice::from_ref(&sum), &[]).unwrap();
         assert_eq!(prog.ops.len(), 3);
         assert_ne!(sum.structural_hash(), Expr::binary(BinOp::Add, &a, &a).structural_hash());
         // A simulation draws each by id.

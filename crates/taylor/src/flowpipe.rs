@@ -10,6 +10,7 @@
 //!    is again an enclosure because the fixed point is in p + J);
 //! 4. the reach set over the step is the range of p + J; the state at the step end is
 //!    p(1, right(z)) + J by Taylor-model composition.
+//!
 //! Adaptive step halves on failure and grows by 1.1 after success, as in Flow*. Adaptive order
 //! raises the order on failure and keeps it: lowering it after each success (Flow*'s policy)
 //! was measured to let low-order truncation errors pile up until no order can recover.
@@ -37,7 +38,11 @@ impl Ode {
             return Err(TaylorError::input("an ODE needs at least one state variable"));
         }
         if names.len() != rhs.len() {
-            return Err(TaylorError::input(format!("{} state variables but {} right-hand sides; give one equation per variable", names.len(), rhs.len())));
+            return Err(TaylorError::input(format!(
+                "{} state variables but {} right-hand sides; give one equation per variable",
+                names.len(),
+                rhs.len()
+            )));
         }
         let mut seen = std::collections::HashSet::new();
         for n in &names {
@@ -92,7 +97,7 @@ impl Settings {
             _ => {}
         }
         match self.order {
-            OrderPolicy::Fixed(k) if k == 0 => return bad("order must be at least 1, got 0".into()),
+            OrderPolicy::Fixed(0) => return bad("order must be at least 1, got 0".into()),
             OrderPolicy::Adaptive { min, max } if min == 0 || max < min => {
                 return bad(format!("adaptive orders need 1 <= min <= max, got min {min}, max {max}"))
             }
@@ -233,7 +238,13 @@ pub fn reach(ode: &Ode, init: &[Interval], settings: &Settings, observer: &mut d
 /// (variable 0 must be a unit variable, free for time; `space.nvars` must exceed both m and
 /// the ODE's dimension). This is how a closed loop integrates its plant from a state that
 /// depends on the cell's variables.
-pub fn reach_from(ode: &Ode, state: Vec<TaylorModel>, space: &Arc<Space>, settings: &Settings, observer: &mut dyn FnMut(f64) -> bool) -> Result<Flowpipe> {
+pub fn reach_from(
+    ode: &Ode,
+    state: Vec<TaylorModel>,
+    space: &Arc<Space>,
+    settings: &Settings,
+    observer: &mut dyn FnMut(f64) -> bool,
+) -> Result<Flowpipe> {
     flow_from(ode, state, space, settings, &mut |t, _, _| observer(t), crate::bound::range)
 }
 
@@ -441,7 +452,7 @@ fn on_grid(h: f64, grid: f64) -> f64 {
 
 /// Bound of sum_j |d p / d x̂_j| shift_j over the domain, counting only monomials of degree
 /// >= `min_degree` (1: the whole gradient; 2: the gradient minus its linear part).
-/// |d/dx̂_j of c x^e| <= |c| e_j on the domain, since every monomial is bounded by 1 there.
+/// > |d/dx̂_j of c x^e| <= |c| e_j on the domain, since every monomial is bounded by 1 there.
 fn gradient_dot(m: &TaylorModel, space: &Space, shift: &[f64], min_degree: u8) -> f64 {
     let mut total = 0.0f64;
     for (i, &c) in m.coef.iter().enumerate() {

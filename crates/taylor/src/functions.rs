@@ -211,7 +211,8 @@ impl Func {
     /// An enclosure of phi^(k+1)(xi) / (k+1)! over xi in `x`.
     fn lagrange(&self, x: Interval, k: usize) -> Result<Interval> {
         let n = k + 1;
-        let inv_fact = (1..=n).try_fold(Interval::ONE, |f, j| Ok::<_, crate::error::TaylorError>(f * Interval::point(j as f64).recip()?))?;
+        let inv_fact =
+            (1..=n).try_fold(Interval::ONE, |f, j| Ok::<_, crate::error::TaylorError>(f * Interval::point(j as f64).recip()?))?;
         Ok(match self {
             Func::Exp => x.exp() * inv_fact,
             // log^(n)(x) / n! = (-1)^(n+1) / (n x^n)
@@ -222,7 +223,7 @@ impl Func {
             }
             // (1/x)^(n) / n! = (-1)^n / x^(n+1)
             Func::Recip => {
-                let s = if n % 2 == 0 { 1.0 } else { -1.0 };
+                let s = if n.is_multiple_of(2) { 1.0 } else { -1.0 };
                 Interval::point(s) * x.recip()?.powi(n as i32 + 1)?
             }
             Func::Sqrt => power_coefficient(0.5, n)? * x.powf(0.5 - n as f64)?,
@@ -291,7 +292,7 @@ fn power_coefficients(c: Interval, r: f64, k: usize) -> Result<Vec<Interval>> {
 
 /// x^r for real r: Taylor expansion of the power function (domain x > 0 unless r is integral).
 pub fn powf_tm(x: &TaylorModel, r: f64, ctx: &Ctx) -> Result<TaylorModel> {
-    if r == r.trunc() && r >= 0.0 && r < 1e6 {
+    if r == r.trunc() && (0.0..1e6).contains(&r) {
         return Ok(x.powi(r as u32, ctx));
     }
     if r == r.trunc() && r < 0.0 && r > -1e6 {
@@ -338,18 +339,8 @@ mod tests {
     use super::*;
     use crate::space::Space;
 
-    const ALL: [Func; 10] = [
-        Func::Exp,
-        Func::Log,
-        Func::Sqrt,
-        Func::Sin,
-        Func::Cos,
-        Func::Tan,
-        Func::Atan,
-        Func::Tanh,
-        Func::Sigmoid,
-        Func::Recip,
-    ];
+    const ALL: [Func; 10] =
+        [Func::Exp, Func::Log, Func::Sqrt, Func::Sin, Func::Cos, Func::Tan, Func::Atan, Func::Tanh, Func::Sigmoid, Func::Recip];
 
     #[test]
     fn every_function_encloses_sampled_values() {

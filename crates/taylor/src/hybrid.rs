@@ -86,7 +86,11 @@ impl Automaton {
         let bad = |m: String| Err(TaylorError::input(m));
         for mode in &self.modes {
             if mode.ode.names != self.names {
-                return bad(format!("mode '{}': its ODE must have the automaton's variables ({}) in order", mode.name, self.names.join(", ")));
+                return bad(format!(
+                    "mode '{}': its ODE must have the automaton's variables ({}) in order",
+                    mode.name,
+                    self.names.join(", ")
+                ));
             }
         }
         for (k, j) in self.jumps.iter().enumerate() {
@@ -153,7 +157,8 @@ pub fn run(aut: &Automaton, start: usize, state: Vec<TaylorModel>, space: &Arc<S
     while let Some(branch) = queue.pop_front() {
         let name = &aut.modes[branch.mode].name;
         if branch.jumps > limits.max_jumps {
-            out.failure = Some(format!("more than {} jumps (last into mode '{name}'); a Zeno run or a cycle that never exits", limits.max_jumps));
+            out.failure =
+                Some(format!("more than {} jumps (last into mode '{name}'); a Zeno run or a cycle that never exits", limits.max_jumps));
             return Ok(out);
         }
         let outgoing: Vec<&Jump> = aut.jumps.iter().filter(|j| j.source == branch.mode).collect();
@@ -241,7 +246,8 @@ fn visit(
         let mut t_prev = 0.0;
         let mut error = None;
         let fp = reach_from_steps(&mode.ode, start, space, &settings, &mut |t, seg, now| {
-            let window = Window { ode: &mode.ode, invariant: &mode.invariant, start: &prev, end: &now, seg, h: t - t_prev, space: &ctx.space };
+            let window =
+                Window { ode: &mode.ode, invariant: &mode.invariant, start: &prev, end: &now, seg, h: t - t_prev, space: &ctx.space };
             let step = (|| -> Result<bool> {
                 // The runs in the segment satisfy the invariant: what violates it is cut off.
                 if let Some(bounds) = contract_box(&seg.bounds, &mode.invariant)? {
@@ -297,10 +303,14 @@ fn visit(
 /// for where steps end: the flow goes on until the invariant is seen violated.
 fn dwell_hint(mode: &Mode, entry: &[TaylorModel], ctx: &Ctx) -> Result<Option<f64>> {
     let rhs = mode.ode.program.eval(&TaylorModels { ctx }, entry)?;
-    let clocks: Vec<usize> = (0..rhs.len()).filter(|&i| rhs[i].rem == Interval::ZERO && rhs[i].coef.iter().enumerate().all(|(k, &c)| c == if k == 0 { 1.0 } else { 0.0 })).collect();
+    let clocks: Vec<usize> = (0..rhs.len())
+        .filter(|&i| rhs[i].rem == Interval::ZERO && rhs[i].coef.iter().enumerate().all(|(k, &c)| c == if k == 0 { 1.0 } else { 0.0 }))
+        .collect();
     let mut best: Option<f64> = None;
     for c in &mode.invariant {
-        let margin = |state: &[TaylorModel]| -> Result<Interval> { Ok(crate::bound::range(&c.margin.eval(&TaylorModels { ctx }, state)?[0], &ctx.space)) };
+        let margin = |state: &[TaylorModel]| -> Result<Interval> {
+            Ok(crate::bound::range(&c.margin.eval(&TaylorModels { ctx }, state)?[0], &ctx.space))
+        };
         let m0 = margin(entry)?;
         let d = match c.cmp {
             Cmp::Le | Cmp::Lt => -m0.mid(),
@@ -380,7 +390,14 @@ impl Window<'_> {
 
 /// The lowest (`from_left`) or highest time of [a, b] whose neighbourhood is feasible, to the
 /// resolution of `depth` bisections; None if [a, b] is infeasible.
-fn edge(a: f64, b: f64, depth: usize, from_left: bool, feasible: &dyn Fn(f64, f64) -> Result<bool>, budget: &mut usize) -> Result<Option<f64>> {
+fn edge(
+    a: f64,
+    b: f64,
+    depth: usize,
+    from_left: bool,
+    feasible: &dyn Fn(f64, f64) -> Result<bool>,
+    budget: &mut usize,
+) -> Result<Option<f64>> {
     if *budget == 0 {
         return Ok(Some(if from_left { a } else { b }));
     }
@@ -445,7 +462,13 @@ fn contract(state: Vec<TaylorModel>, constraints: &[&Constraint], vars: &[usize]
     }
     // Bisection points are dyadic, so centre and radius are exact.
     let args: Vec<TaylorModel> = (0..space.nvars)
-        .map(|v| if vars.contains(&v) { TaylorModel::affine(ctx, domain[v].mid(), v, 0.5 * domain[v].width()) } else { TaylorModel::var(ctx, v) })
+        .map(|v| {
+            if vars.contains(&v) {
+                TaylorModel::affine(ctx, domain[v].mid(), v, 0.5 * domain[v].width())
+            } else {
+                TaylorModel::var(ctx, v)
+            }
+        })
         .collect();
     Ok(Some(state.iter().map(|m| m.compose(&args, ctx)).collect()))
 }
@@ -521,7 +544,8 @@ pub fn aggregate(states: &[Vec<TaylorModel>], space: &Space) -> Vec<TaylorModel>
             // s = ref.poly + (s.poly - ref.poly) + s.rem for every state s, the reference too.
             let poly = |m: &TaylorModel| TaylorModel { coef: m.coef.clone(), rem: Interval::ZERO };
             let base = poly(&reference[i]);
-            let rem = states.iter().fold(Interval::EMPTY, |acc, s| acc.hull(&(crate::bound::range(&poly(&s[i]).sub(&base), space) + s[i].rem)));
+            let rem =
+                states.iter().fold(Interval::EMPTY, |acc, s| acc.hull(&(crate::bound::range(&poly(&s[i]).sub(&base), space) + s[i].rem)));
             let kept = base.add_interval(rem);
             let hull = states.iter().fold(Interval::EMPTY, |acc, s| acc.hull(&crate::bound::range(&s[i], space)));
             if hull.width() < crate::bound::range(&kept, space).width() {
@@ -551,7 +575,13 @@ mod tests {
         Automaton {
             modes: vec![Mode { name: "fly".into(), ode, invariant: vec![c("x", Cmp::Ge), c("c - 0.6", Cmp::Le)] }],
             jumps: vec![
-                Jump { source: 0, target: Target::Mode(0), guard: vec![c("x", Cmp::Le), c("v", Cmp::Le)], reset: Some(program(&["x", "-0.8 * v", "c"], &names)), urgent: false },
+                Jump {
+                    source: 0,
+                    target: Target::Mode(0),
+                    guard: vec![c("x", Cmp::Le), c("v", Cmp::Le)],
+                    reset: Some(program(&["x", "-0.8 * v", "c"], &names)),
+                    urgent: false,
+                },
                 Jump { source: 0, target: Target::Exit, guard: vec![c("c - 0.6", Cmp::Ge)], reset: None, urgent: false },
             ],
             names,
@@ -587,7 +617,10 @@ mod tests {
             let hit = (2.0 * x0 / g).sqrt();
             let (vb, s) = (0.8 * g * hit, 0.6 - hit);
             let (x, v) = (vb * s - 0.5 * g * s * s, vb - g * s);
-            assert!(boxes.iter().any(|b| b[0].inflate(1e-9).contains(x) && b[1].inflate(1e-9).contains(v) && b[2].inflate(1e-9).contains(0.6)), "x0 {x0}: ({x}, {v}) not in {boxes:?}");
+            assert!(
+                boxes.iter().any(|b| b[0].inflate(1e-9).contains(x) && b[1].inflate(1e-9).contains(v) && b[2].inflate(1e-9).contains(0.6)),
+                "x0 {x0}: ({x}, {v}) not in {boxes:?}"
+            );
         }
         // Precise enough to be useful: the runs reach x in [0.39, 0.42], v in [2.08, 2.48].
         let hull = |i: usize| boxes.iter().fold(Interval::EMPTY, |a, b| a.hull(&b[i]));
@@ -607,7 +640,13 @@ mod tests {
         let aut = Automaton {
             modes: vec![mode("a", "x", "0.3"), mode("b", "-x", "0.2")],
             jumps: vec![
-                Jump { source: 0, target: Target::Mode(1), guard: vec![c("c - 0.3", Cmp::Ge)], reset: Some(program(&["x", "0"], &names)), urgent: false },
+                Jump {
+                    source: 0,
+                    target: Target::Mode(1),
+                    guard: vec![c("c - 0.3", Cmp::Ge)],
+                    reset: Some(program(&["x", "0"], &names)),
+                    urgent: false,
+                },
                 Jump { source: 1, target: Target::Exit, guard: vec![c("c - 0.2", Cmp::Ge)], reset: None, urgent: false },
             ],
             names,
@@ -618,7 +657,8 @@ mod tests {
         let mut s = settings(5);
         s.step = StepSize::Fixed(0.07); // does not divide 0.3 or 0.2
         s.remainder_estimate = vec![1e-3; 2];
-        let run = run(&aut, 0, init, &space, &s, &Limits { max_time: 1.0, max_jumps: 4, max_branches: 1, max_exits: 1, contract: vec![1] }).unwrap();
+        let run = run(&aut, 0, init, &space, &s, &Limits { max_time: 1.0, max_jumps: 4, max_branches: 1, max_exits: 1, contract: vec![1] })
+            .unwrap();
         assert!(run.failure.is_none(), "{:?}", run.failure);
         assert_eq!(run.exits.len(), 1);
         let x = run.exits[0][0].bound(&space);
@@ -644,7 +684,15 @@ mod tests {
                 jumps: vec![Jump { source: 0, target: Target::Exit, guard: guard.clone(), reset: None, urgent }],
                 names: names.clone(),
             };
-            let run = run(&aut, 0, init.clone(), &space, &s, &Limits { max_time: 2.0, max_jumps: 2, max_branches: 4, max_exits: 1, contract: vec![1] }).unwrap();
+            let run = run(
+                &aut,
+                0,
+                init.clone(),
+                &space,
+                &s,
+                &Limits { max_time: 2.0, max_jumps: 2, max_branches: 4, max_exits: 1, contract: vec![1] },
+            )
+            .unwrap();
             if !urgent {
                 assert!(run.failure.is_some_and(|f| f.contains("still in mode 'go'")));
                 continue;

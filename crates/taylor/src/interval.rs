@@ -74,9 +74,7 @@ impl Interval {
             return Err(TaylorError::input(format!("interval bound is NaN: [{lo}, {hi}]")));
         }
         if lo > hi {
-            return Err(TaylorError::input(format!(
-                "empty interval: lower bound {lo} is above upper bound {hi}; swap them"
-            )));
+            return Err(TaylorError::input(format!("empty interval: lower bound {lo} is above upper bound {hi}; swap them")));
         }
         if lo == f64::INFINITY || hi == f64::NEG_INFINITY {
             return Err(TaylorError::input(format!("interval [{lo}, {hi}] holds no real number")));
@@ -86,10 +84,7 @@ impl Interval {
 
     /// For internal use where `lo <= hi` holds by construction (NaN maps to the entire line).
     pub(crate) fn raw(lo: f64, hi: f64) -> Interval {
-        Interval {
-            lo: if lo.is_nan() { f64::NEG_INFINITY } else { lo },
-            hi: if hi.is_nan() { f64::INFINITY } else { hi },
-        }
+        Interval { lo: if lo.is_nan() { f64::NEG_INFINITY } else { lo }, hi: if hi.is_nan() { f64::INFINITY } else { hi } }
     }
 
     pub fn point(x: f64) -> Interval {

@@ -25,7 +25,7 @@ pub use error::{Result, TaylorError};
 pub use expr::{Algebra, BinOp, Cmp, Expr, Program};
 pub use flowpipe::{reach, Flowpipe, Ode, OrderPolicy, Segment, Settings, StepSize};
 pub use functions::Func;
-pub use precondition::Precondition;
 pub use interval::Interval;
+pub use precondition::Precondition;
 pub use space::Space;
 pub use tm::{Ctx, TaylorModel};

@@ -24,7 +24,11 @@ pub fn reduce(generators: &DMatrix<f64>, carried: bool) -> (DMatrix<f64>, Vec<f6
     let scale: Vec<f64> = (0..d)
         .map(|i| {
             let r = generators.row(i).abs().sum();
-            if r > 0.0 && r.is_finite() { 2f64.powi((r.log2().round() as i32).clamp(-1000, 1000)) } else { 1.0 }
+            if r > 0.0 && r.is_finite() {
+                2f64.powi((r.log2().round() as i32).clamp(-1000, 1000))
+            } else {
+                1.0
+            }
         })
         .collect();
     let scaled = DMatrix::from_fn(d, generators.ncols(), |i, k| generators[(i, k)] / scale[i]);
@@ -159,7 +163,11 @@ mod tests {
 
     #[test]
     fn every_candidate_encloses() {
-        let g = DMatrix::from_row_slice(3, 6, &[0.3, -0.2, 0.1, 0.05, 0.0, 0.0, 0.1, 0.4, -0.3, 0.0, 0.02, 0.0, -0.2, 0.1, 0.5, 0.0, 0.0, 0.01]);
+        let g = DMatrix::from_row_slice(
+            3,
+            6,
+            &[0.3, -0.2, 0.1, 0.05, 0.0, 0.0, 0.1, 0.4, -0.3, 0.0, 0.02, 0.0, -0.2, 0.1, 0.5, 0.0, 0.0, 0.01],
+        );
         for carried in [false, true] {
             let (a, slack) = reduce(&g, carried);
             assert!(contains_zonotope(&g, &a, &slack));

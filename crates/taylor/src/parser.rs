@@ -243,9 +243,9 @@ impl Parser<'_> {
                     arity(1)?;
                     Ok(Expr::func(f, &args[0]))
                 }
-                None => self.fail(&format!(
-                    "unknown function '{name}' (known: exp log sqrt sin cos tan atan tanh sigmoid abs min max clip)"
-                )),
+                None => {
+                    self.fail(&format!("unknown function '{name}' (known: exp log sqrt sin cos tan atan tanh sigmoid abs min max clip)"))
+                }
             },
         }
     }

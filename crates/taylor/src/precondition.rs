@@ -50,15 +50,7 @@ pub fn precondition(x: &[TaylorModel], extra: &[f64], kind: Precondition, ctx: &
     // y' = Q^T y, then scale each row into [-1, 1].
     let rotated: Vec<TaylorModel> = match kind {
         Precondition::Qr if space.nvars == n + 1 => (0..n)
-            .map(|i| {
-                (0..n).fold(TaylorModel::zero(), |acc, j| {
-                    if q[(j, i)] == 0.0 {
-                        acc
-                    } else {
-                        acc.add(&y[j].scale(q[(j, i)]))
-                    }
-                })
-            })
+            .map(|i| (0..n).fold(TaylorModel::zero(), |acc, j| if q[(j, i)] == 0.0 { acc } else { acc.add(&y[j].scale(q[(j, i)])) }))
             .collect(),
         _ => y,
     };

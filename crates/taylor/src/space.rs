@@ -47,14 +47,10 @@ impl Space {
     pub fn get(nvars: usize, order: usize, unit_mask: u64) -> Result<Arc<Space>> {
         static CACHE: OnceLock<Mutex<HashMap<(usize, usize, u64), Arc<Space>>>> = OnceLock::new();
         if nvars == 0 || nvars > MAX_VARS {
-            return Err(TaylorError::input(format!(
-                "a Taylor model needs between 1 and {MAX_VARS} variables, got {nvars}"
-            )));
+            return Err(TaylorError::input(format!("a Taylor model needs between 1 and {MAX_VARS} variables, got {nvars}")));
         }
         if order == 0 || order > MAX_ORDER {
-            return Err(TaylorError::input(format!(
-                "Taylor model order must be between 1 and {MAX_ORDER}, got {order}"
-            )));
+            return Err(TaylorError::input(format!("Taylor model order must be between 1 and {MAX_ORDER}, got {order}")));
         }
         let cache = CACHE.get_or_init(|| Mutex::new(HashMap::new()));
         let mut guard = cache.lock().unwrap_or_else(|e| e.into_inner());
@@ -97,9 +93,7 @@ impl Space {
             }
         }
         pair_start.push(pairs.len());
-        let nonneg = (0..len)
-            .map(|i| (0..nvars).all(|v| exps[i * nvars + v] % 2 == 0 || unit_mask >> v & 1 == 1))
-            .collect();
+        let nonneg = (0..len).map(|i| (0..nvars).all(|v| exps[i * nvars + v].is_multiple_of(2) || unit_mask >> v & 1 == 1)).collect();
         let mut times_var = vec![u32::MAX; len * nvars];
         let mut without_var = vec![0u32; len * nvars];
         for i in 0..len {

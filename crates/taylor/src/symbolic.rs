@@ -15,7 +15,7 @@ use crate::interval::{add_up, mul_up, Interval};
 use crate::tm::gamma;
 
 /// Smallest subnormal: the absolute error a float product may lose to underflow.
-const ETA: f64 = 4.9406564584124654e-324;
+const ETA: f64 = 5e-324;
 
 pub struct SymbolicRemainder {
     n: usize,
@@ -102,7 +102,8 @@ impl SymbolicRemainder {
             self.pending = mat_vec(phi, &p, n).iter().map(|x| x.mag()).collect();
         }
         let g = gamma(n);
-        let weight: Vec<f64> = phi.iter().zip(&b).map(|(x, &m)| add_up(mul_up(g, m.abs()), (x.hi() - m).max(m - x.lo()).next_up())).collect();
+        let weight: Vec<f64> =
+            phi.iter().zip(&b).map(|(x, &m)| add_up(mul_up(g, m.abs()), (x.hi() - m).max(m - x.lo()).next_up())).collect();
         for (m, j) in &mut self.terms {
             // v = |M| |J|, rounded up.
             let v: Vec<f64> = (0..n).map(|r| (0..n).fold(0.0, |s, c| add_up(s, mul_up(m[r * n + c].abs(), j[c].mag())))).collect();
@@ -177,7 +178,8 @@ mod tests {
         let n = 3;
         let centre = [1.02, 0.3, 0.0, -0.3, 0.98, 0.1, 0.05, 0.0, 1.01];
         let phi: Vec<Interval> = centre.iter().map(|&c| Interval::point(c).inflate(1e-3)).collect();
-        let boxes: Vec<Vec<Interval>> = (0..40).map(|k| (0..n).map(|i| Interval::point(1e-3 * (1 + (k + i) % 4) as f64).inflate(1e-5)).collect()).collect();
+        let boxes: Vec<Vec<Interval>> =
+            (0..40).map(|k| (0..n).map(|i| Interval::point(1e-3 * (1 + (k + i) % 4) as f64).inflate(1e-5)).collect()).collect();
         let mut r = SymbolicRemainder::new(n, 16);
         for b in &boxes {
             r.transform(&phi);

@@ -15,7 +15,7 @@ use std::sync::Arc;
 /// Unit roundoff of binary64.
 pub const U: f64 = 1.0 / 9007199254740992.0;
 /// Smallest subnormal: the absolute error a product may lose to underflow.
-const ETA: f64 = 4.9406564584124654e-324;
+const ETA: f64 = 5e-324;
 
 /// gamma_n = n u / (1 - n u), rounded up.
 pub fn gamma(n: usize) -> f64 {
@@ -252,10 +252,7 @@ impl TaylorModel {
             }
             trunc = add_up(trunc, mul_up(ai.abs(), suffix[lim]));
         }
-        let rounding = add_up(
-            mul_up(gamma(la.min(lb)), mul_up(abs_sum(a), suffix[0])),
-            ETA * (la as f64) * (lb as f64),
-        );
+        let rounding = add_up(mul_up(gamma(la.min(lb)), mul_up(abs_sum(a), suffix[0])), ETA * (la as f64) * (lb as f64));
         let (pa, pb) = (self.poly_bound(space), o.poly_bound(space));
         let rem = pa * o.rem + self.rem * pb + self.rem * o.rem;
         let mut t = TaylorModel { coef: c, rem: rem.inflate(add_up(trunc, rounding)) };
@@ -459,13 +456,7 @@ mod tests {
             state = state.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
             ((state >> 11) as f64) / ((1u64 << 53) as f64)
         };
-        (0..count)
-            .map(|_| {
-                (0..ctx.nvars())
-                    .map(|v| if ctx.space.is_unit(v) { next() } else { 2.0 * next() - 1.0 })
-                    .collect()
-            })
-            .collect()
+        (0..count).map(|_| (0..ctx.nvars()).map(|v| if ctx.space.is_unit(v) { next() } else { 2.0 * next() - 1.0 }).collect()).collect()
     }
 
     #[test]
