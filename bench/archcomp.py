@@ -52,21 +52,34 @@ def one(name: str, variant: str) -> dict:
     examples = module("_common")
     bench = module(name)
     loop, kwargs = bench.problem(variant)
-    settings = {k: v for k, v in kwargs.items() if k in ("split", "order", "max_splits", "steps", "rebox", "state_symbols", "timeout_per_cell")}
+    settings = {
+        k: v for k, v in kwargs.items() if k in ("split", "order", "max_splits", "steps", "rebox", "state_symbols", "timeout_per_cell")
+    }
     start, usage = time.perf_counter(), resource.getrusage(resource.RUSAGE_SELF)
     result = pv.verify(loop, progress=False, **kwargs)
     wall = time.perf_counter() - start
     end = resource.getrusage(resource.RUSAGE_SELF)
     cells = {v: sum(c.verdict == v for c in result.cells) for v in ("verified", "unknown", "falsified")}
-    row = {"verdict": result.verdict, "wall_s": round(wall, 2), "cpu_s": round(end.ru_utime - usage.ru_utime + end.ru_stime - usage.ru_stime, 2),
-           "sys_s": round(end.ru_stime - usage.ru_stime, 2), "cells": cells, "settings": settings}
+    row = {
+        "verdict": result.verdict,
+        "wall_s": round(wall, 2),
+        "cpu_s": round(end.ru_utime - usage.ru_utime + end.ru_stime - usage.ru_stime, 2),
+        "sys_s": round(end.ru_stime - usage.ru_stime, 2),
+        "cells": cells,
+        "settings": settings,
+    }
     unknown = [c for c in result.cells if c.verdict == "unknown"]
     if unknown:
         row["deepest_step"] = min(c.deepest_step for c in unknown)
         row["reason"] = unknown[0].reason
     if result.counterexample is not None:
         cex = result.counterexample
-        row["counterexample"] = {"initial": cex.initial, "step": cex.step, "violated": cex.violated, "replays": examples.replays(loop, cex, kwargs)}
+        row["counterexample"] = {
+            "initial": cex.initial,
+            "step": cex.step,
+            "violated": cex.violated,
+            "replays": examples.replays(loop, cex, kwargs),
+        }
     return row
 
 
@@ -94,14 +107,21 @@ def main():
         start = time.perf_counter()
         try:
             done = subprocess.run([sys.executable, __file__, "--one", key], capture_output=True, text=True, timeout=args.limit, check=False)
-            row = json.loads(done.stdout.strip().splitlines()[-1]) if done.returncode == 0 else {"verdict": "error", "error": done.stderr[-2000:]}
+            row = (
+                json.loads(done.stdout.strip().splitlines()[-1])
+                if done.returncode == 0
+                else {"verdict": "error", "error": done.stderr[-2000:]}
+            )
         except subprocess.TimeoutExpired:
             row = {"verdict": "timeout", "wall_s": round(time.perf_counter() - start, 2)}
         row.update(juliareach=expected, load_before=round(before, 2), date=datetime.date.today().isoformat())
         doc["benchmarks"][key] = row
         doc["machine"] = {"cpus": os.cpu_count(), "note": "shared with other agents; load_before is the 1-min load average"}
         RESULTS.write_text(json.dumps(doc, indent=1) + "\n")
-        print(f"  {row['verdict']} (JuliaReach: {expected}) {row.get('wall_s', '-')} s wall, {row.get('cpu_s', '-')} s CPU, cells {row.get('cells')}", flush=True)
+        print(
+            f"  {row['verdict']} (JuliaReach: {expected}) {row.get('wall_s', '-')} s wall, {row.get('cpu_s', '-')} s CPU, cells {row.get('cells')}",
+            flush=True,
+        )
 
 
 if __name__ == "__main__":

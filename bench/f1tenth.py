@@ -33,15 +33,27 @@ def probe(mode: str, noise_model: bool, width: float, lo: float = 0.75) -> dict:
     res = V.verify((lo, lo + width), cell=width, mode=mode, noise_model=noise_model, workers=1, progress=False, falsify=0)
     c = res.cells[0]
     widths = [[hi - lo for lo, hi in b] for b in c.boxes]
-    return {"mode": mode, "classifier": noise_model, "y1": [lo, lo + width], "verdict": c.verdict,
-            "steps_done": c.steps_done, "seconds": c.seconds, "seconds_per_step": c.seconds / max(c.steps_done, 1),
-            "nn_seconds": c.nn_seconds, "branches": c.branches, "reason": c.reason, "wall_s": time.perf_counter() - started,
-            "box_widths": {k: widths[k] for k in range(0, len(widths), 5)}}
+    return {
+        "mode": mode,
+        "classifier": noise_model,
+        "y1": [lo, lo + width],
+        "verdict": c.verdict,
+        "steps_done": c.steps_done,
+        "seconds": c.seconds,
+        "seconds_per_step": c.seconds / max(c.steps_done, 1),
+        "nn_seconds": c.nn_seconds,
+        "branches": c.branches,
+        "reason": c.reason,
+        "wall_s": time.perf_counter() - started,
+        "box_widths": {k: widths[k] for k in range(0, len(widths), 5)},
+    }
 
 
 def coverage_map(res) -> list:
-    return [[c.box["y1"][0], c.box["y1"][1], c.verdict, round(c.seconds, 3), c.branches, c.steps_done, c.reason]
-            for c in sorted(res.cells, key=lambda c: c.box["y1"][0])]
+    return [
+        [c.box["y1"][0], c.box["y1"][1], c.verdict, round(c.seconds, 3), c.branches, c.steps_done, c.reason]
+        for c in sorted(res.cells, key=lambda c: c.box["y1"][0])
+    ]
 
 
 def main():
@@ -64,25 +76,46 @@ def main():
             for noise_model in (False, True):
                 for width in (args.probe_width, V.PAPER_CELL):
                     r = probe(mode, noise_model, width)
-                    print(f"{mode:8s} classifier={noise_model!s:5s} width={width:g}: {r['verdict']} after {r['steps_done']} steps, "
-                          f"{r['seconds_per_step']:.3f} s/step, {r['branches']} branches; {r['reason']}")
+                    print(
+                        f"{mode:8s} classifier={noise_model!s:5s} width={width:g}: {r['verdict']} after {r['steps_done']} steps, "
+                        f"{r['seconds_per_step']:.3f} s/step, {r['branches']} branches; {r['reason']}"
+                    )
                     doc["probes"]["runs"].append(r)
         doc["probes"]["load_after"] = load()
     if not args.no_campaign:
         before = load()
-        res = V.verify(tuple(args.y1), cell=args.cell, workers=args.workers, journal=args.journal,
-                       max_splits=args.max_splits, falsify=args.falsify, sample=args.sample, mode="stepwise")
+        res = V.verify(
+            tuple(args.y1),
+            cell=args.cell,
+            workers=args.workers,
+            journal=args.journal,
+            max_splits=args.max_splits,
+            falsify=args.falsify,
+            sample=args.sample,
+            mode="stepwise",
+        )
         print(V.table(res))
         total = int(round((args.y1[1] - args.y1[0]) / args.cell))
         row = V.row(res)
-        doc["campaign"] = {"y1": args.y1, "cell": args.cell, "workers": args.workers, "max_splits": args.max_splits,
-                           "falsify": args.falsify, "sample": args.sample, "cells_in_range": total,
-                           "sampled_coverage": row["verified"] / row["intervals"],
-                           "projected_wall_s": row["wall_seconds"] * total / row["intervals"],
-                           "load_before": before, "load_after": load(), "row": row, "paper_row": V.PAPER_ROW,
-                           "published": V.published(), "table": V.table(res), "cells": coverage_map(res),
-                           "unknown_steps": np.bincount([c.steps_done for c in res.cells if c.verdict == "unknown"],
-                                                        minlength=V.STEPS + 1).tolist()}
+        doc["campaign"] = {
+            "y1": args.y1,
+            "cell": args.cell,
+            "workers": args.workers,
+            "max_splits": args.max_splits,
+            "falsify": args.falsify,
+            "sample": args.sample,
+            "cells_in_range": total,
+            "sampled_coverage": row["verified"] / row["intervals"],
+            "projected_wall_s": row["wall_seconds"] * total / row["intervals"],
+            "load_before": before,
+            "load_after": load(),
+            "row": row,
+            "paper_row": V.PAPER_ROW,
+            "published": V.published(),
+            "table": V.table(res),
+            "cells": coverage_map(res),
+            "unknown_steps": np.bincount([c.steps_done for c in res.cells if c.verdict == "unknown"], minlength=V.STEPS + 1).tolist(),
+        }
     OUT.write_text(json.dumps(doc, indent=1))
     print(f"-> {OUT}")
 

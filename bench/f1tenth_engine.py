@@ -30,10 +30,16 @@ def one(lo: float) -> dict:
     from percver.cases.f1tenth import verification as fv
 
     t = time.time()
-    cell = fv.verify((lo, lo + CELL), mode="engine", cell=CELL, rebox=True, max_splits=64, progress=False, workers=1,
-                     falsify=4).cells[0]
-    return {"y1": lo, "verdict": cell.verdict, "seconds": cell.seconds, "nn_seconds": cell.nn_seconds,
-            "branches": cell.branches, "wall": time.time() - t, "reason": cell.reason}
+    cell = fv.verify((lo, lo + CELL), mode="engine", cell=CELL, rebox=True, max_splits=64, progress=False, workers=1, falsify=4).cells[0]
+    return {
+        "y1": lo,
+        "verdict": cell.verdict,
+        "seconds": cell.seconds,
+        "nn_seconds": cell.nn_seconds,
+        "branches": cell.branches,
+        "wall": time.time() - t,
+        "reason": cell.reason,
+    }
 
 
 def full(cell: float, jobs: int, journal: str) -> dict:
@@ -44,10 +50,20 @@ def full(cell: float, jobs: int, journal: str) -> dict:
     result = fv.verify(cell=cell, workers=jobs, refine=True, min_width={"y1": CELL}, journal=journal, progress=True)
     table = fv.table(result)
     print(table)
-    cells = [{"y1": c.box["y1"], "verdict": c.verdict, "seconds": c.seconds, "branches": c.branches, "reason": c.reason}
-             for c in result.cells]
-    return {"row": fv.row(result), "cell": cell, "min_width": CELL, "table": table, "session_wall_seconds": time.time() - t,
-            "load_start": load0, "load_end": os.getloadavg(), "date": time.strftime("%Y-%m-%d %H:%M"), "cells": cells}
+    cells = [
+        {"y1": c.box["y1"], "verdict": c.verdict, "seconds": c.seconds, "branches": c.branches, "reason": c.reason} for c in result.cells
+    ]
+    return {
+        "row": fv.row(result),
+        "cell": cell,
+        "min_width": CELL,
+        "table": table,
+        "session_wall_seconds": time.time() - t,
+        "load_start": load0,
+        "load_end": os.getloadavg(),
+        "date": time.strftime("%Y-%m-%d %H:%M"),
+        "cells": cells,
+    }
 
 
 def main():
@@ -69,11 +85,16 @@ def main():
         rows = list(pool.map(one, [float(a) for a in starts]))
     wall = time.time() - t
     summary = {
-        "cells": len(rows), "verified": sum(r["verdict"] == "verified" for r in rows),
-        "avg_seconds": statistics.mean(r["seconds"] for r in rows), "avg_nn_seconds": statistics.mean(r["nn_seconds"] for r in rows),
-        "avg_branches": statistics.mean(r["branches"] for r in rows), "wall_seconds": wall,
+        "cells": len(rows),
+        "verified": sum(r["verdict"] == "verified" for r in rows),
+        "avg_seconds": statistics.mean(r["seconds"] for r in rows),
+        "avg_nn_seconds": statistics.mean(r["nn_seconds"] for r in rows),
+        "avg_branches": statistics.mean(r["branches"] for r in rows),
+        "wall_seconds": wall,
         "projected_full_range_wall_s": statistics.mean(r["seconds"] for r in rows) * 4000 / args.jobs,
-        "load_start": load0, "load_end": os.getloadavg(), "date": time.strftime("%Y-%m-%d"),
+        "load_start": load0,
+        "load_end": os.getloadavg(),
+        "date": time.strftime("%Y-%m-%d"),
     }
     doc = json.loads(OUT.read_text()) if OUT.exists() else {}
     OUT.write_text(json.dumps({**doc, "summary": summary, "rows": rows}, indent=1))

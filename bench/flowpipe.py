@@ -45,8 +45,22 @@ ROWS = {
     "laubloomis": ("tb_laubloomis", {"order": 5, "step": 0.025}, 3, 34.7, {"x4": 0.262}),
 }
 
-CLASSIC = ["Brusselator", "Lorentz", "Lotka_Volterra", "Roessler", "biology_I", "biology_II", "buckling_column",
-           "coupledVanderPol", "jet_engine", "lacoperon", "spring_pendulum", "vanderpol", "vanderpol_shipped", "wattSteam"]
+CLASSIC = [
+    "Brusselator",
+    "Lorentz",
+    "Lotka_Volterra",
+    "Roessler",
+    "biology_I",
+    "biology_II",
+    "buckling_column",
+    "coupledVanderPol",
+    "jet_engine",
+    "lacoperon",
+    "spring_pendulum",
+    "vanderpol",
+    "vanderpol_shipped",
+    "wattSteam",
+]
 
 
 def _widths(box: dict) -> dict:
@@ -60,10 +74,17 @@ def run(model, settings: dict, repeat: int, split: int) -> dict:
         t = time.process_time()
         fp = model.run(on_failure="return")
         seconds.append(time.process_time() - t)
-    row = {"settings": {"step": model.step, "order": model.order, "cutoff": model.cutoff, "symbolic_queue": model.symbolic_queue},
-           "t_end": model.t_end, "time_reached": fp.time_reached, "completed": fp.failure is None, "failure": fp.failure,
-           "cpu_seconds_median": statistics.median(seconds), "cpu_seconds_all": seconds, "steps": len(fp.times),
-           "widths": _widths(fp.final_box())}
+    row = {
+        "settings": {"step": model.step, "order": model.order, "cutoff": model.cutoff, "symbolic_queue": model.symbolic_queue},
+        "t_end": model.t_end,
+        "time_reached": fp.time_reached,
+        "completed": fp.failure is None,
+        "failure": fp.failure,
+        "cpu_seconds_median": statistics.median(seconds),
+        "cpu_seconds_all": seconds,
+        "steps": len(fp.times),
+        "widths": _widths(fp.final_box()),
+    }
     if split:
         t = time.process_time()
         row["widths_subdivided"] = _widths(fp.final_box(split=split))
@@ -76,21 +97,30 @@ def bench_rows(names, repeat: int) -> list:
     for name in names:
         file, ours, split, tb_s, tb_w = ROWS[name]
         model = pv.formats.load_flowstar(str(MODELS / f"{file}.model"))
-        entry = {"row": name, "model": file, "toolbox": {"cpu_seconds": tb_s, "widths": tb_w},
-                 "file_settings": run(model, {}, repeat, split)}
+        entry = {
+            "row": name,
+            "model": file,
+            "toolbox": {"cpu_seconds": tb_s, "widths": tb_w},
+            "file_settings": run(model, {}, repeat, split),
+        }
         if ours:
             entry["percver_settings"] = {"changed": ours, **run(model, ours, repeat, split)}
         best = entry.get("percver_settings", entry["file_settings"])
         entry["time_ratio"] = best["cpu_seconds_median"] / tb_s if best["completed"] else None
         entry["width_ratios"] = {k: best["widths_subdivided"][k] / w for k, w in tb_w.items()} if best["completed"] else None
-        entry["meets_targets"] = bool(best["completed"] and entry["time_ratio"] <= 0.2 and all(r <= 1 for r in entry["width_ratios"].values()))
+        entry["meets_targets"] = bool(
+            best["completed"] and entry["time_ratio"] <= 0.2 and all(r <= 1 for r in entry["width_ratios"].values())
+        )
         rows.append(entry)
         for label in ("file_settings", "percver_settings"):
             r = entry.get(label)
             if r:
                 w = ", ".join(f"{k} {r['widths_subdivided'][k]:.3g}" for k in tb_w)
-                print(f"{name:16s} {label:16s} reached {r['time_reached']:.4g}/{r['t_end']:g} {r['cpu_seconds_median']:.3f} s CPU, "
-                      f"subdivided {w}", flush=True)
+                print(
+                    f"{name:16s} {label:16s} reached {r['time_reached']:.4g}/{r['t_end']:g} {r['cpu_seconds_median']:.3f} s CPU, "
+                    f"subdivided {w}",
+                    flush=True,
+                )
     return rows
 
 
@@ -103,12 +133,17 @@ def bench_classic(repeat: int) -> list:
         except PercverError as e:
             row = {"model": name, "error": f"{type(e).__name__}: {e}"}
         rows.append(row)
-        print(name, {k: row[k] for k in ("time_reached", "t_end", "cpu_seconds_median", "steps", "failure", "error") if k in row}, flush=True)
+        print(
+            name, {k: row[k] for k in ("time_reached", "t_end", "cpu_seconds_median", "steps", "failure", "error") if k in row}, flush=True
+        )
     return rows
 
 
 def machine() -> dict:
-    cpu = next((line.split(":", 1)[1].strip() for line in Path("/proc/cpuinfo").read_text().splitlines() if line.startswith("model name")), platform.processor())
+    cpu = next(
+        (line.split(":", 1)[1].strip() for line in Path("/proc/cpuinfo").read_text().splitlines() if line.startswith("model name")),
+        platform.processor(),
+    )
     return {"cpu": cpu, "nproc": os.cpu_count(), "load_average_at_start": os.getloadavg()}
 
 

@@ -64,14 +64,18 @@ def _cpu() -> str:
     return f"{info.get('model name', '?')} (family {info.get('cpu family', '?')}, model {info.get('model', '?')})"
 
 
-def run(noise: str, networks: str, p0, workers: int, journal_dir: Path, options: dict, survey: bool = False,
-        controller=None) -> dict:
+def run(noise: str, networks: str, p0, workers: int, journal_dir: Path, options: dict, survey: bool = False, controller=None) -> dict:
     tag = f"{noise}_{_networks_key(networks, controller)}" + ("_survey" if survey else "") + ("" if p0 is None else f"_{p0[0]:g}_{p0[1]:g}")
     journal = journal_dir / f"mc_{tag}.jsonl"
     session_file = journal_dir / f"mc_{tag}.sessions.json"
     sessions = _sessions(session_file, journal)
-    session = {"start": time.time(), "end": None, "loadavg_start": os.getloadavg(), "cpu": _cpu(),
-               "cells_in_journal": len(_journal_cells(journal))}
+    session = {
+        "start": time.time(),
+        "end": None,
+        "loadavg_start": os.getloadavg(),
+        "cpu": _cpu(),
+        "cells_in_journal": len(_journal_cells(journal)),
+    }
     session_file.write_text(json.dumps(sessions + [session]))
     result = verification.verify(noise, p0, networks, controller=controller, workers=workers, journal=str(journal), **options)
     session.update(end=time.time(), loadavg_end=os.getloadavg())
@@ -85,14 +89,41 @@ def run(noise: str, networks: str, p0, workers: int, journal_dir: Path, options:
     verification.plot_coverage(result, plot)
     noise_states = verification.NOISE_STATES[noise]
     return {
-        "noise": noise, "networks": networks, **({} if controller is None else {"controller": controller}), "init": result.init, "settings": result.settings, "workers": workers,
-        "cpu_count": os.cpu_count(), "sessions": sessions, "row": row, "reasons": verification.reasons(result),
-        "paper": verification.published(noise), "coverage_plot": str(plot.relative_to(ROOT.parent)),
+        "noise": noise,
+        "networks": networks,
+        **({} if controller is None else {"controller": controller}),
+        "init": result.init,
+        "settings": result.settings,
+        "workers": workers,
+        "cpu_count": os.cpu_count(),
+        "sessions": sessions,
+        "row": row,
+        "reasons": verification.reasons(result),
+        "paper": verification.published(noise),
+        "coverage_plot": str(plot.relative_to(ROOT.parent)),
         # Per cell: p0 interval, noise intervals, verdict, engine seconds, NN seconds, branches, reason.
-        "cells": [[*c.box["p"], *(x for n in noise_states for x in c.box[n]), c.verdict, round(c.seconds, 3), round(c.nn_seconds, 3),
-                   c.branches, c.reason] for c in result.cells],
-        "cell_columns": ["p_lo", "p_hi", *(f"{n}_{e}" for n in noise_states for e in ("lo", "hi")), "verdict", "seconds",
-                         "nn_seconds", "branches", "reason"],
+        "cells": [
+            [
+                *c.box["p"],
+                *(x for n in noise_states for x in c.box[n]),
+                c.verdict,
+                round(c.seconds, 3),
+                round(c.nn_seconds, 3),
+                c.branches,
+                c.reason,
+            ]
+            for c in result.cells
+        ],
+        "cell_columns": [
+            "p_lo",
+            "p_hi",
+            *(f"{n}_{e}" for n in noise_states for e in ("lo", "hi")),
+            "verdict",
+            "seconds",
+            "nn_seconds",
+            "branches",
+            "reason",
+        ],
         "refined_attempts": len(attempts) - len(result.cells),
     }
 
@@ -103,8 +134,10 @@ def combine(doc: dict, noise: str, networks: str) -> dict:
     import percver as pv
 
     prefix = f"{noise}/{networks}/"
-    slices = sorted((e for k, e in doc.items() if k.startswith(prefix) and k != prefix + "slices" and not k.startswith(prefix + "survey")),
-                    key=lambda e: e["init"]["p"][0])
+    slices = sorted(
+        (e for k, e in doc.items() if k.startswith(prefix) and k != prefix + "slices" and not k.startswith(prefix + "survey")),
+        key=lambda e: e["init"]["p"][0],
+    )
     if not slices:
         raise SystemExit(f"no slices of {noise}/{networks} in the results to combine")
     init = {n: tuple(b) for n, b in slices[0]["init"].items()}
@@ -133,9 +166,22 @@ def combine(doc: dict, noise: str, networks: str) -> dict:
     row["engine_seconds_per_paper_interval"] = row["engine_seconds"] * verification.PAPER_INTERVAL / covered
     row["wall_seconds_per_paper_interval"] = wall * verification.PAPER_INTERVAL / covered
     return {
-        "noise": noise, "networks": networks, "init": init, "row": row, "gaps": gaps, "paper": slices[0]["paper"],
-        "slices": [{"p0": e["init"]["p"], "cells": e["row"]["intervals"], "coverage": e["row"]["coverage"],
-                    "wall_seconds": e["row"]["wall_seconds"], "loadavg": [s.get("loadavg_start") for s in e["sessions"]]} for e in slices],
+        "noise": noise,
+        "networks": networks,
+        "init": init,
+        "row": row,
+        "gaps": gaps,
+        "paper": slices[0]["paper"],
+        "slices": [
+            {
+                "p0": e["init"]["p"],
+                "cells": e["row"]["intervals"],
+                "coverage": e["row"]["coverage"],
+                "wall_seconds": e["row"]["wall_seconds"],
+                "loadavg": [s.get("loadavg_start") for s in e["sessions"]],
+            }
+            for e in slices
+        ],
     }
 
 
@@ -150,9 +196,12 @@ def main() -> None:
     parser.add_argument("--timeout-per-cell", type=float, help="override the case's default")
     parser.add_argument("--out", default=str(RESULTS / "mountain_car.json"))
     parser.add_argument("--combine", action="store_true", help="no run: join the rows' --p0 slices in --out into one row each")
-    parser.add_argument("--survey", action="store_true",
-                        help=f"a map of where the row verifies, not the row: no refinement, at most {SURVEY_SPLITS} in-cell "
-                             "splits; stored as <row>/<networks>/survey/<lo>,<hi> and never combined")
+    parser.add_argument(
+        "--survey",
+        action="store_true",
+        help=f"a map of where the row verifies, not the row: no refinement, at most {SURVEY_SPLITS} in-cell "
+        "splits; stored as <row>/<networks>/survey/<lo>,<hi> and never combined",
+    )
     args = parser.parse_args()
     out = Path(args.out)
     if args.combine:
@@ -174,7 +223,11 @@ def main() -> None:
         for noise in args.rows.split(","):
             entry = run(noise, networks, args.p0, args.workers, journal_dir, options, args.survey, args.controller)
             doc = json.loads(out.read_text()) if out.exists() else {}
-            doc[f"{noise}/{_networks_key(networks, args.controller)}" + ("/survey" if args.survey else "") + ("" if args.p0 is None else f"/{args.p0[0]:g},{args.p0[1]:g}")] = entry
+            doc[
+                f"{noise}/{_networks_key(networks, args.controller)}"
+                + ("/survey" if args.survey else "")
+                + ("" if args.p0 is None else f"/{args.p0[0]:g},{args.p0[1]:g}")
+            ] = entry
             out.write_text(json.dumps(doc, indent=1))
             print(verification.format_row(noise, entry["row"], entry["paper"]), flush=True)
 

@@ -211,7 +211,10 @@ def archcomp(leaves: list) -> dict:
         corners = centre + 0.5 * np.array(list(itertools.product([-1.0, 1.0], repeat=len(centre))))
         y = network(np.vstack([centre + rng.uniform(-0.5, 0.5, (100_000, len(centre))), corners]))
         sampled = y.max(0) - y.min(0)
-        acts = sorted({a for layer in network.layers for a in ([layer.activation] if isinstance(layer.activation, str) else layer.activation)} - {"identity"})
+        acts = sorted(
+            {a for layer in network.layers for a in ([layer.activation] if isinstance(layer.activation, str) else layer.activation)}
+            - {"identity"}
+        )
         row = {"activations": acts, "sampled": [[float(a), float(b)] for a, b in zip(y.min(0), y.max(0))]}
         for n in leaves:
             start = time.process_time()
@@ -219,9 +222,16 @@ def archcomp(leaves: list) -> dict:
             seconds = time.process_time() - start
             if np.any(y < bounds[:, 0]) or np.any(y > bounds[:, 1]):
                 raise AssertionError(f"{name}: a sample lies outside the bounds with leaves={n}")
-            row[f"leaves_{n}"] = {"ratio": float(np.max((bounds[:, 1] - bounds[:, 0]) / np.maximum(sampled, 1e-12))), "cpu_seconds": seconds}
+            row[f"leaves_{n}"] = {
+                "ratio": float(np.max((bounds[:, 1] - bounds[:, 0]) / np.maximum(sampled, 1e-12))),
+                "cpu_seconds": seconds,
+            }
         rows[name] = row
-        print(f"{name:70s} {'/'.join(acts):13s}" + "".join(f"  {n:5d}: {row[f'leaves_{n}']['ratio']:7.2f}x {row[f'leaves_{n}']['cpu_seconds']:6.2f} s" for n in leaves), flush=True)
+        print(
+            f"{name:70s} {'/'.join(acts):13s}"
+            + "".join(f"  {n:5d}: {row[f'leaves_{n}']['ratio']:7.2f}x {row[f'leaves_{n}']['cpu_seconds']:6.2f} s" for n in leaves),
+            flush=True,
+        )
     return rows
 
 
@@ -253,11 +263,20 @@ def main() -> None:
     for method in ("interval", "taylor", "taylor_unsplit", "taylor_8_pieces", "verisig"):
         if method in chain:
             r = chain[method]
-            print(f"  {method:16s}" + (f" {r['seconds'] * 1e3:9.1f} ms  width {r['width']:.4g}  ratio {r['ratio']:.3g}" if "seconds" in r else f" failed: {r['failed']}"))
+            print(
+                f"  {method:16s}"
+                + (
+                    f" {r['seconds'] * 1e3:9.1f} ms  width {r['width']:.4g}  ratio {r['ratio']:.3g}"
+                    if "seconds" in r
+                    else f" failed: {r['failed']}"
+                )
+            )
     taylor = chain["taylor"]
     print(f"  taylor CPU time (both cores) {taylor['cpu_seconds'] * 1e3:.1f} ms; one thread {taylor['one_thread']['seconds'] * 1e3:.1f} ms")
     if "baseline" in taylor:
-        print(f"  baseline build: {taylor['baseline']['seconds'] * 1e3:.1f} ms (one thread {taylor['one_thread']['baseline']['seconds'] * 1e3:.1f} ms), width {taylor['baseline']['width']:.4g}")
+        print(
+            f"  baseline build: {taylor['baseline']['seconds'] * 1e3:.1f} ms (one thread {taylor['one_thread']['baseline']['seconds'] * 1e3:.1f} ms), width {taylor['baseline']['width']:.4g}"
+        )
     print(f"  load average {result['machine']['load_average']}")
     print(f"wrote {out}")
 

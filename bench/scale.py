@@ -31,8 +31,14 @@ from test_distributed import tiny_loop  # noqa: E402
 
 def contrast_slice(cells: int) -> dict:
     p = pv.variables("p")
-    return dict(init={"p": (-0.5, -0.49975), "v": (0, 0), "delta": (0.3, 0.3 + 0.05 * cells)}, steps=150, goal=p >= 0.45,
-                within=True, split={"delta": cells}, progress=False)
+    return dict(
+        init={"p": (-0.5, -0.49975), "v": (0, 0), "delta": (0.3, 0.3 + 0.05 * cells)},
+        steps=150,
+        goal=p >= 0.45,
+        within=True,
+        split={"delta": cells},
+        progress=False,
+    )
 
 
 def timed(run) -> tuple:
@@ -59,20 +65,28 @@ def throughput(cells: int, repeat: int) -> dict:
         with lc, client:
             runs = {"rayon": lambda: pv.verify(loop, workers=workers, **kwargs), "dask": lambda: pv.verify(loop, executor=client, **kwargs)}
             for k in range(repeat):
-                for backend in (("rayon", "dask") if k % 2 == 0 else ("dask", "rayon")):
+                for backend in ("rayon", "dask") if k % 2 == 0 else ("dask", "rayon"):
                     seconds, res = timed(runs[backend])
                     key = f"{backend}_{workers}"
-                    row = {"seconds": seconds, "cells_per_second": cells / seconds, "verdict": res.verdict,
-                           "engine_seconds_per_cell": statistics.mean(c.seconds for c in res.cells),
-                           "peak_rss_mb": max(c.peak_rss_mb for c in res.cells), "load_average": os.getloadavg()[0]}
+                    row = {
+                        "seconds": seconds,
+                        "cells_per_second": cells / seconds,
+                        "verdict": res.verdict,
+                        "engine_seconds_per_cell": statistics.mean(c.seconds for c in res.cells),
+                        "peak_rss_mb": max(c.peak_rss_mb for c in res.cells),
+                        "load_average": os.getloadavg()[0],
+                    }
                     rows.setdefault(key, {"runs": []})["runs"].append(row)
                     verdicts[f"{key}_{k}"] = sorted((c.box["delta"], c.verdict) for c in res.cells)
         rows[f"dask_{workers}"]["cluster_start_seconds"] = startup
         for backend in ("rayon", "dask"):
             row = rows[f"{backend}_{workers}"]
             row["cells_per_second"] = max(r["cells_per_second"] for r in row["runs"])
-        print(f"{workers} worker(s): rayon {rows[f'rayon_{workers}']['cells_per_second']:.3f} cells/s, "
-              f"dask {rows[f'dask_{workers}']['cells_per_second']:.3f} cells/s", flush=True)
+        print(
+            f"{workers} worker(s): rayon {rows[f'rayon_{workers}']['cells_per_second']:.3f} cells/s, "
+            f"dask {rows[f'dask_{workers}']['cells_per_second']:.3f} cells/s",
+            flush=True,
+        )
     for backend in ("rayon", "dask"):
         rows[f"{backend}_efficiency_2"] = rows[f"{backend}_2"]["cells_per_second"] / (2 * rows[f"{backend}_1"]["cells_per_second"])
     for workers in (1, 2):
@@ -91,15 +105,19 @@ def task_overhead(tasks: int) -> dict:
         pv.verify(loop, executor=client, **{**kwargs, "split": {"x": 8}})  # the problem reaches the worker once
         one, _ = timed(lambda: pv.verify(loop, executor=client, batch=1, **kwargs))
         auto, _ = timed(lambda: pv.verify(loop, executor=client, **kwargs))
-    return {"tasks": tasks, "rayon_seconds": rayon, "dask_batch_1_seconds": one, "dask_auto_batch_seconds": auto,
-            "overhead_per_task_ms": 1e3 * (one - rayon) / tasks}
+    return {
+        "tasks": tasks,
+        "rayon_seconds": rayon,
+        "dask_batch_1_seconds": one,
+        "dask_auto_batch_seconds": auto,
+        "overhead_per_task_ms": 1e3 * (one - rayon) / tasks,
+    }
 
 
 def resume(cells: int) -> dict:
     """A finished journal of `cells` state-based Mountain Car cells (150 reach boxes each), rerun."""
     loop, p, v, u = mountain_car()
-    kwargs = dict(init={"p": (-0.55, -0.45), "v": (0, 0)}, steps=150, goal=p >= 0.45, within=True, split={"p": cells},
-                  progress=False)
+    kwargs = dict(init={"p": (-0.55, -0.45), "v": (0, 0)}, steps=150, goal=p >= 0.45, within=True, split={"p": cells}, progress=False)
     with tempfile.TemporaryDirectory() as tmp:
         journal = str(Path(tmp) / "run.jsonl")
         first, _ = timed(lambda: pv.verify(loop, journal=journal, **kwargs))
@@ -116,17 +134,25 @@ def main() -> None:
     parser.add_argument("--repeat", type=int, default=2)
     args = parser.parse_args()
     load = os.getloadavg()
-    result = {"machine": {"cpus": os.cpu_count(), "load_average_before": load},
-              "problem": "image Mountain Car, contrast, p in [-0.5, -0.49975], delta cells of 0.05 from 0.3, 150 steps",
-              "throughput": throughput(args.cells, args.repeat), "dask_task_overhead": task_overhead(args.tasks), "resume": resume(args.resume_cells)}
+    result = {
+        "machine": {"cpus": os.cpu_count(), "load_average_before": load},
+        "problem": "image Mountain Car, contrast, p in [-0.5, -0.49975], delta cells of 0.05 from 0.3, 150 steps",
+        "throughput": throughput(args.cells, args.repeat),
+        "dask_task_overhead": task_overhead(args.tasks),
+        "resume": resume(args.resume_cells),
+    }
     result["machine"]["load_average_after"] = os.getloadavg()
     out = ROOT / "bench" / "results" / "scale.json"
     out.write_text(json.dumps(result, indent=1))
     t, o, r = result["throughput"], result["dask_task_overhead"], result["resume"]
-    print(f"efficiency on 2 workers: rayon {t['rayon_efficiency_2']:.2f}, dask {t['dask_efficiency_2']:.2f}; "
-          f"dask/rayon {t['dask_over_rayon_1']:.2f} (1), {t['dask_over_rayon_2']:.2f} (2); same verdicts {t['same_verdicts']}")
-    print(f"dask overhead per task {o['overhead_per_task_ms']:.2f} ms; resume of {r['cells']} cells "
-          f"({r['journal_mb']:.1f} MB) {r['resume_seconds_median_of_3']:.3f} s")
+    print(
+        f"efficiency on 2 workers: rayon {t['rayon_efficiency_2']:.2f}, dask {t['dask_efficiency_2']:.2f}; "
+        f"dask/rayon {t['dask_over_rayon_1']:.2f} (1), {t['dask_over_rayon_2']:.2f} (2); same verdicts {t['same_verdicts']}"
+    )
+    print(
+        f"dask overhead per task {o['overhead_per_task_ms']:.2f} ms; resume of {r['cells']} cells "
+        f"({r['journal_mb']:.1f} MB) {r['resume_seconds_median_of_3']:.3f} s"
+    )
     print(f"wrote {out}")
 
 

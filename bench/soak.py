@@ -38,11 +38,16 @@ def campaigns() -> tuple:
     common = dict(steps=150, goal=p >= 0.45, within=True, progress=False)
     return loop, {
         "verified": dict(common, init={"p": (-0.55, -0.45), "v": (0, 0)}, split={"p": 120}),
-        "refined": dict(common, init={"p": (-0.58, -0.40), "v": (0, 0)}, split={"p": 6}, order=3, refine=True,
-                        min_width={"p": 0.001}),
+        "refined": dict(common, init={"p": (-0.58, -0.40), "v": (0, 0)}, split={"p": 6}, order=3, refine=True, min_width={"p": 0.001}),
         "falsified": dict(common, init={"p": (-0.62, -0.56), "v": (0, 0)}, split={"p": 60}),
-        "safety": dict(init={"p": (-0.5, -0.4), "v": (-0.01, 0.01)}, split={"p": 10, "v": 3}, steps=60,
-                       safe=[v >= -0.07, v <= 0.07], unsafe=p <= -1.2, progress=False),
+        "safety": dict(
+            init={"p": (-0.5, -0.4), "v": (-0.01, 0.01)},
+            split={"p": 10, "v": 3},
+            steps=60,
+            safe=[v >= -0.07, v <= 0.07],
+            unsafe=p <= -1.2,
+            progress=False,
+        ),
     }
 
 
@@ -91,11 +96,24 @@ def soak(minutes: float, every: float, seed: int) -> dict:
     rng = random.Random(seed)
     loop, runs = campaigns()
     reference = {name: outcome(pv.verify(loop, **kwargs)) for name, kwargs in runs.items()}
-    stats = {"rounds": 0, "worker_kills": 0, "client_kills": 0, "client_starts": 0, "nanny_repairs": 0, "cells_checked": 0,
-             "mismatches": [], "duplicates": [], "reran_cells": [], "client_failures": [], "by_campaign": {}}
+    stats = {
+        "rounds": 0,
+        "worker_kills": 0,
+        "client_kills": 0,
+        "client_starts": 0,
+        "nanny_repairs": 0,
+        "cells_checked": 0,
+        "mismatches": [],
+        "duplicates": [],
+        "reran_cells": [],
+        "client_failures": [],
+        "by_campaign": {},
+    }
     start = time.time()
-    with LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None) as cluster, \
-            tempfile.TemporaryDirectory() as tmp:
+    with (
+        LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None) as cluster,
+        tempfile.TemporaryDirectory() as tmp,
+    ):
         while time.time() - start < 60 * minutes:
             name = rng.choice(sorted(runs))
             journal = Path(tmp) / f"round{stats['rounds']}.jsonl"
@@ -103,8 +121,11 @@ def soak(minutes: float, every: float, seed: int) -> dict:
             while True:
                 stats["client_starts"] += 1
                 with open(log, "w") as out:
-                    proc = subprocess.Popen([sys.executable, __file__, "--client", name, str(journal), cluster.scheduler_address],
-                                            stdout=out, stderr=subprocess.STDOUT)
+                    proc = subprocess.Popen(
+                        [sys.executable, __file__, "--client", name, str(journal), cluster.scheduler_address],
+                        stdout=out,
+                        stderr=subprocess.STDOUT,
+                    )
                 try:
                     wait_and_kill(proc, cluster, rng, every, stats)
                 finally:
@@ -129,8 +150,11 @@ def soak(minutes: float, every: float, seed: int) -> dict:
             stats["cells_checked"] += len(final)
             stats["rounds"] += 1
             stats["by_campaign"][name] = stats["by_campaign"].get(name, 0) + 1
-            print(f"{time.time() - start:7.0f} s  round {stats['rounds']:3d} {name:9s} cells {len(final):3d}  kills: workers "
-                  f"{stats['worker_kills']}, clients {stats['client_kills']}; nanny repairs {stats['nanny_repairs']}", flush=True)
+            print(
+                f"{time.time() - start:7.0f} s  round {stats['rounds']:3d} {name:9s} cells {len(final):3d}  kills: workers "
+                f"{stats['worker_kills']}, clients {stats['client_kills']}; nanny repairs {stats['nanny_repairs']}",
+                flush=True,
+            )
     stats["seconds"] = time.time() - start
     stats["ok"] = not (stats["mismatches"] or stats["duplicates"] or stats["reran_cells"] or stats["client_failures"])
     return stats
@@ -149,8 +173,10 @@ def main() -> None:
     stats["load_average_after"] = os.getloadavg()
     out = ROOT / "bench" / "results" / "soak.json"
     out.write_text(json.dumps(stats, indent=1))
-    print(f"{'OK' if stats['ok'] else 'FAILED'}: {stats['rounds']} rounds, {stats['cells_checked']} cells checked, "
-          f"{stats['worker_kills']} worker and {stats['client_kills']} client kills; wrote {out}")
+    print(
+        f"{'OK' if stats['ok'] else 'FAILED'}: {stats['rounds']} rounds, {stats['cells_checked']} cells checked, "
+        f"{stats['worker_kills']} worker and {stats['client_kills']} client kills; wrote {out}"
+    )
     sys.exit(0 if stats["ok"] else 1)
 
 

@@ -65,12 +65,26 @@ def run(name: str, repeat: int, split: dict) -> dict:
         res = problem.verify(progress=False, split=split or None, **OPTIONS.get(name, {}))
         seconds.append(time.perf_counter() - t)
     row = {
-        "benchmark": name, "kind": problem.kind, "states": problem.states, "steps": problem.steps, "period": problem.period,
-        "init": problem.init, "goal": None if problem.goal is None else str(problem.goal), "within": problem.within,
-        "safe": [str(c) for c in problem.safe], "verdict": res.verdict, "cells": len(res.cells), "coverage": res.coverage,
-        "branches": sum(c.branches for c in res.cells), "reasons": [c.reason for c in res.cells if c.reason],
-        "seconds_median": statistics.median(seconds), "seconds_all": seconds, "load_seconds": load_s,
-        "nn_seconds": sum(c.nn_seconds for c in res.cells), "notes": problem.notes, "anchor": ANCHORS[name],
+        "benchmark": name,
+        "kind": problem.kind,
+        "states": problem.states,
+        "steps": problem.steps,
+        "period": problem.period,
+        "init": problem.init,
+        "goal": None if problem.goal is None else str(problem.goal),
+        "within": problem.within,
+        "safe": [str(c) for c in problem.safe],
+        "verdict": res.verdict,
+        "cells": len(res.cells),
+        "coverage": res.coverage,
+        "branches": sum(c.branches for c in res.cells),
+        "reasons": [c.reason for c in res.cells if c.reason],
+        "seconds_median": statistics.median(seconds),
+        "seconds_all": seconds,
+        "load_seconds": load_s,
+        "nn_seconds": sum(c.nn_seconds for c in res.cells),
+        "notes": problem.notes,
+        "anchor": ANCHORS[name],
         "options": OPTIONS.get(name, {}),
     }
     base = ANCHORS[name].get("verisig2_s")
@@ -93,8 +107,11 @@ def main():
         row = run(name, args.repeat, {})
         rows.append(row)
         ratio = f"{row['speedup_vs_verisig2']:.0f}x" if "speedup_vs_verisig2" in row else "-"
-        print(f"{name:20s} {row['verdict']:9s} cells {row['cells']:3d}  {row['seconds_median']:8.3f} s  "
-              f"(load {row['load_seconds']:.2f} s)  vs Verisig 2.0: {ratio}", flush=True)
+        print(
+            f"{name:20s} {row['verdict']:9s} cells {row['cells']:3d}  {row['seconds_median']:8.3f} s  "
+            f"(load {row['load_seconds']:.2f} s)  vs Verisig 2.0: {ratio}",
+            flush=True,
+        )
     out = Path(args.out)
     out.parent.mkdir(parents=True, exist_ok=True)
     doc = {"date": time.strftime("%Y-%m-%d"), "repeat": args.repeat, "results": rows}

@@ -43,33 +43,43 @@ runs = simulate.simulate(args.runs, controllers=cars, seed=0)
 stats = data.real_statistics()
 calibration = simulate.calibration(runs, stats=stats)
 real = calibration["real"]
-print(f"{calibration['runs']} runs, {calibration['scans']} scans at 40 Hz, {calibration['crashes']} crashes "
-      f"(real: {real['crashes']} of {real['runs']})")
-print(f"reflected rays per 21-ray scan: {calibration['reflected_per_scan']:.2f} (real {real['uncovered']['reflected_per_scan']:.2f}); "
-      f"other rays within 5 cm: {100 * calibration['within_5cm']:.1f}% (real {100 * real['uncovered']['within_5cm']:.1f}-"
-      f"{100 * real['covered']['within_5cm']:.1f}%)")
+print(
+    f"{calibration['runs']} runs, {calibration['scans']} scans at 40 Hz, {calibration['crashes']} crashes "
+    f"(real: {real['crashes']} of {real['runs']})"
+)
+print(
+    f"reflected rays per 21-ray scan: {calibration['reflected_per_scan']:.2f} (real {real['uncovered']['reflected_per_scan']:.2f}); "
+    f"other rays within 5 cm: {100 * calibration['within_5cm']:.1f}% (real {100 * real['uncovered']['within_5cm']:.1f}-"
+    f"{100 * real['covered']['within_5cm']:.1f}%)"
+)
 
 # ---- 2. poses from scans and steering only
-poses = particle_filter.estimate_poses(runs.scans, runs.controls, runs.run, runs.time,
-                                settings=particle_filter.FilterSettings(particles=args.particles), progress=True)
+poses = particle_filter.estimate_poses(
+    runs.scans, runs.controls, runs.run, runs.time, settings=particle_filter.FilterSettings(particles=args.particles), progress=True
+)
 settled = runs.time >= 1.0
 error = particle_filter.PoseEstimate(poses.poses[settled], poses.speed[settled], poses.spread[settled]).errors(runs.states[settled])
-print(f"pose error after 1 s: median {100 * error['position_median_m']:.1f} cm, mean {100 * error['position_mean_m']:.1f} cm, "
-      f"heading {error['heading_mean_deg']:.2f} deg")
+print(
+    f"pose error after 1 s: median {100 * error['position_median_m']:.1f} cm, mean {100 * error['position_mean_m']:.1f} cm, "
+    f"heading {error['heading_mean_deg']:.2f} deg"
+)
 dataset = pipeline.training_set(runs, poses)
 
 # ---- 3. labels at t_Delta*
 curve = noise.threshold_curve(dataset.real, dataset.canonical)
 labels = noise.label(dataset.real, dataset.canonical, curve.best)
-print(f"t_Delta* = {curve.best:.3f} m: noised canonical scans {curve.errors.min():.3f} m per ray from the real ones "
-      f"(canonical alone {curve.errors[-1]:.3f} m); {labels.sum(axis=1).mean():.2f} rays knocked out per scan")
+print(
+    f"t_Delta* = {curve.best:.3f} m: noised canonical scans {curve.errors.min():.3f} m per ray from the real ones "
+    f"(canonical alone {curve.errors[-1]:.3f} m); {labels.sum(axis=1).mean():.2f} rays knocked out per scan"
+)
 plots.threshold_curve(curve, out / "t_delta.png")
 
 # ---- 4. noise model and denoiser, through ONNX
 train_runs, test_runs = dataset.split_runs(0.2, seed=0)
 train, test = dataset.select_runs(train_runs), dataset.select_runs(test_runs)
-model = noise.train_classifier(train.inputs(), labels[dataset.rows_of(train_runs)], noise.SIZES[args.size],
-                               epochs=args.epochs, progress=True)
+model = noise.train_classifier(
+    train.inputs(), labels[dataset.rows_of(train_runs)], noise.SIZES[args.size], epochs=args.epochs, progress=True
+)
 model.save(out / f"noiser{args.size}.onnx", out / f"thresholds{args.size}.npy")
 model = noise.NoiseModel.load(out / f"noiser{args.size}.onnx", out / f"thresholds{args.size}.npy")
 denoiser = noise.train_denoiser(world.normalise(train.real), world.normalise(train.canonical), epochs=args.epochs, progress=True)
@@ -86,15 +96,19 @@ for name, noise_model, part, part_labels in (
     ("authors' 5x100 (all runs)", authors, dataset, labels),
 ):
     metrics = pipeline.evaluate_noise_model(noise_model, part, part_labels, cars)
-    print(f"{name}: whole-scan accuracy {100 * metrics['whole_scan_accuracy']:.0f}%, ray accuracy "
-          f"{100 * metrics['ray_accuracy']:.1f}%, control error {metrics['control_error']['mean_deg']:.2f} deg per scan")
+    print(
+        f"{name}: whole-scan accuracy {100 * metrics['whole_scan_accuracy']:.0f}%, ray accuracy "
+        f"{100 * metrics['ray_accuracy']:.1f}%, control error {metrics['control_error']['mean_deg']:.2f} deg per scan"
+    )
 print(f"canonical model alone: control error {pipeline.control_error(dataset, dataset.canonical, cars)['mean_deg']:.2f} deg per scan")
 
 starts = pipeline.start_states(dataset)
 simulated = pipeline.simulate_model(starts, dataset.controllers, cars, model)
 with_denoiser = pipeline.simulate_model(starts, dataset.controllers, cars, model, denoiser)
-print(f"\ncrashes: real {dataset.crashed.sum()}, simulated with the noise model {simulated.crashed.sum()}, "
-      f"with the denoiser too {with_denoiser.crashed.sum()} (of {len(dataset.controllers)})")
+print(
+    f"\ncrashes: real {dataset.crashed.sum()}, simulated with the noise model {simulated.crashed.sum()}, "
+    f"with the denoiser too {with_denoiser.crashed.sum()} (of {len(dataset.controllers)})"
+)
 print(f"{'controller':22s} {'safe real':>9s} {'simulated':>9s} {'paper real':>10s}")
 for name, row in pipeline.trajectory_metric(dataset, simulated, stats).items():
     print(f"{name:22s} {row['real_safe']:8.0f}% {row['sim_safe']:8.0f}% {row['paper_real_safe']:9.0f}%")

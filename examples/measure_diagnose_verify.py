@@ -53,8 +53,14 @@ def measure(runs: int, steps: int, seed: int = 0, **car) -> pv.Measurements:
             trajectory.append(run)
             time.append(float(k))
             state = real_car(state, np.array([[thrust[k]]]), **car)
-    return pv.Measurements(np.array(rows), controls=np.array(controls), trajectory=np.array(trajectory),
-                           time=np.array(time), state_names=["p", "v"], control_names=["u"])
+    return pv.Measurements(
+        np.array(rows),
+        controls=np.array(controls),
+        trajectory=np.array(trajectory),
+        time=np.array(time),
+        state_names=["p", "v"],
+        control_names=["u"],
+    )
 
 
 def textbook():
@@ -84,8 +90,7 @@ def reach_goal(the_loop, init=INIT):
     """Every start reaches p >= 0.45 within STEPS steps? (A diagnosed plant carries its validated
     domain, so the result's ``validity`` says whether the reach sets stay inside it.)"""
     p = pv.variables("p")
-    return pv.verify(the_loop, init=init, steps=STEPS, goal=p >= 0.45, within=True, split={"p": 4},
-                     refine=True, progress=False)
+    return pv.verify(the_loop, init=init, steps=STEPS, goal=p >= 0.45, within=True, split={"p": 4}, refine=True, progress=False)
 
 
 def replay(counterexample):
@@ -119,8 +124,10 @@ def main(quick: bool = False):
     cex = falsified.counterexample
     print(f"diagnosed model, gentle controller: {falsified.verdict}")
     if cex is not None:
-        print(f"  counterexample from p0 = {cex.initial['p']:.5f}: {cex.violated}; "
-              f"on the real car it {'reaches' if replay(cex) else 'never reaches'} the goal in {STEPS} steps")
+        print(
+            f"  counterexample from p0 = {cex.initial['p']:.5f}: {cex.violated}; "
+            f"on the real car it {'reaches' if replay(cex) else 'never reaches'} the goal in {STEPS} steps"
+        )
     print(f"  {falsified.validity}")
 
     fixed = reach_goal(loop(plant, full_thrust()), HILL)

@@ -63,9 +63,8 @@ def main() -> None:
     #    and contrast in [1.5, 2], the car reaches p >= 0.45 within 150 steps with reward > 90.
     #    The chain generator -> contrast -> estimator -> controller -> plant is enclosed in Taylor
     #    models cell by cell; cells the engine cannot decide are bisected (refine=True).
-    result = mc.verify("contrast", p0=(-0.5, -0.499), networks=out / "networks", delta_c=(1.5, 2.0),
-                       split={"p": 0.001, "dc": 0.05})
-    record = verification.save(result, out / "verification")   # result.json, row.json, coverage.png, tube.png
+    result = mc.verify("contrast", p0=(-0.5, -0.499), networks=out / "networks", delta_c=(1.5, 2.0), split={"p": 0.001, "dc": 0.05})
+    record = verification.save(result, out / "verification")  # result.json, row.json, coverage.png, tube.png
     print(verification.format_row("contrast", record["row"], record["paper"]))
     print(f"verdict: {result.verdict}; reach tube and coverage map under {out / 'verification'}")
 

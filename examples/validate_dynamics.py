@@ -37,9 +37,14 @@ for run in range(40):
         rows["trajectory"].append(run)
         rows["time"].append(k)
         state = mountain_car(state, np.array([[u]]), drag=0.015)
-data = pv.Measurements(np.array(rows["states"]), controls=np.array(rows["controls"]),
-                       trajectory=np.array(rows["trajectory"]), time=np.array(rows["time"], dtype=float),
-                       state_names=["p", "v"], control_names=["u"])
+data = pv.Measurements(
+    np.array(rows["states"]),
+    controls=np.array(rows["controls"]),
+    trajectory=np.array(rows["trajectory"]),
+    time=np.array(rows["time"], dtype=float),
+    state_names=["p", "v"],
+    control_names=["u"],
+)
 
 # ---- the model: the textbook plant, no drag
 plant = FunctionPlant(mountain_car, ["p", "v"], ["u"], velocity_names=["v"])

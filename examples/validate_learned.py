@@ -36,6 +36,8 @@ print(plain.table(), "\n")
 diagnosis = pv.diagnose(model, data, learn=True, progress=True)
 print(diagnosis.table(), "\n")
 attempt = diagnosis.learned
-print(f"{attempt.kind} model on {attempt.held_out_rows} held-out scans: RMSE {attempt.held_out_error_before:.3f} -> "
-      f"{attempt.held_out_error_after:.3f} m (gain {attempt.gain:.0%}, kept: {attempt.claimed})")
+print(
+    f"{attempt.kind} model on {attempt.held_out_rows} held-out scans: RMSE {attempt.held_out_error_before:.3f} -> "
+    f"{attempt.held_out_error_after:.3f} m (gain {attempt.gain:.0%}, kept: {attempt.claimed})"
+)
 print(f"report: {diagnosis.to_html(out)}")

@@ -40,6 +40,7 @@ print(diagnosis.table(), "\n")
 for effect in diagnosis.final_model.effects:
     if effect.name == "specular_reflection":
         (x0, x1), (y0, y1) = track.wall_point([effect.params["start"], effect.params["end"]])
-        print(f"reflective panel from ({x0:.2f}, {y0:.2f}) to ({x1:.2f}, {y1:.2f}), "
-              f"beyond {effect.params['threshold_deg']:.1f} deg incidence")
+        print(
+            f"reflective panel from ({x0:.2f}, {y0:.2f}) to ({x1:.2f}, {y1:.2f}), beyond {effect.params['threshold_deg']:.1f} deg incidence"
+        )
 print(f"\nreport: {diagnosis.to_html(out)}")

@@ -45,15 +45,24 @@ def mountain_car():
 def mountain_car_images():
     """Image-based Mountain Car (paper, Appendix A): generator -> contraster (delta) -> estimator -> controller."""
     p, v, d, u = pv.variables("p v delta u")
-    net = {k: pv.load_network(_data(NETWORKS / f)) for k, f in {
-        "gen": "Generator2x50_100_Decay1TestLoss1.035e-06.yml", "con": "Contraster1x50_Decay5TestLoss47.74.yml",
-        "est": "CompositeRegressor3x20_20_20_Decay0.001TestLoss5.15e-06Composite.yml", "ctl": CONTROLLER.name}.items()}
-    return pv.ClosedLoop(_mountain_car_plant(p, v, u, d), [
-        pv.Stage(net["gen"], inputs=[p], output="image"),
-        pv.Stage(net["con"], inputs=["image", d], output="noisy"),
-        pv.Stage(net["est"], inputs=["noisy"], output="p_hat", scale=0.9, offset=-0.3),
-        pv.Stage(net["ctl"], inputs=["p_hat", v], output="u"),
-    ])
+    net = {
+        k: pv.load_network(_data(NETWORKS / f))
+        for k, f in {
+            "gen": "Generator2x50_100_Decay1TestLoss1.035e-06.yml",
+            "con": "Contraster1x50_Decay5TestLoss47.74.yml",
+            "est": "CompositeRegressor3x20_20_20_Decay0.001TestLoss5.15e-06Composite.yml",
+            "ctl": CONTROLLER.name,
+        }.items()
+    }
+    return pv.ClosedLoop(
+        _mountain_car_plant(p, v, u, d),
+        [
+            pv.Stage(net["gen"], inputs=[p], output="image"),
+            pv.Stage(net["con"], inputs=["image", d], output="noisy"),
+            pv.Stage(net["est"], inputs=["noisy"], output="p_hat", scale=0.9, offset=-0.3),
+            pv.Stage(net["ctl"], inputs=["p_hat", v], output="u"),
+        ],
+    )
 
 
 def continuous_tanh():
@@ -61,8 +70,12 @@ def continuous_tanh():
     from percver.networks import Layer, Network
 
     x, v, u = pv.variables("x v u")
-    net = Network([Layer(np.array([[-0.8, -1.2], [0.3, -0.5]]), np.array([0.0, 0.1]), "tanh"),
-                   Layer(np.array([[1.0, 0.5]]), np.array([0.0]), "identity")])
+    net = Network(
+        [
+            Layer(np.array([[-0.8, -1.2], [0.3, -0.5]]), np.array([0.0, 0.1]), "tanh"),
+            Layer(np.array([[1.0, 0.5]]), np.array([0.0]), "identity"),
+        ]
+    )
     plant = pv.Continuous({x: v, v: u - 0.1 * v}, inputs=[u], period=0.1, step=0.02)
     return pv.ClosedLoop(plant, [pv.Stage(net, inputs=[x, v], output="u")]), x, v, u
 
@@ -87,8 +100,14 @@ def _cases():
     def mc_reward():
         loop, p, v, u = mountain_car()
         r = pv.variables("r")
-        return loop, dict(init={"p": (-0.53, -0.50), "v": (0, 0)}, steps=150, reward={"r": -0.1 * u**2},
-                          goal=[p >= 0.45, r + 100 > 90], within=True, split={"p": 2})
+        return loop, dict(
+            init={"p": (-0.53, -0.50), "v": (0, 0)},
+            steps=150,
+            reward={"r": -0.1 * u**2},
+            goal=[p >= 0.45, r + 100 > 90],
+            within=True,
+            split={"p": 2},
+        )
 
     def mc_safety():
         loop, p, v, u = mountain_car()
@@ -102,8 +121,15 @@ def _cases():
         loop, p, v, u = mountain_car()
         # The runs come within 4e-5 of this bound (p >= -1.00781 at step 44); at order 1 the wide cells
         # stay undecided without in-cell splits (max_splits=0), refinement verifies some halves and leaves unknown ones with partial boxes.
-        return loop, dict(init={"p": (-0.53, -0.50), "v": (0, 0)}, steps=60, safe=p >= -1.00784, order=1,
-                          refine=True, min_width={"p": 0.005}, max_splits=0)
+        return loop, dict(
+            init={"p": (-0.53, -0.50), "v": (0, 0)},
+            steps=60,
+            safe=p >= -1.00784,
+            order=1,
+            refine=True,
+            min_width={"p": 0.005},
+            max_splits=0,
+        )
 
     def mc_split():
         loop, p, v, u = mountain_car()
@@ -112,8 +138,9 @@ def _cases():
 
     def mc_images():
         p = pv.variables("p")
-        return mountain_car_images(), dict(init={"p": (-0.5, -0.49975), "v": (0, 0), "delta": (0.3, 0.6)}, steps=12,
-                                           safe=p >= -1.2, split={"delta": 2})
+        return mountain_car_images(), dict(
+            init={"p": (-0.5, -0.49975), "v": (0, 0), "delta": (0.3, 0.6)}, steps=12, safe=p >= -1.2, split={"delta": 2}
+        )
 
     def mc_expression_sensor():
         loop, p = expression_sensor()
@@ -126,21 +153,38 @@ def _cases():
     def continuous_reward():
         loop, x, v, u = continuous_tanh()
         cost = pv.variables("cost")
-        return loop, dict(init={"x": (0.9, 1.1), "v": (-0.1, 0.1)}, steps=20, reward={"cost": x**2 + 0.1 * u**2},
-                          safe=cost <= 40)
+        return loop, dict(init={"x": (0.9, 1.1), "v": (-0.1, 0.1)}, steps=20, reward={"cost": x**2 + 0.1 * u**2}, safe=cost <= 40)
 
-    cases = {f.__name__: f for f in (mc_goal, mc_reward, mc_safety, mc_verisig_method, mc_refined, mc_split, mc_images,
-                                     mc_expression_sensor, continuous, continuous_reward)}
-    for name, stem, network in (("mountain_car_small", "MC_small_sig", "sig16x16.yml"), ("ex1_tanh", "ex1_tanh", "tanh20x20.yml"),
-                                ("ex2_sig", "ex2_sig", "sig20x20.yml"), ("ex3_tanh", "ex3_tanh", "tanh20x20.yml")):
+    cases = {
+        f.__name__: f
+        for f in (
+            mc_goal,
+            mc_reward,
+            mc_safety,
+            mc_verisig_method,
+            mc_refined,
+            mc_split,
+            mc_images,
+            mc_expression_sensor,
+            continuous,
+            continuous_reward,
+        )
+    }
+    for name, stem, network in (
+        ("mountain_car_small", "MC_small_sig", "sig16x16.yml"),
+        ("ex1_tanh", "ex1_tanh", "tanh20x20.yml"),
+        ("ex2_sig", "ex2_sig", "sig20x20.yml"),
+        ("ex3_tanh", "ex3_tanh", "tanh20x20.yml"),
+    ):
         cases[f"verisig_{name}"] = lambda a=(name, stem, network): (verisig(*a), {})
 
     def verisig_f1tenth_reboxed():
         # Verisig 2.0's F1/10 model: its LiDAR remainders feed back through the loop, so parts restart from their boxes.
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")  # the file's stray brace, recorded in problem.notes
-            problem = pv.formats.load_verisig(_data(SUITE / "f1tenth" / "f1tenth_tanh_verisig.model"),
-                                              networks=[_data(SUITE / "f1tenth" / "tanh64x64.yml")])
+            problem = pv.formats.load_verisig(
+                _data(SUITE / "f1tenth" / "f1tenth_tanh_verisig.model"), networks=[_data(SUITE / "f1tenth" / "tanh64x64.yml")]
+            )
         return problem, dict(rebox=True)
 
     cases["verisig_f1tenth_reboxed"] = verisig_f1tenth_reboxed
@@ -223,8 +267,10 @@ def check_against_simulation(target, kwargs, result, n=1000, seed=1):
             outside = (part < boxes[None, :, :, 0] - tol) | (part > boxes[None, :, :, 1] + tol)
             if outside.any():
                 i, t, j = np.argwhere(outside)[0]
-                raise AssertionError(f"cell {cell.box}: {np.count_nonzero(outside)} simulated values outside the reach boxes, first "
-                                     f"{loop.states[j]} = {part[i, t, j]!r} at step {t} outside {tuple(boxes[t, j])}")
+                raise AssertionError(
+                    f"cell {cell.box}: {np.count_nonzero(outside)} simulated values outside the reach boxes, first "
+                    f"{loop.states[j]} = {part[i, t, j]!r} at step {t} outside {tuple(boxes[t, j])}"
+                )
             checked += boxes.size // 2
         if cell.verdict == "verified":
             reached = np.zeros(n, dtype=bool)

@@ -21,8 +21,9 @@ def pytest_sessionstart(session):
 
         where = Path(percver.__file__).resolve()
         if not where.is_relative_to(Path(sys.prefix).resolve()):
-            raise RuntimeError(f"PERCVER_TEST_INSTALLED is set but percver was imported from {where}, "
-                               f"not from the environment {sys.prefix}")
+            raise RuntimeError(
+                f"PERCVER_TEST_INSTALLED is set but percver was imported from {where}, not from the environment {sys.prefix}"
+            )
 
 
 @pytest.fixture(autouse=True)

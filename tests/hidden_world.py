@@ -14,8 +14,16 @@ from PIL import Image, ImageEnhance
 L, W = 20.0, 1.5
 ANGLES = np.radians(np.arange(-115.0, 115.0 + 1e-9, 11.5))
 # (axis, coordinate, lo, hi): axis 0 = wall at x = coordinate spanning y in [lo, hi]; axis 1 the reverse.
-WALLS = [(0, 0.0, 0.0, L), (0, L, 0.0, L), (1, 0.0, 0.0, L), (1, L, 0.0, L),
-         (0, W, W, L - W), (0, L - W, W, L - W), (1, W, W, L - W), (1, L - W, W, L - W)]
+WALLS = [
+    (0, 0.0, 0.0, L),
+    (0, L, 0.0, L),
+    (1, 0.0, 0.0, L),
+    (1, L, 0.0, L),
+    (0, W, W, L - W),
+    (0, L - W, W, L - W),
+    (1, W, W, L - W),
+    (1, L - W, W, L - W),
+]
 NORTH_OUTER = 3
 
 
@@ -55,8 +63,22 @@ def _cast(px, py, angle):
     return best, wall, where, cos_inc
 
 
-def scan(states, *, seed=0, yaw_deg=0.0, forward=0.0, left=0.0, bias=0.0, scale=1.0, panel=None, ghost=None,
-         dropout=0.0, dropout_far=None, noise=0.01, max_range=5.0):
+def scan(
+    states,
+    *,
+    seed=0,
+    yaw_deg=0.0,
+    forward=0.0,
+    left=0.0,
+    bias=0.0,
+    scale=1.0,
+    panel=None,
+    ghost=None,
+    dropout=0.0,
+    dropout_far=None,
+    noise=0.01,
+    max_range=5.0,
+):
     """21-ray scans with hidden effects.
 
     ``panel`` = (x_lo, x_hi, threshold_deg): a reflective stretch of the north outer wall
@@ -181,5 +203,4 @@ def runs(n_runs, steps, *, seed=0, drag=0.0, delay=0, gain=1.0, noise=1e-5):
                 p, v = -1.2, 0.0
             v += rng.normal(0, noise)
             p += rng.normal(0, noise)
-    return (np.array(out["states"]), np.array(out["controls"])[:, None], np.array(out["trajectory"]),
-            np.array(out["time"]))
+    return (np.array(out["states"]), np.array(out["controls"])[:, None], np.array(out["trajectory"]), np.array(out["time"]))

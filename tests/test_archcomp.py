@@ -17,9 +17,17 @@ from _common import MODELS, replays
 pytestmark = pytest.mark.skipif(not MODELS.is_dir(), reason="the ARCH-COMP package is not in ../shared/data/archcomp2024")
 
 
-@pytest.mark.parametrize("name, variant", [("inverted_pendulum", ""), ("acc", "relu"), ("tora", "relutanh"),
-                                           ("inverted_two_link_pendulum", "more_robust"), ("airplane", ""),
-                                           ("vertical_cas", "-25.5")])
+@pytest.mark.parametrize(
+    "name, variant",
+    [
+        ("inverted_pendulum", ""),
+        ("acc", "relu"),
+        ("tora", "relutanh"),
+        ("inverted_two_link_pendulum", "more_robust"),
+        ("airplane", ""),
+        ("vertical_cas", "-25.5"),
+    ],
+)
 def test_verdict_is_juliareachs(name, variant):
     bench = __import__(name)
     loop, kwargs = bench.problem(variant)

@@ -22,8 +22,7 @@ VANDERPOL = TESTS.parents[1] / "shared" / "anchors" / "flowstar_models" / "vande
 
 
 def percver(*args, cwd):
-    return subprocess.run([sys.executable, "-m", "percver.cli", *map(str, args)], capture_output=True, text=True,
-                          timeout=300, cwd=cwd)
+    return subprocess.run([sys.executable, "-m", "percver.cli", *map(str, args)], capture_output=True, text=True, timeout=300, cwd=cwd)
 
 
 def test_import_verisig_then_verify(tmp_path):
@@ -101,8 +100,11 @@ def test_scheduler_runs_the_cells_on_dask_workers(tmp_path, monkeypatch, capsys)
 
     python_config(tmp_path, journal=False)
     monkeypatch.chdir(tmp_path)
-    with LocalCluster(n_workers=1, threads_per_worker=1, processes=True, dashboard_address=None) as cluster, \
-            Client(cluster) as client, get_task_stream(client) as stream:
+    with (
+        LocalCluster(n_workers=1, threads_per_worker=1, processes=True, dashboard_address=None) as cluster,
+        Client(cluster) as client,
+        get_task_stream(client) as stream,
+    ):
         code = main(["verify", "mc.toml", "--no-progress", "--scheduler", cluster.scheduler_address])
     assert code == 0, capsys.readouterr().err
     assert len(stream.data) >= 1, "no task reached the Dask worker"
@@ -134,12 +136,18 @@ BAD = {
     "missing model": ('[plant]\nmodel = "none.model"\n', "[plant] model: file not found"),
     "missing network": (f'[plant]\nmodel = "{MODEL}"\nnetworks = ["none.yml"]\n', "[plant] networks[0]: file not found"),
     "not FILE:NAME": ('[plant]\npython = "loop.py"\n', "is not FILE.py:NAME"),
-    "bad condition": (f'[plant]\nmodel = "{MODEL}"\nnetworks = ["{NET}"]\n[property]\ngoal = "x1 = 0.45"\n',
-                      "[property] goal: 'x1 = 0.45' is not one comparison"),
-    "bad expression": (f'[plant]\nmodel = "{MODEL}"\nnetworks = ["{NET}"]\n[property]\nreward = {{r = "x1 +"}}\n',
-                       "[property] reward.r: expected a number"),
-    "unknown variable": (f'[plant]\nmodel = "{MODEL}"\nnetworks = ["{NET}"]\n[property]\nsafe = "p >= -1.2"\n',
-                         "uses ['p'], which are not states of the loop (x1, x2)"),
+    "bad condition": (
+        f'[plant]\nmodel = "{MODEL}"\nnetworks = ["{NET}"]\n[property]\ngoal = "x1 = 0.45"\n',
+        "[property] goal: 'x1 = 0.45' is not one comparison",
+    ),
+    "bad expression": (
+        f'[plant]\nmodel = "{MODEL}"\nnetworks = ["{NET}"]\n[property]\nreward = {{r = "x1 +"}}\n',
+        "[property] reward.r: expected a number",
+    ),
+    "unknown variable": (
+        f'[plant]\nmodel = "{MODEL}"\nnetworks = ["{NET}"]\n[property]\nsafe = "p >= -1.2"\n',
+        "uses ['p'], which are not states of the loop (x1, x2)",
+    ),
     "bad init": (f'[plant]\nmodel = "{MODEL}"\nnetworks = ["{NET}"]\n[init]\nx1 = [1, 2, 3]\n', "[init] x1: expected [lo, hi]"),
     "bad split": (f'[plant]\nmodel = "{MODEL}"\nnetworks = ["{NET}"]\n[split]\nx1 = "4"\n', "[split] x1: expected a cell count"),
 }
@@ -168,8 +176,9 @@ def test_initial_set_outside_a_declared_range_is_a_one_line_warning(tmp_path, ca
         "loop = pv.ClosedLoop(pv.Discrete({p: p + v, v: v + 0.001 * u}, inputs=[u]),\n"
         "                     [pv.Stage(net, inputs=[p, v], output='u', domain={v: (-0.07, 0.07)})])\n"
     )
-    (tmp_path / "c.toml").write_text('[plant]\npython = "loop.py:loop"\n[init]\np = [-0.5, -0.4]\nv = [0, 0.1]\n'
-                                     '[property]\nsteps = 2\nsafe = "p >= -2"\n')
+    (tmp_path / "c.toml").write_text(
+        '[plant]\npython = "loop.py:loop"\n[init]\np = [-0.5, -0.4]\nv = [0, 0.1]\n[property]\nsteps = 2\nsafe = "p >= -2"\n'
+    )
     assert main(["verify", str(tmp_path / "c.toml"), "--no-progress", "--out", str(tmp_path / "r.json")]) == 0
     err = capsys.readouterr().err
     assert err.startswith("percver verify: warning: initial v in [0, 0.1] leaves [-0.07, 0.07]") and err.count("\n") == 1
@@ -211,16 +220,20 @@ def test_a_window_in_a_config(tmp_path, capsys):
     """safe = {conditions = [...], steps = [first, last]}: pv.during from TOML; [first] runs to the horizon."""
     (tmp_path / "rise.py").write_text("import percver as pv\nx = pv.variables('x')\nloop = pv.ClosedLoop(pv.Discrete({x: x + 0.1}))\n")
     base = '[plant]\npython = "rise.py:loop"\n[init]\nx = [0, 0.05]\n[property]\nsteps = 10\n'
-    runs = {"late": ('safe = {conditions = ["x >= 0.49"], steps = [5, 10]}\n', 0),
-            "early": ('safe = [{conditions = ["x >= 0.49", "x <= 2"], steps = [4]}]\n', 4),
-            "avoid": ('unsafe = {conditions = ["x >= 0.2", "x <= 0.3"], steps = [4, 10]}\n', 0)}
+    runs = {
+        "late": ('safe = {conditions = ["x >= 0.49"], steps = [5, 10]}\n', 0),
+        "early": ('safe = [{conditions = ["x >= 0.49", "x <= 2"], steps = [4]}]\n', 4),
+        "avoid": ('unsafe = {conditions = ["x >= 0.2", "x <= 0.3"], steps = [4, 10]}\n', 0),
+    }
     for name, (prop, code) in runs.items():
         (tmp_path / f"{name}.toml").write_text(base + prop)
         assert main(["verify", str(tmp_path / f"{name}.toml"), "--no-progress", "--out", str(tmp_path / f"{name}.json")]) == code, name
     capsys.readouterr()
     (tmp_path / "bad.toml").write_text(base + 'safe = {conditions = ["x >= 0"], steps = [5, 1]}\n')
     assert main(["verify", str(tmp_path / "bad.toml"), "--no-progress"]) == 1
-    assert "[property] safe: during(): the window (5.0, 1.0) must start at 0 or later and not end before it starts" in capsys.readouterr().err
+    assert (
+        "[property] safe: during(): the window (5.0, 1.0) must start at 0 or later and not end before it starts" in capsys.readouterr().err
+    )
     (tmp_path / "bad.toml").write_text(base + 'safe = {conditions = ["x >= 0"], seconds = [5, 1]}\n')
     assert main(["verify", str(tmp_path / "bad.toml"), "--no-progress"]) == 1
     assert "[property] safe: a window is {conditions" in capsys.readouterr().err
@@ -238,8 +251,10 @@ def test_a_splitter_in_a_config(tmp_path, capsys):
     assert isinstance(splitter, Adaptive) and (splitter.max_cells, splitter.start) == (64, 2)
     (tmp_path / "s.toml").write_text(base.replace("[split]\np = 4\n", "") + '[verify]\nsplitter = "bisection"\n')
     assert type(Config(str(tmp_path / "s.toml")).verify_kwargs()["splitter"]) is Bisection
-    for spec, message in (('"halving"', "kind must be one of grid, bisection, adaptive, got 'halving'"),
-                          ('{kind = "adaptive", cells = 3}', "adaptive: ")):
+    for spec, message in (
+        ('"halving"', "kind must be one of grid, bisection, adaptive, got 'halving'"),
+        ('{kind = "adaptive", cells = 3}', "adaptive: "),
+    ):
         (tmp_path / "s.toml").write_text(base + f"[verify]\nsplitter = {spec}\n")
         assert main(["verify", str(tmp_path / "s.toml"), "--no-progress"]) == 1
         assert f"[verify] splitter: {message}" in capsys.readouterr().err

@@ -30,8 +30,16 @@ def test_reward_accumulates_along_the_run():
     loop, p, v, u = mountain_car()
     r = pv.variables("r")
     reward = {"r": -0.1 * u**2}
-    res = pv.verify(loop, init={"p": (-0.53, -0.5), "v": (0, 0)}, steps=150, reward=reward, goal=[p >= 0.45, r + 100 > 90],
-                    within=True, split={"p": 2}, progress=False)
+    res = pv.verify(
+        loop,
+        init={"p": (-0.53, -0.5), "v": (0, 0)},
+        steps=150,
+        reward=reward,
+        goal=[p >= 0.45, r + 100 > 90],
+        within=True,
+        split={"p": 2},
+        progress=False,
+    )
     assert res.verdict == "verified" and res.states == ["p", "v", "r"]
     # The accumulator is the running sum of the controller's cost, as simulated without it.
     x0 = np.array([[-0.51, 0.0]])
@@ -44,8 +52,9 @@ def test_reward_accumulates_along_the_run():
     final = np.asarray(res.cells[0].boxes)[-1][2]
     assert -10 < final[0] <= final[1] < 0 and final[1] - final[0] < 0.5
     # A stricter reward bound is out of reach: not verified, and the sampled runs show why.
-    strict = pv.verify(loop, init={"p": (-0.53, -0.5), "v": (0, 0)}, steps=150, reward=reward, goal=[p >= 0.45, r > -5],
-                       within=True, progress=False)
+    strict = pv.verify(
+        loop, init={"p": (-0.53, -0.5), "v": (0, 0)}, steps=150, reward=reward, goal=[p >= 0.45, r > -5], within=True, progress=False
+    )
     assert strict.verdict == "falsified" and "goal" in strict.counterexample.violated
 
 
@@ -64,8 +73,7 @@ def test_known_unsafe_start_falsified_with_a_counterexample_that_replays():
     the counterexample carries the sum, and replaying it reproduces the violation."""
     loop, p, v, u = mountain_car()
     r = pv.variables("r")
-    kwargs = dict(init={"p": (-0.6, -0.6), "v": (0, 0)}, steps=150, reward={"r": -0.1 * u**2}, goal=[p >= 0.45, r + 100 > 90],
-                  within=True)
+    kwargs = dict(init={"p": (-0.6, -0.6), "v": (0, 0)}, steps=150, reward={"r": -0.1 * u**2}, goal=[p >= 0.45, r + 100 > 90], within=True)
     res = pv.verify(loop, progress=False, **kwargs)
     assert res.verdict == "falsified"
     cex = res.counterexample

@@ -30,8 +30,9 @@ def test_install_replaces_a_loaded_core_without_crashing_its_users(tmp_path):
     source = Path(percver._core.__file__)
     dest = tmp_path / "_core.abi3.so"
     dest.write_bytes(source.read_bytes())
-    child = subprocess.Popen([sys.executable, "-c", CHILD, str(dest)], stdin=subprocess.PIPE,
-                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    child = subprocess.Popen(
+        [sys.executable, "-c", CHILD, str(dest)], stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
+    )
     try:
         assert child.stdout.readline().strip() == "loaded", child.stderr.read()
         before = dest.stat().st_ino

@@ -44,16 +44,25 @@ def tiny_loop():
     """A cheap loop for many cells: x+ = x + 0.1 v, v+ = v + 0.1 u, u from a 2-2-1 tanh network."""
     x, v = pv.variables("x v")
     u = pv.variables("u")
-    net = Network([Layer(np.array([[-0.8, -1.2], [0.3, -0.5]]), np.array([0.0, 0.1]), "tanh"),
-                   Layer(np.array([[1.0, 0.5]]), np.array([0.0]), "identity")])
+    net = Network(
+        [
+            Layer(np.array([[-0.8, -1.2], [0.3, -0.5]]), np.array([0.0, 0.1]), "tanh"),
+            Layer(np.array([[1.0, 0.5]]), np.array([0.0]), "identity"),
+        ]
+    )
     return pv.ClosedLoop(pv.Discrete({x: x + 0.1 * v, v: v + 0.1 * u}, inputs=[u]), stages=[pv.Stage(net, inputs=[x, v], output="u")]), x
 
 
 def test_expressions_pickle_as_dags_and_evaluate_the_same():
     p, v, u = pv.variables("p v u")
     v_next = pv.clip(v + 0.0015 * u - 0.0025 * pv.cos(3 * p), -0.07, 0.07)
-    e = pv.where(p + v_next <= -1.2, -1.2, p + v_next) + pv.sqrt(pv.exp(v) + 1) ** 1.5 - (-u) ** 3 \
-        + pv.uncertain(0.1, 0.2) * pv.tanh(u) / (2 + pv.sigmoid(p)) + pv.maximum(pv.atan(p), pv.abs_(v))
+    e = (
+        pv.where(p + v_next <= -1.2, -1.2, p + v_next)
+        + pv.sqrt(pv.exp(v) + 1) ** 1.5
+        - (-u) ** 3
+        + pv.uncertain(0.1, 0.2) * pv.tanh(u) / (2 + pv.sigmoid(p))
+        + pv.maximum(pv.atan(p), pv.abs_(v))
+    )
     back = pickle.loads(pickle.dumps(e))
     assert back.structural_hash() == e.structural_hash()
     x = np.random.default_rng(0).uniform(-1, 1, (200, 3))
@@ -103,8 +112,10 @@ def test_dask_worker_killed_mid_campaign_loses_and_repeats_no_cell(tmp_path):
     reference = pv.verify(loop, **kwargs)
     journal = tmp_path / "dask.jsonl"
     killed = {}
-    with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None) as cluster, \
-            distributed.Client(cluster) as client:
+    with (
+        distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None) as cluster,
+        distributed.Client(cluster) as client,
+    ):
         pids = list(client.run(os.getpid).values())
 
         def kill_when_started():
@@ -130,14 +141,24 @@ def test_dask_worker_killed_mid_campaign_loses_and_repeats_no_cell(tmp_path):
 
 def test_timed_out_cells_are_split_to_min_width_then_unknown_with_the_reason():
     loop, p, v = mountain_car()
-    res = pv.verify(loop, init={"p": (-0.53, -0.45), "v": (0, 0)}, steps=150, goal=p >= 0.45, within=True, progress=False,
-                    timeout_per_cell=1e-9, min_width={"p": 0.011})
+    res = pv.verify(
+        loop,
+        init={"p": (-0.53, -0.45), "v": (0, 0)},
+        steps=150,
+        goal=p >= 0.45,
+        within=True,
+        progress=False,
+        timeout_per_cell=1e-9,
+        min_width={"p": 0.011},
+    )
     widths = sorted(c.box["p"][1] - c.box["p"][0] for c in res.cells)
     assert widths == pytest.approx([0.02] * 4)  # 0.08 -> 0.04 -> 0.02: halves of 0.02 would be under min_width
     assert all(c.verdict == "unknown" and c.reason.startswith("timeout") and "min_width" in c.reason for c in res.cells)
     # Without a timeout the same cells verify: the split came from the timeout, not from refine.
-    assert pv.verify(loop, init={"p": (-0.53, -0.45), "v": (0, 0)}, steps=150, goal=p >= 0.45, within=True,
-                     progress=False).verdict == "verified"
+    assert (
+        pv.verify(loop, init={"p": (-0.53, -0.45), "v": (0, 0)}, steps=150, goal=p >= 0.45, within=True, progress=False).verdict
+        == "verified"
+    )
 
 
 def test_cut_last_journal_line_is_reported_dropped_and_rerun(tmp_path):
@@ -163,8 +184,16 @@ def test_client_memory_stays_flat_over_10000_cells(tmp_path):
     tracemalloc.start()
     try:
         with pool(2) as executor:
-            res = pv.verify(loop, init={"x": (-1, 1), "v": (0, 0.1)}, steps=3, safe=x <= 2, split={"x": 10_000},
-                            journal=str(journal), progress=False, executor=executor)
+            res = pv.verify(
+                loop,
+                init={"x": (-1, 1), "v": (0, 0.1)},
+                steps=3,
+                safe=x <= 2,
+                split={"x": 10_000},
+                journal=str(journal),
+                progress=False,
+                executor=executor,
+            )
         retained, peak = tracemalloc.get_traced_memory()
     finally:
         tracemalloc.stop()

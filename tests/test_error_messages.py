@@ -62,9 +62,14 @@ def test_missing_flowstar_file_is_a_percver_error_and_a_file_not_found_error(tmp
     assert "nope.model" in str(caught.value)
 
 
-@pytest.mark.parametrize("bounds, words", [("[0.5, 0.1]", "lower bound 0.5 is above upper bound 0.1; write [0.1, 0.5]"),
-                                           ("[nan, 0.1]", "the bounds must be finite"),
-                                           ("nan", "the bounds must be finite")])
+@pytest.mark.parametrize(
+    "bounds, words",
+    [
+        ("[0.5, 0.1]", "lower bound 0.5 is above upper bound 0.1; write [0.1, 0.5]"),
+        ("[nan, 0.1]", "the bounds must be finite"),
+        ("nan", "the bounds must be finite"),
+    ],
+)
 def test_bad_init_bounds_name_the_config_and_the_field(tmp_path, bounds, words):
     (tmp_path / "osc.model").write_text(FLOWSTAR.replace(" + yy", ""))
     config = tmp_path / "run.toml"
@@ -111,8 +116,14 @@ def _without_shared(tmp_path, *args):
     empty = tmp_path / "empty"
     empty.mkdir(exist_ok=True)
     env = {k: v for k, v in os.environ.items() if k not in ("PERCVER_SHARED", "PERCVER_F1TENTH_DATA")}
-    return subprocess.run([sys.executable, "-m", "percver.cli", *args], capture_output=True, text=True, timeout=300,
-                          cwd=tmp_path, env={**env, "PERCVER_SHARED": str(empty)})
+    return subprocess.run(
+        [sys.executable, "-m", "percver.cli", *args],
+        capture_output=True,
+        text=True,
+        timeout=300,
+        cwd=tmp_path,
+        env={**env, "PERCVER_SHARED": str(empty)},
+    )
 
 
 def test_commands_that_need_the_shared_data_say_where_it_goes(tmp_path):

@@ -68,8 +68,9 @@ def test_authors_noise_model_and_denoiser(authors, tmp_path):
     # Exported to ONNX they read back identical.
     model.save(tmp_path / "noiser.onnx", tmp_path / "thresholds.npy")
     again = noise.NoiseModel.load(tmp_path / "noiser.onnx", tmp_path / "thresholds.npy")
-    assert np.allclose(again.probabilities(normalised, world.pose_features(local)),
-                       model.probabilities(normalised, world.pose_features(local)), atol=1e-12)
+    assert np.allclose(
+        again.probabilities(normalised, world.pose_features(local)), model.probabilities(normalised, world.pose_features(local)), atol=1e-12
+    )
 
 
 def test_authors_models_in_the_closed_loop(authors):
@@ -90,8 +91,14 @@ def test_authors_classifier_metrics_on_a_training_set(authors):
     local, canonical = first_hallway_scans(200, seed=1)
     real = canonical.copy()
     real[:, 10] = 5.0  # a glass door ahead
-    dataset = pipeline.TrainingSet(world.from_local(local), real, np.repeat(np.arange(4), 50), np.tile(np.arange(50) * 0.025, 4),
-                                   [ctl.VERIFIED] * 4, np.zeros(4, dtype=bool))
+    dataset = pipeline.TrainingSet(
+        world.from_local(local),
+        real,
+        np.repeat(np.arange(4), 50),
+        np.tile(np.arange(50) * 0.025, 4),
+        [ctl.VERIFIED] * 4,
+        np.zeros(4, dtype=bool),
+    )
     labels = noise.label(dataset.real, dataset.canonical, 0.1)
     metrics = pipeline.evaluate_noise_model(model, dataset, labels, ctl.load_all([ctl.VERIFIED], DATA))
     assert 0.0 <= metrics["whole_scan_accuracy"] <= 1.0 and 0.5 < metrics["ray_accuracy"] < 1.0

@@ -44,8 +44,9 @@ def test_expr_vector_field_matches_numpy_in_both_frames():
     assert np.allclose(got, dynamics.derivative(states, delta), atol=1e-12)
     local = dynamics.equations("local")
     y = world.to_local(states)
-    got = pv.evaluate([local[k] for k in ("y1", "y2", "y3", "y4")],
-                      {"y1": y[:, 0], "y2": y[:, 1], "y3": states[:, 3], "y4": y[:, 2], "delta": delta})
+    got = pv.evaluate(
+        [local[k] for k in ("y1", "y2", "y3", "y4")], {"y1": y[:, 0], "y2": y[:, 1], "y3": states[:, 3], "y4": y[:, 2], "delta": delta}
+    )
     d = dynamics.derivative(states, delta)
     assert np.allclose(got, np.column_stack([d[:, 0], -d[:, 1], d[:, 3], d[:, 2]]), atol=1e-12)
     with pytest.raises(InputError):

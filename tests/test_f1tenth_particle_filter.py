@@ -47,8 +47,9 @@ def test_runs_round_trip_as_measurements(runs, tmp_path):
     back = simulate.from_measurements(type(data).load(path))
     assert back.outcomes == runs.outcomes and np.array_equal(back.scans, runs.scans)
     assert np.all(np.diff(runs.time[runs.rows(0)]) == pytest.approx(0.025))
-    stripped = type(data)(data.states, data.measurements[:, :21], trajectory=data.trajectory, time=data.time,
-                          controls=data.controls, meta=data.meta)
+    stripped = type(data)(
+        data.states, data.measurements[:, :21], trajectory=data.trajectory, time=data.time, controls=data.controls, meta=data.meta
+    )
     with pytest.raises(InputError, match="1081"):
         simulate.from_measurements(stripped)
 
@@ -80,8 +81,9 @@ def test_calibration_report(runs):
 
 def test_label_ceiling_is_what_the_likelier_label_scores_on_fresh_scans(runs):
     poses = runs.states[::3, :3]
-    quiet = simulate.RealWorld(panels=(), gloss_deg=89.0, softness_deg=0.01, sigma=0.0, sigma_per_m=0.0,
-                               mixed_pixel_jump=100.0, outlier_rate=0.0, dropout_rate=0.0)
+    quiet = simulate.RealWorld(
+        panels=(), gloss_deg=89.0, softness_deg=0.01, sigma=0.0, sigma_per_m=0.0, mixed_pixel_jump=100.0, outlier_rate=0.0, dropout_rate=0.0
+    )
     exact = simulate.label_ceiling(quiet, poses, 0.5)
     assert exact["ceiling"] == 1.0 and exact["certain"] == 1.0  # nothing random: every label is a function of the pose
     real = simulate.RealWorld()

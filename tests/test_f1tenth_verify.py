@@ -67,8 +67,9 @@ def test_stepwise_cell_is_verified_and_contains_1000_trajectories(loop):
 def test_engine_mode_boxes_contain_1000_trajectories():
     # pv.verify as is on the loop without classifier: 12 periods, safety only.
     canonical = V.closed_loop(noise_model=False)
-    res = pv.verify(canonical, {**V.INIT, "y1": (0.70, 0.701)}, steps=12, safe=V.property_()["safe"], progress=False,
-                    workers=1, falsify=0, max_splits=0)
+    res = pv.verify(
+        canonical, {**V.INIT, "y1": (0.70, 0.701)}, steps=12, safe=V.property_()["safe"], progress=False, workers=1, falsify=0, max_splits=0
+    )
     cell = res.cells[0]
     assert cell.verdict == "verified" and len(cell.boxes) == 13
     assert inside(canonical.simulate(starts(0.70, 0.701, 1000, seed=2), 12), cell.boxes)
@@ -77,8 +78,17 @@ def test_engine_mode_boxes_contain_1000_trajectories():
 def test_engine_forks_on_undecided_knockouts_and_boxes_contain_1000_trajectories(loop):
     # The whole loop with the classifier in the engine: parts restart from their boxes (rebox) and
     # fork where a knock-out is undecided; every sampled run stays inside the per-step boxes.
-    res = pv.verify(loop, {**V.INIT, "y1": (0.75, 0.751)}, steps=30, safe=V.property_()["safe"], progress=False,
-                    workers=1, falsify=0, rebox=True, max_splits=64)
+    res = pv.verify(
+        loop,
+        {**V.INIT, "y1": (0.75, 0.751)},
+        steps=30,
+        safe=V.property_()["safe"],
+        progress=False,
+        workers=1,
+        falsify=0,
+        rebox=True,
+        max_splits=64,
+    )
     cell = res.cells[0]
     assert cell.branches > 0, cell  # the test is about forks: this cell has undecided knock-outs
     runs = loop.simulate(starts(0.75, 0.751, 1000, seed=5), len(cell.boxes) - 1)
@@ -93,8 +103,7 @@ def test_knockout_cases_cover_a_step_where_a_ray_is_undecided(loop, networks):
     assert len(cases) >= 2
     safe = V.property_()["safe"]
     init = dict(zip(loop.states, map(tuple, box)))
-    ends = [np.array(pv.verify(c, init, steps=1, safe=safe, progress=False, falsify=0, max_splits=0).cells[0].boxes[1])
-            for c in cases]
+    ends = [np.array(pv.verify(c, init, steps=1, safe=safe, progress=False, falsify=0, max_splits=0).cells[0].boxes[1]) for c in cases]
     nxt = loop.simulate(box[:, 0] + (box[:, 1] - box[:, 0]) * np.random.default_rng(4).random((1000, 4)), 1)[:, 1]
     covered = np.zeros(len(nxt), dtype=bool)
     for end in ends:
@@ -111,9 +120,28 @@ def test_published_results_parse():
 
 
 def test_cli_verifies_a_canonical_slice(tmp_path):
-    out = subprocess.run([sys.executable, "-m", "percver.cli", "cases", "f1tenth", "verify", "--y1", "0.75", "0.7501",
-                          "--canonical", "--workers", "1", "--json", "--out", str(tmp_path)],
-                         capture_output=True, text=True, timeout=300)
+    out = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "percver.cli",
+            "cases",
+            "f1tenth",
+            "verify",
+            "--y1",
+            "0.75",
+            "0.7501",
+            "--canonical",
+            "--workers",
+            "1",
+            "--json",
+            "--out",
+            str(tmp_path),
+        ],
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
     assert out.returncode == 0, out.stderr
     record = json.loads(out.stdout)
     assert record["row"]["intervals"] == 2 and record["row"]["coverage"] == 1.0

@@ -154,16 +154,27 @@ def test_conventions_match_the_original_verisig_model():
         plant = pickle.load(f, encoding="latin1")
     with open(folder / "glue_21.pickle", "rb") as f:
         glue = pickle.load(f, encoding="latin1")
-    resets = [r.strip() for mode in plant.values() for transition in mode["transitions"].values()
-              for key, values in transition.items() if key.startswith("reset") for r in values]
+    resets = [
+        r.strip()
+        for mode in plant.values()
+        for transition in mode["transitions"].values()
+        for key, values in transition.items()
+        if key.startswith("reset")
+        for r in values
+    ]
     offsets = {float(m.group(1)) for r in resets if (m := re.fullmatch(r"angle' := y4 \+ (-?[0-9.]+)", r))}
     assert np.allclose(sorted(np.degrees(list(offsets | {0.0}))), world.controller_lidar().angles_deg, atol=1e-6)
 
     ode = {name: pv.parse(text.split("=", 1)[1]) for name, text in plant[1]["dynamics"].items() if name in ("y1", "y2", "y3", "y4")}
     ours = dynamics.equations("local", delta="u")
     rng = np.random.default_rng(0)
-    point = {"y1": rng.uniform(0, 2, 20), "y2": rng.uniform(0, 9, 20), "y3": rng.uniform(0, 2.4, 20),
-             "y4": rng.uniform(-1, 1, 20), "u": rng.uniform(-0.26, 0.26, 20)}
+    point = {
+        "y1": rng.uniform(0, 2, 20),
+        "y2": rng.uniform(0, 9, 20),
+        "y3": rng.uniform(0, 2.4, 20),
+        "y4": rng.uniform(-1, 1, 20),
+        "u": rng.uniform(-0.26, 0.26, 20),
+    }
     for name in ode:
         assert np.allclose(pv.evaluate(ode[name], point), pv.evaluate(ours[name], point), rtol=1e-10, atol=1e-12), name
 

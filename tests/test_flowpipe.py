@@ -10,16 +10,56 @@ import percver as pv
 
 # (name, variables, right-hand sides in Flow* syntax, numpy rhs, init box, t_end, order, step)
 SYSTEMS = [
-    ("vanderpol", "x y", ["y", "(1 - x^2)*y - x"], lambda x, y: (y, (1 - x * x) * y - x),
-     {"x": (1.25, 1.55), "y": (2.28, 2.32)}, 7.0, 6, 0.02),
-    ("brusselator", "x y", ["1 + x^2*y - 2.5*x", "1.5*x - x^2*y"], lambda x, y: (1 + x * x * y - 2.5 * x, 1.5 * x - x * x * y),
-     {"x": (0.8, 1.0), "y": (0.0, 0.2)}, 5.0, 6, 0.02),
-    ("lotka_volterra", "x y", ["1.5*x - x*y", "-3*y + x*y"], lambda x, y: (1.5 * x - x * y, -3 * y + x * y),
-     {"x": (4.8, 5.2), "y": (1.8, 2.2)}, 3.0, 6, 0.01),
-    ("jet_engine", "x y", ["-y - 1.5*x^2 - 0.5*x^3 - 0.5", "3*x - y"], lambda x, y: (-y - 1.5 * x * x - 0.5 * x**3 - 0.5, 3 * x - y),
-     {"x": (0.8, 1.2), "y": (0.8, 1.2)}, 5.0, 6, 0.01),
-    ("roessler", "x y z", ["-y - z", "x + 0.2*y", "0.2 + z*(x - 5.7)"], lambda x, y, z: (-y - z, x + 0.2 * y, 0.2 + z * (x - 5.7)),
-     {"x": (-0.2, 0.2), "y": (-8.6, -8.2), "z": (-0.2, 0.2)}, 6.0, 6, 0.02),
+    (
+        "vanderpol",
+        "x y",
+        ["y", "(1 - x^2)*y - x"],
+        lambda x, y: (y, (1 - x * x) * y - x),
+        {"x": (1.25, 1.55), "y": (2.28, 2.32)},
+        7.0,
+        6,
+        0.02,
+    ),
+    (
+        "brusselator",
+        "x y",
+        ["1 + x^2*y - 2.5*x", "1.5*x - x^2*y"],
+        lambda x, y: (1 + x * x * y - 2.5 * x, 1.5 * x - x * x * y),
+        {"x": (0.8, 1.0), "y": (0.0, 0.2)},
+        5.0,
+        6,
+        0.02,
+    ),
+    (
+        "lotka_volterra",
+        "x y",
+        ["1.5*x - x*y", "-3*y + x*y"],
+        lambda x, y: (1.5 * x - x * y, -3 * y + x * y),
+        {"x": (4.8, 5.2), "y": (1.8, 2.2)},
+        3.0,
+        6,
+        0.01,
+    ),
+    (
+        "jet_engine",
+        "x y",
+        ["-y - 1.5*x^2 - 0.5*x^3 - 0.5", "3*x - y"],
+        lambda x, y: (-y - 1.5 * x * x - 0.5 * x**3 - 0.5, 3 * x - y),
+        {"x": (0.8, 1.2), "y": (0.8, 1.2)},
+        5.0,
+        6,
+        0.01,
+    ),
+    (
+        "roessler",
+        "x y z",
+        ["-y - z", "x + 0.2*y", "0.2 + z*(x - 5.7)"],
+        lambda x, y, z: (-y - z, x + 0.2 * y, 0.2 + z * (x - 5.7)),
+        {"x": (-0.2, 0.2), "y": (-8.6, -8.2), "z": (-0.2, 0.2)},
+        6.0,
+        6,
+        0.02,
+    ),
 ]
 
 
@@ -59,11 +99,20 @@ def test_simulations_lie_inside_every_step(system):
     assert np.all(final[:, 1] - final[:, 0] <= 10 * spread + 1e-3), (final, spread)
 
 
-@pytest.mark.parametrize("order, step, adaptive, t_end", [(6, 0.02, (0.001, 0.25), 3.0), ((4, 8), 0.1, None, 2.4)], ids=["adaptive-step", "adaptive-order"])
+@pytest.mark.parametrize(
+    "order, step, adaptive, t_end", [(6, 0.02, (0.001, 0.25), 3.0), ((4, 8), 0.1, None, 2.4)], ids=["adaptive-step", "adaptive-order"]
+)
 def test_adaptive_step_or_order_stays_sound(order, step, adaptive, t_end):
     x, y = pv.variables("x y")
-    fp = pv.flowpipe({x: y, y: (1 - x**2) * y - x}, init={"x": (1.25, 1.55), "y": (2.28, 2.32)}, t_end=t_end,
-                     order=order, step=step, adaptive=adaptive, remainder=1e-5)
+    fp = pv.flowpipe(
+        {x: y, y: (1 - x**2) * y - x},
+        init={"x": (1.25, 1.55), "y": (2.28, 2.32)},
+        t_end=t_end,
+        order=order,
+        step=step,
+        adaptive=adaptive,
+        remainder=1e-5,
+    )
     assert fp.time_reached == t_end
     if adaptive:
         assert len(set(np.round(np.diff(fp.times, axis=1)[:, 0], 9))) > 1  # steps did adapt
@@ -79,8 +128,9 @@ def test_adaptive_step_or_order_stays_sound(order, step, adaptive, t_end):
 def test_uncertain_parameter_and_piecewise_rhs():
     # x' = a*x with a in [-1.1, -0.9] encoded as an uncertain constant; and a clipped velocity.
     x, v = pv.variables("x v")
-    fp = pv.flowpipe({x: pv.uncertain(-1.1, -0.9) * x, v: pv.clip(1 - v, -0.5, 0.5)}, init={"x": (1, 1.1), "v": (0, 0.1)},
-                     t_end=2.0, order=5, step=0.05)
+    fp = pv.flowpipe(
+        {x: pv.uncertain(-1.1, -0.9) * x, v: pv.clip(1 - v, -0.5, 0.5)}, init={"x": (1, 1.1), "v": (0, 0.1)}, t_end=2.0, order=5, step=0.05
+    )
     lo, hi = fp.final_box()["x"]
     assert lo <= 1.0 * np.exp(-1.1 * 2) and hi >= 1.1 * np.exp(-0.9 * 2)
     # v rises at the clipped rate 0.5 until v = 0.5 (at t = 1 - 2 v0), then relaxes: 1 - 0.5 e^-(2 - t).

@@ -24,8 +24,15 @@ RHS = {
     "tb_lorenz": lambda x, y, z: (10 * (y - x), x * (28 - z) - y, x * y - 2.67 * z),
     "tb_vanderpol": lambda x, y, t: (y, (1 - x**2) * y - x, np.ones_like(t)),
     "tb_laubloomis": lambda x1, x2, x3, x4, x5, x6, x7, t: (
-        1.4 * x3 - 0.9 * x1, 2.5 * x5 - 1.5 * x2, 0.6 * x7 - 0.8 * x3 * x2, 2 - 1.3 * x4 * x3,
-        0.7 * x1 - x4 * x5, 0.3 * x1 - 3.1 * x6, 1.8 * x6 - 1.5 * x7 * x2, np.ones_like(t)),
+        1.4 * x3 - 0.9 * x1,
+        2.5 * x5 - 1.5 * x2,
+        0.6 * x7 - 0.8 * x3 * x2,
+        2 - 1.3 * x4 * x3,
+        0.7 * x1 - x4 * x5,
+        0.3 * x1 - 3.1 * x6,
+        1.8 * x6 - 1.5 * x7 * x2,
+        np.ones_like(t),
+    ),
 }
 
 

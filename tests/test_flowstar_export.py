@@ -84,7 +84,12 @@ def test_the_file_is_verisig_style(tmp_path):
     assert "_z1' = _a1 * (1 - _z1 * _z1)" in text  # the tanh output layer
     model = pv.formats.load_flowstar(str(tmp_path / "mc.model"))
     assert list(model.modes) == ["_start", "layer1", "layer2", "layer3", "_out"]
-    assert [(j.source, j.target) for j in model.jumps] == [("_start", "layer1"), ("layer1", "layer2"), ("layer2", "layer3"), ("layer3", "_out")]
+    assert [(j.source, j.target) for j in model.jumps] == [
+        ("_start", "layer1"),
+        ("layer1", "layer2"),
+        ("layer2", "layer3"),
+        ("layer3", "_out"),
+    ]
 
 
 def mountain_car_plant():
@@ -143,7 +148,9 @@ class TestBadInput:
             network.to_flowstar(tmp_path / "x.model", {"p": (0, 0), "v": (0, 0)}, plant=mountain_car_plant())
         p, v = pv.variables("p v")
         with pytest.raises(pv.InputError, match="1 outputs but the plant has 0 inputs"):
-            network.with_input_names(["p", "v"]).to_flowstar(tmp_path / "x.model", {"p": (0, 0), "v": (0, 0)}, plant=pv.Discrete({p: p, v: v}))
+            network.with_input_names(["p", "v"]).to_flowstar(
+                tmp_path / "x.model", {"p": (0, 0), "v": (0, 0)}, plant=pv.Discrete({p: p, v: v})
+            )
         u = pv.variables("u")
         with pytest.raises(pv.InputError, match=r"Flow\* has no sigmoid\(\)"):
             network.with_input_names(["p", "v"]).to_flowstar(
@@ -171,7 +178,7 @@ class TestBadInput:
         start = text.index("\t\tlayer1\n")
         invariant = "\t\t\tinv\n\t\t\t{\n\t\t\t\tclock <= 1\n\t\t\t}\n"
         at = text.index(invariant, start)
-        path.write_text(text[:at] + text[at + len(invariant):])
+        path.write_text(text[:at] + text[at + len(invariant) :])
         line = text[:start].count("\n") + 1
         with pytest.raises(pv.ParseError, match=rf"x.model, line {line}: mode layer1 has no invariant 'clock <= c'"):
             pv.formats.load_flowstar(str(path))

@@ -43,7 +43,9 @@ def test_model_parses_and_runs(path):
 
 def test_errors_name_file_and_line(tmp_path):
     bad = tmp_path / "bad.model"
-    bad.write_text("continuous reachability\n{\n state var x\n setting\n {\n  fixed steps 0.1\n  time 1\n  fixed orders 4\n  warp drive on\n }\n nonpoly ode\n {\n  x' = -x\n }\n init\n {\n  x in [0, 1]\n }\n}\n")
+    bad.write_text(
+        "continuous reachability\n{\n state var x\n setting\n {\n  fixed steps 0.1\n  time 1\n  fixed orders 4\n  warp drive on\n }\n nonpoly ode\n {\n  x' = -x\n }\n init\n {\n  x in [0, 1]\n }\n}\n"
+    )
     with pytest.raises(pv.ParseError, match=r"bad.model, line 9: unsupported setting 'warp drive on'"):
         pv.formats.load_flowstar(str(bad))
     bad.write_text(bad.read_text().replace("  warp drive on\n", "").replace("x' = -x", "y' = -x"))

@@ -55,9 +55,13 @@ def _saturated_networks():
     def steep(sign):
         return Network([Layer(np.array([[sign * 4000.0]]), np.array([-sign * 4000.0 * 0.0081]), "sigmoid")])
 
-    loop = pv.ClosedLoop(pv.Discrete({x: x, y: y, c: c + pv.where(pv.variables("sx") <= 0.5, 1.0, 0.0)
-                                      + pv.where(pv.variables("sy") <= 0.5, 0.0, 1.0)}, inputs=["sx", "sy"]),
-                         stages=[pv.Stage(steep(1.0), inputs=[x], output="sx"), pv.Stage(steep(1.0), inputs=[y], output="sy")])
+    loop = pv.ClosedLoop(
+        pv.Discrete(
+            {x: x, y: y, c: c + pv.where(pv.variables("sx") <= 0.5, 1.0, 0.0) + pv.where(pv.variables("sy") <= 0.5, 0.0, 1.0)},
+            inputs=["sx", "sy"],
+        ),
+        stages=[pv.Stage(steep(1.0), inputs=[x], output="sx"), pv.Stage(steep(1.0), inputs=[y], output="sy")],
+    )
     return loop, c <= 1.5, {"x": X0, "y": X0, "c": (0, 0)}
 
 

@@ -13,16 +13,23 @@ PERIOD, G, BOUNCE = 0.1, 9.81, 0.8
 
 
 def controller() -> Network:
-    return Network([Layer(np.array([[-0.8, -1.2], [0.3, -0.5]]), np.array([0.0, 0.1]), "tanh"),
-                    Layer(np.array([[1.0, 0.5]]), np.array([0.0]), "identity")])
+    return Network(
+        [
+            Layer(np.array([[-0.8, -1.2], [0.3, -0.5]]), np.array([0.0, 0.1]), "tanh"),
+            Layer(np.array([[1.0, 0.5]]), np.array([0.0]), "identity"),
+        ]
+    )
 
 
 def ball_loop() -> pv.ClosedLoop:
     """A ball pushed by a network, bouncing on the floor; the clock c ends each period."""
-    plant = pv.Hybrid({"fly": pv.Mode({x: v, v: u - G, c: 1}, invariant=[x >= 0, c <= PERIOD])},
-                      [pv.Jump("fly", "fly", guard=[x <= 0, v <= 0], reset={v: -BOUNCE * v}),
-                       pv.Jump("fly", None, guard=[c >= PERIOD], reset={c: 0})],
-                      inputs=[u], max_time=0.5, step=0.01)
+    plant = pv.Hybrid(
+        {"fly": pv.Mode({x: v, v: u - G, c: 1}, invariant=[x >= 0, c <= PERIOD])},
+        [pv.Jump("fly", "fly", guard=[x <= 0, v <= 0], reset={v: -BOUNCE * v}), pv.Jump("fly", None, guard=[c >= PERIOD], reset={c: 0})],
+        inputs=[u],
+        max_time=0.5,
+        step=0.01,
+    )
     return pv.ClosedLoop(plant, [pv.Stage(controller(), [x, v], "u")])
 
 
@@ -39,8 +46,15 @@ def simulate_ball(x0: np.ndarray, steps: int) -> np.ndarray:
             floor = lambda _t, y: y[0]
             floor.terminal, floor.direction = True, -1
             while t < PERIOD:
-                sol = solve_ivp(lambda _t, y: [y[1], ui - G], (t, PERIOD), y, method="DOP853", rtol=1e-12, atol=1e-13,
-                                events=floor if y[0] > 1e-12 or y[1] > 0 else None)
+                sol = solve_ivp(
+                    lambda _t, y: [y[1], ui - G],
+                    (t, PERIOD),
+                    y,
+                    method="DOP853",
+                    rtol=1e-12,
+                    atol=1e-13,
+                    events=floor if y[0] > 1e-12 or y[1] > 0 else None,
+                )
                 t, y = sol.t[-1], sol.y[:, -1].copy()
                 if sol.status == 1:
                     y = np.array([0.0, -BOUNCE * y[1]])
@@ -98,14 +112,22 @@ def _segments_model(path, horizon: float, bound: float) -> None:
     dynamics (seg_a, then seg_b after 0.05 s), like the quadrotor MPC benchmark's segments."""
     frozen = {"clock": "1"}
     flow = {"worldtime": "1", "clock": "1"}
-    modes = [_mode("m0", frozen, 0), _mode("DNNm1", frozen, 0), _mode("startmode", frozen, 0), _mode("unsafe1", frozen, 1),
-             _mode("seg_a", {**flow, "x0": "x1", "x1": "u - x0"}, 0.05),
-             _mode("seg_b", {**flow, "x0": "x1", "x1": "u * x1 * x1 - x0"}, 0.05)]
-    jumps = [("m0", "DNNm1", "", "clock' := 0"), ("DNNm1", "seg_a", "", "u' := 2.0 * _f1 clock' := 0.0"),
-             ("seg_a", "seg_b", "clock = 0.05", "clock' := 0.0"),
-             ("seg_b", "m0", "clock = 0.05", "_f2' := x1 _f1' := x0 clock' := 0.0"),
-             ("seg_b", "unsafe1", f"worldtime = {horizon} x0 >= {bound}", "clock' := 0.0"),
-             ("startmode", "m0", "clock = 0.0", "_f2' := x1 _f1' := x0 clock' := 0.0")]
+    modes = [
+        _mode("m0", frozen, 0),
+        _mode("DNNm1", frozen, 0),
+        _mode("startmode", frozen, 0),
+        _mode("unsafe1", frozen, 1),
+        _mode("seg_a", {**flow, "x0": "x1", "x1": "u - x0"}, 0.05),
+        _mode("seg_b", {**flow, "x0": "x1", "x1": "u * x1 * x1 - x0"}, 0.05),
+    ]
+    jumps = [
+        ("m0", "DNNm1", "", "clock' := 0"),
+        ("DNNm1", "seg_a", "", "u' := 2.0 * _f1 clock' := 0.0"),
+        ("seg_a", "seg_b", "clock = 0.05", "clock' := 0.0"),
+        ("seg_b", "m0", "clock = 0.05", "_f2' := x1 _f1' := x0 clock' := 0.0"),
+        ("seg_b", "unsafe1", f"worldtime = {horizon} x0 >= {bound}", "clock' := 0.0"),
+        ("startmode", "m0", "clock = 0.0", "_f2' := x1 _f1' := x0 clock' := 0.0"),
+    ]
     text = f"""hybrid reachability
 {{
 state var _f1, _f2, x0, x1, u, worldtime, clock
@@ -159,8 +181,12 @@ x0 >= {bound}
 def test_verisig_model_with_two_plant_modes_per_period_is_verified(tmp_path):
     from percver.formats.verisig_yaml import write_verisig_yaml
 
-    net = Network([Layer(np.array([[-0.5, -0.4], [0.2, -0.3]]), np.array([0.0, 0.1]), "tanh"),
-                   Layer(np.array([[0.8, 0.5]]), np.array([0.0]), "identity")])
+    net = Network(
+        [
+            Layer(np.array([[-0.5, -0.4], [0.2, -0.3]]), np.array([0.0, 0.1]), "tanh"),
+            Layer(np.array([[0.8, 0.5]]), np.array([0.0]), "identity"),
+        ]
+    )
     write_verisig_yaml(net, tmp_path / "net.yml")
     _segments_model(tmp_path / "segments.model", horizon=0.5, bound=2.0)
     problem = pv.formats.load_verisig(str(tmp_path / "segments.model"), networks=[str(tmp_path / "net.yml")])
@@ -186,7 +212,9 @@ def test_verisig_model_with_two_plant_modes_per_period_is_verified(tmp_path):
         boxes = np.asarray(cell.boxes)
         for j, name in enumerate(("x0", "x1")):
             k = names.index(name)
-            assert ((runs[:, : len(boxes), j] >= boxes[None, :, k, 0] - 1e-9) & (runs[:, : len(boxes), j] <= boxes[None, :, k, 1] + 1e-9)).all()
+            assert (
+                (runs[:, : len(boxes), j] >= boxes[None, :, k, 0] - 1e-9) & (runs[:, : len(boxes), j] <= boxes[None, :, k, 1] + 1e-9)
+            ).all()
     # A bound the runs cross is not verified.
     _segments_model(tmp_path / "tight.model", horizon=0.5, bound=float(runs[:, -1, 0].max()) - 0.05)
     tight = pv.formats.load_verisig(str(tmp_path / "tight.model"), networks=[str(tmp_path / "net.yml")])

@@ -135,10 +135,45 @@ def _extra_bits(*xs: float) -> int:
 # --------------------------------------------------------------------------------------------
 
 _EDGE = [
-    0.0, MIN_SUB, 2 * MIN_SUB, 1e-323, 1e-320, 1e-310, MIN_NORMAL, 1e-300, 1e-200, 1e-160,
-    1e-100, 1e-20, 1e-8, 0.1, 0.5, 1.0, 2.0, math.pi / 2, math.pi, 3.0, 10.0, 100.0, 700.0,
-    709.0, 709.782712893384, 710.0, 745.0, 745.2, 746.0, 1000.0, 1e10, 1e12, 1e15, 2.0**53,
-    1e16, 1e100, 1e200, 1e300, MAX,
+    0.0,
+    MIN_SUB,
+    2 * MIN_SUB,
+    1e-323,
+    1e-320,
+    1e-310,
+    MIN_NORMAL,
+    1e-300,
+    1e-200,
+    1e-160,
+    1e-100,
+    1e-20,
+    1e-8,
+    0.1,
+    0.5,
+    1.0,
+    2.0,
+    math.pi / 2,
+    math.pi,
+    3.0,
+    10.0,
+    100.0,
+    700.0,
+    709.0,
+    709.782712893384,
+    710.0,
+    745.0,
+    745.2,
+    746.0,
+    1000.0,
+    1e10,
+    1e12,
+    1e15,
+    2.0**53,
+    1e16,
+    1e100,
+    1e200,
+    1e300,
+    MAX,
 ]
 EDGE = _EDGE + [-x for x in _EDGE]
 
@@ -708,11 +743,16 @@ def test_zero_crossing_intervals():
 # --------------------------------------------------------------------------------------------
 
 
-@pytest.mark.xfail(UNDERFLOW_PRODUCT_BUG, strict=True, reason=(
-    "UNSOUND: Interval(1e-200) * Interval(1e-200) == [0, 0] but the exact product is 1e-400 > 0; "
-    "Interval::mul keeps an underflowed 0.0 product unwidened (crates/taylor/src/interval.rs, "
-    "'exact zero products need no widening'). Same for (-1e-200)*(1e-200), 1e-300/1e300, "
-    "Interval(1e-200).powi(3), Interval(1e-100).powi(5)."))
+@pytest.mark.xfail(
+    UNDERFLOW_PRODUCT_BUG,
+    strict=True,
+    reason=(
+        "UNSOUND: Interval(1e-200) * Interval(1e-200) == [0, 0] but the exact product is 1e-400 > 0; "
+        "Interval::mul keeps an underflowed 0.0 product unwidened (crates/taylor/src/interval.rs, "
+        "'exact zero products need no widening'). Same for (-1e-200)*(1e-200), 1e-300/1e300, "
+        "Interval(1e-200).powi(3), Interval(1e-100).powi(5)."
+    ),
+)
 @pytest.mark.parametrize("case", ["mul", "mul_neg", "div", "powi3", "powi5", "div_extended"])
 def test_regression_underflowed_product(case):
     with mp.workprec(PREC):
@@ -728,13 +768,19 @@ def test_regression_underflowed_product(case):
         assert M(r.lo) <= exact <= M(r.hi), f"{case}: {show(r)} misses {mpmath.nstr(exact, 5)}"
 
 
-@pytest.mark.xfail(POWF_SUBNORMAL_BUG, strict=True, reason=(
-    "UNSOUND: Interval.powf(r > 0, non-integer) clamps the lower end to MIN_POSITIVE: "
-    "Interval(1e-310, 1.0).powf(0.5).lo == 1.49e-154 > sqrt(1e-310) = 1e-155; "
-    "Interval(1e-310).powf(0.5) and Interval(0.0, 1e-310).powf(0.5) return empty intervals, "
-    "Interval(0.0).powf(0.5) returns (0, -inf)."))
-@pytest.mark.parametrize("p,r", [((1e-310, 1.0), 0.5), ((1e-310, 1e-310), 0.5), ((0.0, 1e-310), 0.5),
-                                 ((0.0, 0.0), 0.5), ((MIN_SUB, 2.0), 0.9)])
+@pytest.mark.xfail(
+    POWF_SUBNORMAL_BUG,
+    strict=True,
+    reason=(
+        "UNSOUND: Interval.powf(r > 0, non-integer) clamps the lower end to MIN_POSITIVE: "
+        "Interval(1e-310, 1.0).powf(0.5).lo == 1.49e-154 > sqrt(1e-310) = 1e-155; "
+        "Interval(1e-310).powf(0.5) and Interval(0.0, 1e-310).powf(0.5) return empty intervals, "
+        "Interval(0.0).powf(0.5) returns (0, -inf)."
+    ),
+)
+@pytest.mark.parametrize(
+    "p,r", [((1e-310, 1.0), 0.5), ((1e-310, 1e-310), 0.5), ((0.0, 1e-310), 0.5), ((0.0, 0.0), 0.5), ((MIN_SUB, 2.0), 0.9)]
+)
 def test_regression_powf_subnormal(p, r):
     res = Interval(*p).powf(r)
     with mp.workprec(PREC):
@@ -742,10 +788,15 @@ def test_regression_powf_subnormal(p, r):
         assert not res.is_empty() and M(res.lo) <= L and H <= M(res.hi), f"{p}^{r}: {show(res)}"
 
 
-@pytest.mark.xfail(POWI_NEGATIVE_UNDERFLOW_BUG, strict=True, reason=(
-    "Spurious DomainError: Interval(1e-300).powi(-2) raises 'division is undefined' because "
-    "x^2 underflows to an enclosure containing 0; the exact value 1e600 is finite (expected "
-    "[MAX, inf]). Not unsound, but wrong."))
+@pytest.mark.xfail(
+    POWI_NEGATIVE_UNDERFLOW_BUG,
+    strict=True,
+    reason=(
+        "Spurious DomainError: Interval(1e-300).powi(-2) raises 'division is undefined' because "
+        "x^2 underflows to an enclosure containing 0; the exact value 1e600 is finite (expected "
+        "[MAX, inf]). Not unsound, but wrong."
+    ),
+)
 def test_regression_powi_negative_underflow():
     r = Interval(1e-300).powi(-2)
     assert r.hi == INF and r.lo <= MAX

@@ -46,7 +46,11 @@ def test_controller_of_another_set_drives_our_perception(paper, tmp_path):
         expected = np.column_stack([p_next, v_next, x[:, 2]])
         assert np.allclose(loop.step_float(x), expected, rtol=0, atol=1e-12) == close
     assert [verification.layout_of(*pair) for pair in (("paper",), ("ours",), ("ours", "paper"), ("paper", "ours"))] == [
-        "paper", "ours", "ours+paper", "ours"]
+        "paper",
+        "ours",
+        "ours+paper",
+        "ours",
+    ]
     with pytest.raises(MissingFileError, match="lacks"):  # an empty folder names the file it lacks
         verification.closed_loop("contrast", "ours", controller=str(tmp_path))
 
@@ -127,6 +131,7 @@ def test_split_options_replace_only_what_they_name():
 def test_bands_partition_the_initial_set():
     layout = verification.LAYOUT["paper"]["composite"]
     bands = verification._bands(verification.initial_set("composite"), layout)
+
     # Each band's region is the box it covers; together they tile the row's p0 x dc x db: their
     # volumes add up to the row's and no two overlap.
     def volume(box):
@@ -163,8 +168,7 @@ def test_unknown_cells_are_grouped_by_cause():
     # The engine's reasons, as it words them (closed_loop.rs), each under its own cause.
     reasons = {
         "step 73: the enclosure of 'v' blew up ([-3, 4]); split the cell or raise the order": "'v' blew up",
-        "step 92: goal 'min((p - 0.45), (r - -10.0)) > 0.0' holds on part of the set only since step 89 (after 16 splits)":
-            "goal met by part of the set only",
+        "step 92: goal 'min((p - 0.45), (r - -10.0)) > 0.0' holds on part of the set only since step 89 (after 16 splits)": "goal met by part of the set only",
         "step 150: goal 'p >= 0.45' could not be decided (reach box p [0.1, 0.5])": "goal undecided",
         "step 12: 'v <= 0.07' could not be decided (reach box v [0, 0.08])": "a safe condition undecided",
         "timeout after 60 s at step 40": "timeout",
@@ -179,8 +183,25 @@ def test_unknown_cells_are_grouped_by_cause():
 
 
 def test_cli_writes_row_result_and_plots(tmp_path):
-    base = [sys.executable, "-m", "percver.cli", "cases", "mountain-car", "verify", "--networks", "ours", "--p0", "-0.5", "-0.4995",
-            "--delta-c", "1.5", "1.55", "--out", str(tmp_path), "--no-progress"]
+    base = [
+        sys.executable,
+        "-m",
+        "percver.cli",
+        "cases",
+        "mountain-car",
+        "verify",
+        "--networks",
+        "ours",
+        "--p0",
+        "-0.5",
+        "-0.4995",
+        "--delta-c",
+        "1.5",
+        "1.55",
+        "--out",
+        str(tmp_path),
+        "--no-progress",
+    ]
     r = subprocess.run(base + ["--json"], capture_output=True, text=True, timeout=300)
     assert r.returncode == 0, r.stderr
     record = json.loads(r.stdout)

@@ -145,4 +145,6 @@ def test_mountain_car_contrast_outside_its_training_range_is_refused():
     loop = verification.closed_loop("contrast", "ours")
     init = verification.initial_set("contrast", (-0.5, -0.499), delta_c=(0.05, 0.1))
     with pytest.raises(NetworkDomainError, match=r"stage 'image_dc' \(network 'contrast'\): dc in \[0.05, 0.1\] at step 0"):
-        pv.verify(loop, init, steps=150, strict=True, progress=False, **{k: v for k, v in verification.specification().items() if k != "steps"})
+        pv.verify(
+            loop, init, steps=150, strict=True, progress=False, **{k: v for k, v in verification.specification().items() if k != "steps"}
+        )

@@ -15,8 +15,16 @@ from percver.formats.nnet import NNetNormalizationWarning
 
 ARCHCOMP = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "archcomp2024" / "models"
 ACT = {"relu": lambda z: np.maximum(z, 0), "tanh": np.tanh, "sigmoid": lambda z: 1 / (1 + np.exp(-z)), "identity": lambda z: z}
-MAT_ACT = {"relu": "relu", "poslin": "relu", "tanh": "tanh", "tansig": "tanh", "sigmoid": "sigmoid", "logsig": "sigmoid",
-           "linear": "identity", "purelin": "identity"}
+MAT_ACT = {
+    "relu": "relu",
+    "poslin": "relu",
+    "tanh": "tanh",
+    "tansig": "tanh",
+    "sigmoid": "sigmoid",
+    "logsig": "sigmoid",
+    "linear": "identity",
+    "purelin": "identity",
+}
 
 
 def forward(layers, x):
@@ -27,7 +35,12 @@ def forward(layers, x):
 
 def nnet_text(layers, normalization="0\n0\n0\n0\n0\n"):
     sizes = [layers[0][0].shape[1]] + [w.shape[0] for w, _, _ in layers]
-    out = ["// written by the test", f"{len(layers)},{sizes[0]},{sizes[-1]},{max(sizes)},", ",".join(map(str, sizes)) + ",", normalization.rstrip("\n")]
+    out = [
+        "// written by the test",
+        f"{len(layers)},{sizes[0]},{sizes[-1]},{max(sizes)},",
+        ",".join(map(str, sizes)) + ",",
+        normalization.rstrip("\n"),
+    ]
     for w, b, _ in layers:
         out += [",".join(repr(float(v)) for v in row) + "," for row in w] + [f"{float(v)!r}," for v in b]
     return "\n".join(out) + "\n"
@@ -43,8 +56,8 @@ def nnet_layers(path):
     layers, at = [], 0
     for k in range(count):
         n = sizes[k] * sizes[k + 1]
-        w = np.array(flat[at: at + n]).reshape(sizes[k + 1], sizes[k])
-        b = np.array(flat[at + n: at + n + sizes[k + 1]])
+        w = np.array(flat[at : at + n]).reshape(sizes[k + 1], sizes[k])
+        b = np.array(flat[at + n : at + n + sizes[k + 1]])
         at += n + sizes[k + 1]
         layers.append((w, b, "relu" if k < count - 1 else "identity"))
     assert at == len(flat) and sizes[0] == n_in
@@ -89,8 +102,15 @@ def cell(arrays):
 
 def save_mat(path, layers, key="act_fcns", **extra):
     names = {"relu": "relu", "tanh": "tansig", "sigmoid": "logsig", "identity": "purelin"}
-    scipy.io.savemat(str(path), {"W": cell([w for w, _, _ in layers]), "b": cell([b.reshape(-1, 1) for _, b, _ in layers]),
-                                 key: np.array([names[a] for _, _, a in layers], dtype=object), **extra})
+    scipy.io.savemat(
+        str(path),
+        {
+            "W": cell([w for w, _, _ in layers]),
+            "b": cell([b.reshape(-1, 1) for _, b, _ in layers]),
+            key: np.array([names[a] for _, _, a in layers], dtype=object),
+            **extra,
+        },
+    )
 
 
 def test_mat_written_here(tmp_path):
@@ -126,7 +146,10 @@ BAD_NNET = {
     "sizes": (lambda t: t.replace("\n3,4,2,\n", "\n3,5,2,\n", 1), "expected 3 numbers, found"),
     "header": (lambda t: t.replace("// written by the test\n2,3,2,", "// written by the test\n2,4,2,", 1), "the header says 4 inputs"),
     "extra": (lambda t: t + "1.0,\n", "numbers after the last layer's biases"),
-    "layer count": (lambda t: t.replace("// written by the test\n2,", "// written by the test\n0.5,", 1), "layer count must be a positive integer"),
+    "layer count": (
+        lambda t: t.replace("// written by the test\n2,", "// written by the test\n0.5,", 1),
+        "layer count must be a positive integer",
+    ),
 }
 
 

@@ -95,9 +95,7 @@ def _in_double(path: Path):
 
 
 def _model(nodes, inputs, outputs, initializers=(), opset=13):
-    graph = helper.make_graph(
-        nodes, "fixture", inputs, outputs, [numpy_helper.from_array(a, name) for name, a in initializers]
-    )
+    graph = helper.make_graph(nodes, "fixture", inputs, outputs, [numpy_helper.from_array(a, name) for name, a in initializers])
     model = helper.make_model(graph, opset_imports=[helper.make_opsetid("", opset)])
     model.ir_version = 8
     return model
@@ -313,9 +311,7 @@ def _simple(nodes, inits=(), inputs=None):
 
 
 def test_unsupported_op_is_named(tmp_path):
-    path = _save(
-        _simple([_node("Gemm", ["x", "w"], "g"), _node("LeakyRelu", ["g"], "y", name="leaky")]), tmp_path / "leaky.onnx"
-    )
+    path = _save(_simple([_node("Gemm", ["x", "w"], "g"), _node("LeakyRelu", ["g"], "y", name="leaky")]), tmp_path / "leaky.onnx")
     with pytest.raises(NetworkFormatError) as error:
         pv.load_network(path)
     message = str(error.value)
@@ -474,9 +470,9 @@ def test_output_map_and_sigmoid_tails():
     x = rng.normal(size=(5, 3))
     h = x
     for layer in network.layers:
-        h = {"relu": lambda z: np.maximum(z, 0), "sigmoid": expit, "tanh": np.tanh, "identity": lambda z: z}[
-            layer.activation
-        ](h @ layer.weight.T + layer.bias)
+        h = {"relu": lambda z: np.maximum(z, 0), "sigmoid": expit, "tanh": np.tanh, "identity": lambda z: z}[layer.activation](
+            h @ layer.weight.T + layer.bias
+        )
     _close(network(x), h * [2.0, -3.0] + 0.5)
     sigmoid = pv.Network([(np.eye(1), np.zeros(1), "sigmoid")])
     z = np.array([[-800.0], [-30.0], [0.0], [30.0], [800.0]])

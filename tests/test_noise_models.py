@@ -67,8 +67,7 @@ def test_knockout_classifier_learns_where_rays_are_swallowed_and_round_trips(tmp
     labels = noise.label(real, canonical, 0.5)
     inputs = np.column_stack([canonical, features])
     train = slice(0, 1000)
-    model = noise.train_knockout(inputs[train], labels[train], (16,), knocked=LIMIT, epochs=40, batch=64, seed=0,
-                                 threads=1)
+    model = noise.train_knockout(inputs[train], labels[train], (16,), knocked=LIMIT, epochs=40, batch=64, seed=0, threads=1)
     held_out = slice(1000, None)
     knocked = model.knockouts(canonical[held_out], features[held_out])
     assert np.mean(knocked[:, 2] == swallowed[held_out]) > 0.95  # 0.994 measured

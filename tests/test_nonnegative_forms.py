@@ -14,7 +14,10 @@ FORMS = {
     "power": ((vx * vx + vy**4) ** 0.5, lambda a, b, c: (a * a + b**4) ** 0.5),
     "nested": (pv.sqrt(pv.abs_(w) + pv.sqrt(vx**2) * pv.exp(vy)), lambda a, b, c: np.sqrt(np.abs(c) + np.sqrt(a**2) * np.exp(b))),
     "where": (pv.sqrt(pv.where(w >= 0, vx**2, vy**2 + 0.5)), lambda a, b, c: np.sqrt(np.where(c >= 0, a**2, b**2 + 0.5))),
-    "margin": (pv.sqrt(vx**2 + vy**2) - 0.2 - 0.1 * pv.sqrt(w**2 + 1), lambda a, b, c: np.sqrt(a**2 + b**2) - 0.2 - 0.1 * np.sqrt(c**2 + 1)),
+    "margin": (
+        pv.sqrt(vx**2 + vy**2) - 0.2 - 0.1 * pv.sqrt(w**2 + 1),
+        lambda a, b, c: np.sqrt(a**2 + b**2) - 0.2 - 0.1 * np.sqrt(c**2 + 1),
+    ),
 }
 BOXES = [
     {"vx": (-0.3, 0.3), "vy": (-0.2, 0.25), "w": (-1, 1)},

@@ -37,8 +37,12 @@ def without_extras(*args, cwd=None):
 
 
 def test_import_loads_no_extra():
-    run = subprocess.run([sys.executable, "-c", f"import sys, percver; print([m for m in {EXTRAS!r} if m in sys.modules])"],
-                         capture_output=True, text=True, timeout=120)
+    run = subprocess.run(
+        [sys.executable, "-c", f"import sys, percver; print([m for m in {EXTRAS!r} if m in sys.modules])"],
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
     assert run.returncode == 0, run.stderr
     assert run.stdout.strip() == "[]"
 

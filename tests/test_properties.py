@@ -29,12 +29,16 @@ def in_box(traj, box):
     return (traj[..., 0] >= box["x1"][0]) & (traj[..., 0] <= box["x1"][1]) & (traj[..., 1] >= box["x2"][0]) & (traj[..., 1] <= box["x2"][1])
 
 
-@pytest.mark.parametrize("unsafe", [
-    [x1 >= -0.2, x1 <= 0, x2 >= -1, x2 <= 0],  # a list of conditions is one set: the box
-    pv.Box(BOX),
-    BOX,
-    pv.all_of(x1 >= -0.2, x1 <= 0, pv.Box({"x2": (-1, 0)})),
-], ids=["list", "Box", "dict", "all_of"])
+@pytest.mark.parametrize(
+    "unsafe",
+    [
+        [x1 >= -0.2, x1 <= 0, x2 >= -1, x2 <= 0],  # a list of conditions is one set: the box
+        pv.Box(BOX),
+        BOX,
+        pv.all_of(x1 >= -0.2, x1 <= 0, pv.Box({"x2": (-1, 0)})),
+    ],
+    ids=["list", "Box", "dict", "all_of"],
+)
 def test_a_box_to_avoid_is_one_set(unsafe):
     runs = numpy_drift(pv.Box(AWAY).sample(500, seed=2), 20)
     assert not in_box(runs, BOX).any() and ((runs[..., 0] >= -0.2) & (runs[..., 0] <= 0)).any()
@@ -66,11 +70,14 @@ def test_a_box_to_reach_and_a_box_to_stay_in():
     assert pv.verify(drift(), init=AWAY, steps=16, goal=goal, progress=False).verdict == "falsified"
 
 
-@pytest.mark.parametrize("make", [
-    lambda: pv.all_of(x1 >= 0.1, x2 < 0.3, x1 + x2 <= 1),
-    lambda: pv.any_of(x1 > 0.4, pv.all_of(x2 >= -0.2, x1 * x2 <= 0.05)),
-    lambda: pv.any_of(pv.Box({"x1": (0, 0.5), "x2": (0, 0.5)}), x1 + x2 > 0.8),
-])
+@pytest.mark.parametrize(
+    "make",
+    [
+        lambda: pv.all_of(x1 >= 0.1, x2 < 0.3, x1 + x2 <= 1),
+        lambda: pv.any_of(x1 > 0.4, pv.all_of(x2 >= -0.2, x1 * x2 <= 0.05)),
+        lambda: pv.any_of(pv.Box({"x1": (0, 0.5), "x2": (0, 0.5)}), x1 + x2 > 0.8),
+    ],
+)
 def test_the_engines_condition_is_never_weaker_and_complements_are_exact(make):
     region = make()
     pts = np.random.default_rng(0).uniform(-1, 1, size=(20000, 2))

@@ -68,11 +68,22 @@ def _network_loop(continuous: bool) -> Program:
     x, y, u = Var("x"), Var("y"), Var("u")
     if continuous:
         update = {"x": Binary("-", u, x), "y": Const(0.0)}
-        return Program(["x", "y"], {"x": (0.4, 0.6), "y": (-0.1, 0.1)}, update, stages, period=0.13, step=0.13 / 3,
-                       inputs=["u"], safe=[Cond(x, "<=", Const(2.0))], steps=3, options=SIMPLEST)
+        return Program(
+            ["x", "y"],
+            {"x": (0.4, 0.6), "y": (-0.1, 0.1)},
+            update,
+            stages,
+            period=0.13,
+            step=0.13 / 3,
+            inputs=["u"],
+            safe=[Cond(x, "<=", Const(2.0))],
+            steps=3,
+            options=SIMPLEST,
+        )
     update = {"x": Binary("+", x, Binary("*", Const(0.1), u)), "y": y}
-    return Program(["x", "y"], {"x": (0.4, 0.6), "y": (-0.1, 0.1)}, update, stages, safe=[Cond(x, "<=", Const(2.0))], steps=4,
-                   options=SIMPLEST)
+    return Program(
+        ["x", "y"], {"x": (0.4, 0.6), "y": (-0.1, 0.1)}, update, stages, safe=[Cond(x, "<=", Const(2.0))], steps=4, options=SIMPLEST
+    )
 
 
 @contextmanager
@@ -111,8 +122,11 @@ def test_the_oracle_catches_a_box_that_misses_a_run(continuous):
     assert result.verdict == "verified" and not report.violations and report.box_checks > 0
     top = _sampled_max(program, result, 2)
     lo = result.cells[0].boxes[2][0][0]
-    below = [(np.nextafter(top, -np.inf), True)] if not continuous else \
-        [(top - 2 * ODE_TOLERANCE * (1 + abs(top)), True), (top - 0.5 * ODE_TOLERANCE * (1 + abs(top)), False)]
+    below = (
+        [(np.nextafter(top, -np.inf), True)]
+        if not continuous
+        else [(top - 2 * ODE_TOLERANCE * (1 + abs(top)), True), (top - 0.5 * ODE_TOLERANCE * (1 + abs(top)), False)]
+    )
     for hi, caught in below:
         result.cells[0].boxes[2][0] = (lo, hi)
         _, report = _checked(program, result)
@@ -146,8 +160,13 @@ def _issue_24() -> Program:
     x, y, c = Var("x"), Var("y"), Var("c")
     wave = lambda v: Cond(Unary("sin", Binary("*", Const(1000.0), v)), "<=", Const(0.0))
     gain = Binary("+", Where(wave(x), Const(1.0), Const(0.0)), Where(wave(y), Const(0.0), Const(1.0)))
-    return Program(["x", "y", "c"], {"x": (0.0031, 0.0131), "y": (0.0031, 0.0131), "c": (0.0, 0.0)},
-                   {"x": x, "y": y, "c": Binary("+", c, gain)}, safe=[Cond(c, "<=", Const(1.5))], options=SIMPLEST)
+    return Program(
+        ["x", "y", "c"],
+        {"x": (0.0031, 0.0131), "y": (0.0031, 0.0131), "c": (0.0, 0.0)},
+        {"x": x, "y": y, "c": Binary("+", c, gain)},
+        safe=[Cond(c, "<=", Const(1.5))],
+        options=SIMPLEST,
+    )
 
 
 def test_the_oracle_catches_the_merged_branches_of_issue_24():
@@ -191,11 +210,13 @@ def _nodes(program: Program) -> int:
 def test_shrinking_keeps_the_failure_and_simplifies():
     """With a stand-in failure (the plant's update has a condition on a parameter), shrinking
     ends at a smaller program that still has it: one step, the plainest options, no stages."""
+
     def has_param_condition(p):
         return any(isinstance(n, Where) and isinstance(n.cond.lhs, Param) for e in p.update.values() for n in walk(e))
 
-    program = next(p for p in (generate(CI_SEED, i) for i in range(200))
-                   if has_param_condition(p) and p.stages and p.steps > 1 and p.options)
+    program = next(
+        p for p in (generate(CI_SEED, i) for i in range(200)) if has_param_condition(p) and p.stages and p.steps > 1 and p.options
+    )
     small, found = shrink(program, "planted", lambda p: "planted" if has_param_condition(p) else None, seconds=60)
     assert found == "planted" and has_param_condition(small)
     assert small.steps == 1 and small.options == SIMPLEST and not small.stages and _nodes(small) < _nodes(program)
@@ -247,8 +268,12 @@ def test_boxes_only_rerun_checks_boxes_of_probe_falsified_loops():
 def test_the_reproducer_of_a_violation_names_the_witness():
     program = _issue_24()
     box = dict(program.init)
-    merged = Result(["x", "y", "c"], box, [Cell(box, "verified", boxes=[list(box.values()), [(0.0031, 0.0131)] * 2 + [(1.0, 1.0)]])],
-                    settings={"steps": 1})
+    merged = Result(
+        ["x", "y", "c"],
+        box,
+        [Cell(box, "verified", boxes=[list(box.values()), [(0.0031, 0.0131)] * 2 + [(1.0, 1.0)]])],
+        settings={"steps": 1},
+    )
     _, report = _checked(program, merged)
     violation = next(v for v in report.violations if v.kind == "box")
     text = reproducer(program, violation, 0, 0)

@@ -1,6 +1,5 @@
 """Splitters (``pv.verify(splitter=...)``): the grid, bisection and the adaptive default."""
 
-import numpy as np
 import pytest
 
 import percver as pv
@@ -33,8 +32,12 @@ def test_adaptive_cuts_a_cell_to_the_size_its_neighbours_needed():
     init = Box(("p", "v"), ((0.0, 1.0), (0.0, 0.0)))
     a = pv.Adaptive()
     a.learn(Box(("p", "v"), ((0.0, 0.125), (0.0, 0.0))), "verified", init)
-    assert [c.bounds[0] for c in a.prepare(Box(("p", "v"), ((0.125, 0.5), (0.0, 0.0))), init)] == \
-        [(0.125, 0.21875), (0.21875, 0.3125), (0.3125, 0.40625), (0.40625, 0.5)]
+    assert [c.bounds[0] for c in a.prepare(Box(("p", "v"), ((0.125, 0.5), (0.0, 0.0))), init)] == [
+        (0.125, 0.21875),
+        (0.21875, 0.3125),
+        (0.3125, 0.40625),
+        (0.40625, 0.5),
+    ]
     # A cell that does not touch it is left alone.
     far = Box(("p", "v"), ((0.5, 1.0), (0.0, 0.0)))
     assert a.prepare(far, init) == [far]

@@ -24,8 +24,7 @@ INIT = {"x": (0.6, 0.65), "v": (-0.3, -0.25)}
 @pytest.mark.parametrize("symbols", [False, True])
 def test_reach_boxes_enclose_simulations(symbols):
     closed = loop()
-    result = pv.verify(closed, INIT, steps=12, safe=pv.Box({"x": (-5, 5)}), order=3, max_splits=0, state_symbols=symbols,
-                       progress=False)
+    result = pv.verify(closed, INIT, steps=12, safe=pv.Box({"x": (-5, 5)}), order=3, max_splits=0, state_symbols=symbols, progress=False)
     cell = result.cells[0]
     assert result.verdict == "verified", cell.reason
     rng = np.random.default_rng(0)
@@ -40,7 +39,8 @@ def test_reach_boxes_enclose_simulations(symbols):
 def test_symbols_are_tighter_at_the_end():
     widths = {}
     for symbols in (False, True):
-        result = pv.verify(loop(), INIT, steps=12, safe=pv.Box({"x": (-5, 5)}), order=3, max_splits=0, state_symbols=symbols,
-                           progress=False)
+        result = pv.verify(
+            loop(), INIT, steps=12, safe=pv.Box({"x": (-5, 5)}), order=3, max_splits=0, state_symbols=symbols, progress=False
+        )
         widths[symbols] = np.ptp(np.array(result.cells[0].boxes[-1]), axis=1).max()
     assert widths[True] < 0.8 * widths[False], widths

@@ -153,6 +153,7 @@ def _mp_call(f):
             return _real(f(v))
         except (ZeroDivisionError, ValueError) as e:
             raise Undefined from e
+
     return g
 
 
@@ -194,47 +195,77 @@ def binary(op, a, b):
     if op == "*":
         return Node(f"({a.text} * {b.text})", a.expr * b.expr, lambda e: a.np(e) * b.np(e), lambda e: a.mp(e) * b.mp(e), [a, b])
     if op == "/":
+
         def mp_div(e):
             d = b.mp(e)
             if d == 0:
                 raise Undefined
             return a.mp(e) / d
+
         return Node(f"({a.text} / {b.text})", a.expr / b.expr, lambda e: a.np(e) / b.np(e), mp_div, [a, b], domain=("nonzero", b))
     if op == "min":
-        return Node(f"pv.minimum({a.text}, {b.text})", pv.minimum(a.expr, b.expr), lambda e: np.minimum(a.np(e), b.np(e)),
-                    lambda e: min(a.mp(e), b.mp(e)), [a, b])
+        return Node(
+            f"pv.minimum({a.text}, {b.text})",
+            pv.minimum(a.expr, b.expr),
+            lambda e: np.minimum(a.np(e), b.np(e)),
+            lambda e: min(a.mp(e), b.mp(e)),
+            [a, b],
+        )
     if op == "max":
-        return Node(f"pv.maximum({a.text}, {b.text})", pv.maximum(a.expr, b.expr), lambda e: np.maximum(a.np(e), b.np(e)),
-                    lambda e: max(a.mp(e), b.mp(e)), [a, b])
+        return Node(
+            f"pv.maximum({a.text}, {b.text})",
+            pv.maximum(a.expr, b.expr),
+            lambda e: np.maximum(a.np(e), b.np(e)),
+            lambda e: max(a.mp(e), b.mp(e)),
+            [a, b],
+        )
     raise ValueError(op)
 
 
 def power(a, n):
     """a ** n for an integer n (percver turns it into an integer power)."""
+
     def mp_pow(e):
         v = a.mp(e)
         if n < 0 and v == 0:
             raise Undefined
         return v**n
+
     return Node(f"({a.text})**{n}", a.expr**n, lambda e: a.np(e) ** float(n), mp_pow, [a], domain=("nonzero", a) if n < 0 else None)
 
 
 def real_power(a, r):
     """a ** r for a non-integer r: defined for a > 0 (percver needs a > 0 for the remainder)."""
+
     def mp_pow(e):
         v = a.mp(e)
         if v < 0 or (v == 0 and r < 0):
             raise Undefined
         return _real(mpmath.power(v, mpf(r)))
+
     return Node(f"({a.text})**{r!r}", a.expr**r, lambda e: np.power(a.np(e), r), mp_pow, [a], domain=("nonneg" if r > 0 else "pos", a))
 
 
 def log(a):
-    return Node(f"pv.log({a.text})", pv.log(a.expr), lambda e: np.log(a.np(e)), lambda e: _mp_call(mpmath.log)(_pos(a.mp(e))), [a], domain=("pos", a))
+    return Node(
+        f"pv.log({a.text})",
+        pv.log(a.expr),
+        lambda e: np.log(a.np(e)),
+        lambda e: _mp_call(mpmath.log)(_pos(a.mp(e))),
+        [a],
+        domain=("pos", a),
+    )
 
 
 def sqrt(a):
-    return Node(f"pv.sqrt({a.text})", pv.sqrt(a.expr), lambda e: np.sqrt(a.np(e)), lambda e: mpmath.sqrt(_nonneg(a.mp(e))), [a], domain=("nonneg", a))
+    return Node(
+        f"pv.sqrt({a.text})",
+        pv.sqrt(a.expr),
+        lambda e: np.sqrt(a.np(e)),
+        lambda e: mpmath.sqrt(_nonneg(a.mp(e))),
+        [a],
+        domain=("nonneg", a),
+    )
 
 
 def tan(a):
@@ -309,13 +340,20 @@ def expressions(names, max_leaves=9):
             st.tuples(children, st.sampled_from([2, 3, 4])).map(lambda t: power(*t)),
             # Guarded domains: c + a^2 with c > 0, and tan(0.7 tanh(a)). These may still raise
             # if a model is loose, and must never be unsound.
-            st.tuples(st.sampled_from(["log", "sqrt", "div", "pow", "tan"]), children, st.sampled_from([0.5, 1.0, 2.0]),
-                      st.sampled_from([0.5, -0.5, 1.5, -1.5, 2.5, 1 / 3]), children).map(lambda t: guarded(*t)),
+            st.tuples(
+                st.sampled_from(["log", "sqrt", "div", "pow", "tan"]),
+                children,
+                st.sampled_from([0.5, 1.0, 2.0]),
+                st.sampled_from([0.5, -0.5, 1.5, -1.5, 2.5, 1 / 3]),
+                children,
+            ).map(lambda t: guarded(*t)),
             # Unguarded domains: must raise DomainError when the box leaves the domain.
-            st.tuples(st.sampled_from(["log", "sqrt", "div", "tan", "pow", "inv", "inv2"]), children, children,
-                      st.sampled_from([0.5, -0.5, 1.5])).map(lambda t: risky(*t)),
-            st.tuples(children, st.sampled_from(sorted(CMP)), st.sampled_from([0.1, 0.0, -0.5, 1.0]), children, children)
-            .map(lambda t: where(*t)),
+            st.tuples(
+                st.sampled_from(["log", "sqrt", "div", "tan", "pow", "inv", "inv2"]), children, children, st.sampled_from([0.5, -0.5, 1.5])
+            ).map(lambda t: risky(*t)),
+            st.tuples(children, st.sampled_from(sorted(CMP)), st.sampled_from([0.1, 0.0, -0.5, 1.0]), children, children).map(
+                lambda t: where(*t)
+            ),
             st.tuples(children, st.sampled_from([(-0.5, 0.5), (0.0, 1.0), (-2.0, 0.3)])).map(lambda t: clip(t[0], *t[1])),
         )
 
@@ -393,8 +431,7 @@ def mp_value(node, names, point):
 
 def repro(nodes, names, bounds, order, cutoff):
     exprs = ", ".join(n.text for n in nodes)
-    return (f"\n  x, y, z = pv.variables('x y z')\n  tm = percver._core.taylor_models([{exprs}], {names!r}, "
-            f"{bounds!r}, {order}, {cutoff!r})")
+    return f"\n  x, y, z = pv.variables('x y z')\n  tm = percver._core.taylor_models([{exprs}], {names!r}, {bounds!r}, {order}, {cutoff!r})"
 
 
 def required_nodes(node):
@@ -472,18 +509,23 @@ def check_inside(label, node, names, pts, truth, lo, hi, context, max_near=60):
     # Outside values first (all of them if few; the worst 200 otherwise).
     if len(outside) > 200:
         with np.errstate(all="ignore"):
-            miss = np.where(finite[outside], np.maximum(lo[outside] - truth[outside], truth[outside] - hi[outside]) / scale[outside], np.inf)
+            miss = np.where(
+                finite[outside], np.maximum(lo[outside] - truth[outside], truth[outside] - hi[outside]) / scale[outside], np.inf
+            )
         outside = outside[np.argsort(-miss)][:200]
     for i in list(outside) + list(near):
         try:
             v = mp_value(node, names, pts[i])
         except Undefined:
-            raise AssertionError(f"{label}: the expression is undefined at the box point {pts[i].tolist()} "
-                                 f"but percver returned a model{context}") from None
+            raise AssertionError(
+                f"{label}: the expression is undefined at the box point {pts[i].tolist()} but percver returned a model{context}"
+            ) from None
         with mp.workprec(PREC):
             inside = mpf(float(lo[i])) <= v <= mpf(float(hi[i]))
-        assert inside, (f"{label}: UNSOUND at point {pts[i].tolist()!r}: exact value {mpmath.nstr(v, 20)} "
-                        f"(float {float(truth[i])!r}) outside [{float(lo[i])!r}, {float(hi[i])!r}]{context}")
+        assert inside, (
+            f"{label}: UNSOUND at point {pts[i].tolist()!r}: exact value {mpmath.nstr(v, 20)} "
+            f"(float {float(truth[i])!r}) outside [{float(lo[i])!r}, {float(hi[i])!r}]{context}"
+        )
     return len(outside)
 
 
@@ -608,7 +650,9 @@ def test_random_polynomials_are_enclosed(data):
         lo, hi = tm.remainders()[0]
         b = tm.bound()[0]
         scale = 1.0 + max(abs(b[0]), abs(b[1]))
-        assert hi - lo <= 1e-12 * scale, f"remainder [{lo}, {hi}] of an exactly representable polynomial{repro([node], names, bounds, order, cutoff)}"
+        assert hi - lo <= 1e-12 * scale, (
+            f"remainder [{lo}, {hi}] of an exactly representable polynomial{repro([node], names, bounds, order, cutoff)}"
+        )
 
 
 @settings(max_examples=100, **SETTINGS)
@@ -830,10 +874,27 @@ def test_errors_are_clear():
         pv.bounds(X, {"x": (0.0, 1.0)}, method="bernstein")
 
 
-EXTREME_BOXES = [(-1e200, 1e200), (1e154, 1e155), (1e-200, 2e-200), (1e-310, 2e-310), (-1e-300, 1e-300),
-                 (1e6, 1e6 + 1e-6), (-1e15, -1e15 + 1.0), (700.0, 720.0)]
-EXTREME_EXPRS = [x * y, x * x - x * x, exp(x), sin(x) * x, atan(x * x), sqrt(x), tanh(x) * y,
-                 binary("max", x, y) - x, sigmoid(x) + sigmoid(-x)]
+EXTREME_BOXES = [
+    (-1e200, 1e200),
+    (1e154, 1e155),
+    (1e-200, 2e-200),
+    (1e-310, 2e-310),
+    (-1e-300, 1e-300),
+    (1e6, 1e6 + 1e-6),
+    (-1e15, -1e15 + 1.0),
+    (700.0, 720.0),
+]
+EXTREME_EXPRS = [
+    x * y,
+    x * x - x * x,
+    exp(x),
+    sin(x) * x,
+    atan(x * x),
+    sqrt(x),
+    tanh(x) * y,
+    binary("max", x, y) - x,
+    sigmoid(x) + sigmoid(-x),
+]
 
 
 @pytest.mark.parametrize("bx", EXTREME_BOXES, ids=str)
@@ -862,11 +923,16 @@ def test_point_box_and_degenerate_widths():
             assert mpf(lo[0, 0]) <= v <= mpf(hi[0, 0])
 
 
-@pytest.mark.xfail(RANGE_PANIC_BUG, strict=True, reason=(
-    "CRASH: pv.bounds(x*y, {'x': (2.0, 2.0), 'y': (-1.0, 1.0), 'z': (0.0, 1.0)}) (method='taylor', "
-    "i.e. TaylorModels.range()) panics: 'index out of bounds: the len is 3 but the index is 3' at "
-    "crates/taylor/src/bound.rs:47; pyo3 turns it into PanicException, a BaseException that "
-    "`except percver.PercverError` (or even `except Exception`) does not catch."))
+@pytest.mark.xfail(
+    RANGE_PANIC_BUG,
+    strict=True,
+    reason=(
+        "CRASH: pv.bounds(x*y, {'x': (2.0, 2.0), 'y': (-1.0, 1.0), 'z': (0.0, 1.0)}) (method='taylor', "
+        "i.e. TaylorModels.range()) panics: 'index out of bounds: the len is 3 but the index is 3' at "
+        "crates/taylor/src/bound.rs:47; pyo3 turns it into PanicException, a BaseException that "
+        "`except percver.PercverError` (or even `except Exception`) does not catch."
+    ),
+)
 def test_known_bug_range_panics_on_point_box():
     X, Y = VARS["x"], VARS["y"]
     try:
@@ -890,4 +956,3 @@ def test_tiny_positive_boxes_do_not_raise(which):
             assert mpf(lo) <= mpmath.log(mpf(b[0])) and mpmath.log(mpf(b[1])) <= mpf(hi)
         else:
             assert lo <= 0.5 and hi >= 2.0
-

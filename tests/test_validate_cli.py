@@ -14,16 +14,16 @@ TESTS = Path(__file__).parent
 
 
 def run(*args, cwd=None):
-    return subprocess.run([sys.executable, "-m", "percver.cli", "validate", *args], capture_output=True, text=True,
-                          timeout=300, cwd=cwd)
+    return subprocess.run([sys.executable, "-m", "percver.cli", "validate", *args], capture_output=True, text=True, timeout=300, cwd=cwd)
 
 
 def test_lidar_run_prints_steps_and_writes_the_report(tmp_path):
     poses = hidden_world.poses(300, seed=7)
     scans = hidden_world.scan(poses, seed=8, bias=0.1)
     pv.Measurements(poses, scans, state_names=["x", "y", "theta"]).save(tmp_path / "scans.npz")
-    r = run("--model", "lidar-f1tenth", "--data", str(tmp_path / "scans.npz"), "--out", str(tmp_path / "report"),
-            "--no-progress", "--learn")
+    r = run(
+        "--model", "lidar-f1tenth", "--data", str(tmp_path / "scans.npz"), "--out", str(tmp_path / "report"), "--no-progress", "--learn"
+    )
     assert r.returncode == 0, r.stderr
     assert "step 1: + range_bias" in r.stdout
     assert "learned_" not in r.stdout  # the bias explains everything: nothing is left to learn
@@ -34,8 +34,9 @@ def test_lidar_run_prints_steps_and_writes_the_report(tmp_path):
 
 def test_plant_from_a_python_file_with_json_output(tmp_path):
     states, controls, trajectory, time = hidden_world.runs(10, 40, seed=9, drag=0.03)
-    pv.Measurements(states, controls=controls, trajectory=trajectory, time=time, state_names=["p", "v"],
-                    control_names=["u"]).save(tmp_path / "runs.parquet")
+    pv.Measurements(states, controls=controls, trajectory=trajectory, time=time, state_names=["p", "v"], control_names=["u"]).save(
+        tmp_path / "runs.parquet"
+    )
     (tmp_path / "plant.py").write_text(
         "import sys\n"
         f"sys.path.insert(0, {str(TESTS)!r})\n"
@@ -43,8 +44,18 @@ def test_plant_from_a_python_file_with_json_output(tmp_path):
         "from percver.validate import FunctionPlant\n"
         "plant = FunctionPlant(hidden_world.mountain_car_step, ['p', 'v'], ['u'])\n"
     )
-    r = run("--model", "plant.py:plant", "--data", "runs.parquet", "--out", "report", "--json",
-            "--effects", "linear_drag,actuator_gain", cwd=tmp_path)
+    r = run(
+        "--model",
+        "plant.py:plant",
+        "--data",
+        "runs.parquet",
+        "--out",
+        "report",
+        "--json",
+        "--effects",
+        "linear_drag,actuator_gain",
+        cwd=tmp_path,
+    )
     assert r.returncode == 0, r.stderr
     doc = json.loads(r.stdout)
     assert [s["effect"] for s in doc["steps"]] == ["linear_drag"]
@@ -105,8 +116,20 @@ def test_verify_runs_on_the_diagnosed_model(tmp_path):
         '[plant]\npython = "car.py:loop"\n[init]\np = [-0.50, -0.48]\nv = 0.0\n[split]\np = 4\n'
         '[property]\nsteps = 200\ngoal = "p >= 0.45"\nwithin = true\n'
     )
-    r = run("--model", "car.py:plant", "--data", "runs.npz", "--out", "report", "--effects", "coulomb_friction,actuator_gain",
-            "--no-progress", "--verify", "goal.toml", cwd=tmp_path)
+    r = run(
+        "--model",
+        "car.py:plant",
+        "--data",
+        "runs.npz",
+        "--out",
+        "report",
+        "--effects",
+        "coulomb_friction,actuator_gain",
+        "--no-progress",
+        "--verify",
+        "goal.toml",
+        cwd=tmp_path,
+    )
     assert r.returncode == 4, r.stderr  # falsified: the textbook loop verifies, the diagnosed one does not
     assert "coulomb_friction" in r.stdout and "95% bootstrap confidence intervals" in r.stdout
     assert "counterexample: from p = " in r.stdout

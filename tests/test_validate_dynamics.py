@@ -17,8 +17,7 @@ def _model():
 
 def _data(**hidden):
     states, controls, trajectory, time = hidden_world.runs(30, 60, seed=5, **hidden)
-    return pv.Measurements(states, controls=controls, trajectory=trajectory, time=time,
-                           state_names=["p", "v"], control_names=["u"])
+    return pv.Measurements(states, controls=controls, trajectory=trajectory, time=time, state_names=["p", "v"], control_names=["u"])
 
 
 @functools.lru_cache(maxsize=None)
@@ -64,8 +63,9 @@ def test_clean_runs_claim_nothing():
 def test_pairs_without_trajectories_still_find_drag():
     states, controls, trajectory, _ = hidden_world.runs(30, 60, seed=6, drag=0.03)
     keep = trajectory[:-1] == trajectory[1:]
-    data = pv.Measurements(states[:-1][keep], controls=controls[:-1][keep], next_states=states[1:][keep],
-                           state_names=["p", "v"], control_names=["u"])
+    data = pv.Measurements(
+        states[:-1][keep], controls=controls[:-1][keep], next_states=states[1:][keep], state_names=["p", "v"], control_names=["u"]
+    )
     diagnosis = pv.diagnose(_model(), data, effects=["linear_drag", "actuator_delay", "actuator_gain"])
     assert diagnosis.effects == ["linear_drag"]  # no delay candidate: pairs carry no control history
     assert _params(diagnosis, "linear_drag")["coefficient"] == pytest.approx(0.03, abs=0.002)
@@ -78,8 +78,17 @@ def test_one_step_prediction_and_errors():
         pv.compare(_model(), pv.Measurements(np.zeros((5, 2)), next_states=np.zeros((5, 2))))
     with pytest.raises(MeasurementError, match=r"needs controls \['u'\]"):
         data = _data()
-        pv.compare(_model(), pv.Measurements(data.states, controls=data.controls, trajectory=data.trajectory,
-                                             time=data.time, state_names=["p", "v"], control_names=["thrust"]))
+        pv.compare(
+            _model(),
+            pv.Measurements(
+                data.states,
+                controls=data.controls,
+                trajectory=data.trajectory,
+                time=data.time,
+                state_names=["p", "v"],
+                control_names=["thrust"],
+            ),
+        )
     with pytest.raises(InputError, match="has no 'state_names'"):
         DynamicsModel(object())
     with pytest.raises(InputError, match="velocity states"):
@@ -111,8 +120,14 @@ def test_a_continuous_plant_is_compared_over_one_control_period():
             thrust = rng.uniform(-1, 1)
             states.append(s.copy()), controls.append([thrust]), trajectory.append(run), time.append(0.1 * k)
             s = np.array([s[0] + 0.1 * s[1] + 0.7 * thrust * 0.005, s[1] + 0.7 * thrust * 0.1])  # exact for constant u
-    data = pv.Measurements(np.array(states), controls=np.array(controls), trajectory=np.array(trajectory),
-                           time=np.array(time), state_names=["x", "w"], control_names=["u"])
+    data = pv.Measurements(
+        np.array(states),
+        controls=np.array(controls),
+        trajectory=np.array(trajectory),
+        time=np.array(time),
+        state_names=["x", "w"],
+        control_names=["u"],
+    )
     diagnosis = pv.diagnose(plant, data, effects=["actuator_gain", "actuator_bias"])
     assert diagnosis.effects == ["actuator_gain"]
     assert _params(diagnosis, "actuator_gain")["gain"] == pytest.approx(0.7, abs=1e-3)

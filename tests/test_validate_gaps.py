@@ -47,8 +47,14 @@ def test_first_step_of_each_run_is_named_after_a_delay():
             u = rng.uniform(-1, 1)
             rows.append(state[0].copy()), controls.append([u]), trajectory.append(run), time.append(float(k))
             state, before = hidden_world.mountain_car_step(state, np.array([[before]])), u
-    data = pv.Measurements(np.array(rows), controls=np.array(controls), trajectory=np.array(trajectory),
-                           time=np.array(time), state_names=["p", "v"], control_names=["u"])
+    data = pv.Measurements(
+        np.array(rows),
+        controls=np.array(controls),
+        trajectory=np.array(trajectory),
+        time=np.array(time),
+        state_names=["p", "v"],
+        control_names=["u"],
+    )
     model = DynamicsModel(FunctionPlant(hidden_world.mountain_car_step, ["p", "v"], ["u"]))
     diagnosis = pv.diagnose(model, data, effects=["actuator_delay", "actuator_gain"])
     assert diagnosis.effects == ["actuator_delay"]
@@ -56,8 +62,7 @@ def test_first_step_of_each_run_is_named_after_a_delay():
     assert start and start[0]["where"].startswith("the first step of each run") and start[0]["share"] > 0.9
     # Without the hidden start command, no run-start region is reported.
     states, controls, trajectory, time = hidden_world.runs(30, 40, seed=5, delay=1)
-    clean = pv.Measurements(states, controls=controls, trajectory=trajectory, time=time, state_names=["p", "v"],
-                            control_names=["u"])
+    clean = pv.Measurements(states, controls=controls, trajectory=trajectory, time=time, state_names=["p", "v"], control_names=["u"])
     assert not any("first step" in u["where"] for u in pv.diagnose(model, clean, effects=["actuator_delay"]).unexplained)
 
 

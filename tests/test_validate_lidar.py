@@ -143,8 +143,12 @@ def test_a_network_or_expressions_of_the_states_are_sensor_models():
     rng = np.random.default_rng(3)
     states = POSES[:200]
     wall, heading = 20.0 - states[:, 1], states[:, 2]
-    data = pv.Measurements(states, np.column_stack([wall + 0.05, heading + rng.normal(0, 0.01, 200)]),
-                           state_names=["x", "y", "theta"], measurement_names=["north", "heading"])
+    data = pv.Measurements(
+        states,
+        np.column_stack([wall + 0.05, heading + rng.normal(0, 0.01, 200)]),
+        state_names=["x", "y", "theta"],
+        measurement_names=["north", "heading"],
+    )
     report = pv.compare([20.0 - y, theta], data)
     assert report.per_dimension["north"] == pytest.approx(0.05)
     assert report.per_dimension["heading"] == pytest.approx(0.01, rel=0.2)

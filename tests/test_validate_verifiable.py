@@ -81,8 +81,7 @@ def test_actuator_delay_keeps_earlier_controls_as_states():
 def _fake_diagnosis(model):
     """A Diagnosis of ``model`` on data it explains exactly (its own predictions)."""
     states, controls, trajectory, time = hidden_world.runs(4, 30, seed=1)
-    data = pv.Measurements(states, controls=controls, trajectory=trajectory, time=time, state_names=["p", "v"],
-                           control_names=["u"])
+    data = pv.Measurements(states, controls=controls, trajectory=trajectory, time=time, state_names=["p", "v"], control_names=["u"])
     return pv.diagnose(model, data, effects=[], max_steps=0)
 
 
@@ -97,8 +96,14 @@ def _mountain_car_data(friction, gain, runs=12, steps=60, seed=4):
             w = np.sign(s[1]) * max(abs(s[1]) - friction, 0.0)
             w = float(np.clip(w + 0.0015 * gain * thrust - 0.0025 * np.cos(3 * s[0]), -0.07, 0.07))
             s = np.array([s[0] + w, w]) if s[0] + w >= -1.2 else np.array([-1.2, 0.0])
-    return pv.Measurements(np.array(rows), controls=np.array(controls), trajectory=np.array(trajectory), time=np.array(time),
-                           state_names=["p", "v"], control_names=["u"])
+    return pv.Measurements(
+        np.array(rows),
+        controls=np.array(controls),
+        trajectory=np.array(trajectory),
+        time=np.array(time),
+        state_names=["p", "v"],
+        control_names=["u"],
+    )
 
 
 @functools.lru_cache(maxsize=None)
@@ -142,8 +147,9 @@ def test_confidence_intervals_hold_the_truth_and_enter_as_uncertain_ranges():
         enclosure = pv.bounds(plant.update, box)
         points = rng.uniform(c - w, c + w, (300, 3))
         for _ in range(5):
-            drawn = model.with_effects([e.replace(**{n: rng.uniform(*intervals[i][n]) for n in intervals.get(i, {})})
-                                        for i, e in enumerate(model.effects)])
+            drawn = model.with_effects(
+                [e.replace(**{n: rng.uniform(*intervals[i][n]) for n in intervals.get(i, {})}) for i, e in enumerate(model.effects)]
+            )
             out = drawn.predict(points[:, :2], points[:, 2:])
             for j, (a, b) in enumerate(enclosure):
                 assert np.all(out[:, j] >= a) and np.all(out[:, j] <= b)
@@ -205,8 +211,7 @@ def test_refusals_name_the_model_and_the_fix():
 def _fake_continuous(model):
     rng = np.random.default_rng(2)
     states = rng.uniform(-1, 1, (20, 2))
-    data = pv.Measurements(states, controls=rng.uniform(-1, 1, (20, 1)), next_states=states, state_names=["x", "w"],
-                           control_names=["u"])
+    data = pv.Measurements(states, controls=rng.uniform(-1, 1, (20, 1)), next_states=states, state_names=["x", "w"], control_names=["u"])
     return pv.diagnose(model, data, effects=[], max_steps=0)
 
 
@@ -240,8 +245,7 @@ def test_diagnosed_lidar_is_a_stage_whose_rays_equal_the_float_model(stack):
     # Sound on sets: small pose boxes enclose the float scans of sampled poses.
     rng = np.random.default_rng(4)
     for pose in poses[:6]:
-        box = {"x": (pose[0] - 0.02, pose[0] + 0.02), "y": (pose[1] - 0.02, pose[1] + 0.02),
-               "theta": (pose[2] - 0.005, pose[2] + 0.005)}
+        box = {"x": (pose[0] - 0.02, pose[0] + 0.02), "y": (pose[1] - 0.02, pose[1] + 0.02), "theta": (pose[2] - 0.005, pose[2] + 0.005)}
         enclosure = np.array(pv.bounds(list(rays), box, method="interval"))
         inside = rng.uniform([b[0] for b in box.values()], [b[1] for b in box.values()], (200, 3))
         scans = model.predict(inside)

@@ -1,7 +1,6 @@
 """Closed-loop verification: sampling oracle, falsification, journal resume, bad input."""
 
 import json
-import os
 import signal
 import subprocess
 import sys
@@ -53,8 +52,16 @@ def assert_contains_simulations(loop, result, n=1000, seed=1, goal_p=None):
 @pytest.mark.parametrize("state_symbols", [False, True])
 def test_mountain_car_verified_and_reach_boxes_contain_simulations(state_symbols):
     loop, p, v = mountain_car()
-    res = pv.verify(loop, init={"p": (-0.53, -0.50), "v": (0, 0)}, steps=150, goal=p >= 0.45, within=True,
-                    split={"p": 3}, state_symbols=state_symbols, progress=False)
+    res = pv.verify(
+        loop,
+        init={"p": (-0.53, -0.50), "v": (0, 0)},
+        steps=150,
+        goal=p >= 0.45,
+        within=True,
+        split={"p": 3},
+        state_symbols=state_symbols,
+        progress=False,
+    )
     assert res.verdict == "verified", [c.reason for c in res.cells]
     assert res.coverage == pytest.approx(1.0)
     assert_contains_simulations(loop, res)
@@ -65,8 +72,7 @@ def test_mountain_car_verified_and_reach_boxes_contain_simulations(state_symbols
 
 def test_safety_property_and_unsafe_set():
     loop, p, v = mountain_car()
-    res = pv.verify(loop, init={"p": (-0.5, -0.49), "v": (0, 0)}, steps=40, safe=[v >= -0.07, v <= 0.07], unsafe=p <= -1.3,
-                    progress=False)
+    res = pv.verify(loop, init={"p": (-0.5, -0.49), "v": (0, 0)}, steps=40, safe=[v >= -0.07, v <= 0.07], unsafe=p <= -1.3, progress=False)
     assert res.verdict == "verified"
     assert_contains_simulations(loop, res, n=300)
 
@@ -109,8 +115,7 @@ def test_cells_the_engine_cannot_verify_are_sampled_and_verified_ones_are_not(mo
         return falsify(loop_, prop, cells, steps, samples, seed, probe)
 
     monkeypatch.setattr(campaign, "falsify", spy)
-    res = pv.verify(loop, init={"x": (0.0, 5.0)}, split={"x": 5}, steps=3, safe=(x - 0.3) ** 2 >= 0.01, workers=1,
-                    progress=False)
+    res = pv.verify(loop, init={"x": (0.0, 5.0)}, split={"x": 5}, steps=3, safe=(x - 0.3) ** 2 >= 0.01, workers=1, progress=False)
     verdicts = {c.box["x"]: c.verdict for c in res.cells}
     assert verdicts[(0.0, 1.0)] == "falsified" and verdicts[(2.0, 3.0)] == verdicts[(4.0, 5.0)] == "verified"
     first = next(c for c in res.cells if c.box["x"] == (0.0, 1.0))
@@ -128,8 +133,9 @@ def test_cells_falsified_in_batches_add_up(tmp_path):
     x = pv.variables("x")
     loop = pv.ClosedLoop(pv.Discrete({x: x + 1.0}))
     journal = tmp_path / "chunks.jsonl"
-    res = pv.verify(loop, init={"x": (0.0, 10.0)}, split={"x": 200}, steps=5, safe=x <= 12.02, workers=1, progress=False,
-                    journal=str(journal))
+    res = pv.verify(
+        loop, init={"x": (0.0, 10.0)}, split={"x": 200}, steps=5, safe=x <= 12.02, workers=1, progress=False, journal=str(journal)
+    )
     boxes = sorted(c.box["x"] for c in res.cells)
     assert len(boxes) == 200 and all(a[1] == pytest.approx(b[0]) for a, b in zip(boxes, boxes[1:]))
     assert all(c.verdict == ("falsified" if c.box["x"][1] + 5 > 12.02 else "verified") for c in res.cells)
@@ -140,8 +146,18 @@ def test_unknown_cells_are_refined(tmp_path):
     loop, p, v = mountain_car()
     # Order 2 loses precision on the wide cell, and no in-cell splits are allowed; refinement
     # splits until cells verify.
-    kwargs = dict(init={"p": (-0.53, -0.45), "v": (0, 0)}, steps=150, goal=p >= 0.45, within=True, order=2, max_splits=0,
-                  refine=True, min_width={"p": 0.005}, progress=False, journal=str(tmp_path / "refine.jsonl"))
+    kwargs = dict(
+        init={"p": (-0.53, -0.45), "v": (0, 0)},
+        steps=150,
+        goal=p >= 0.45,
+        within=True,
+        order=2,
+        max_splits=0,
+        refine=True,
+        min_width={"p": 0.005},
+        progress=False,
+        journal=str(tmp_path / "refine.jsonl"),
+    )
     res = pv.verify(loop, **kwargs)
     assert len(res.cells) > 1
     assert all(c.verdict in ("verified", "unknown") for c in res.cells)
@@ -162,17 +178,27 @@ def test_refinement_halves_the_state_the_engine_needed(tmp_path):
     u = pv.variables("u")
     v_next = pv.clip(v + 0.0015 * u - 0.0025 * pv.cos(3 * p), -0.07, 0.07)
     p_next = p + v_next
-    plant = pv.Discrete({p: pv.where(p_next <= -1.2, -1.2, p_next), v: pv.where(p_next <= -1.2, 0.0, v_next), w: w},
-                        inputs=[u])
+    plant = pv.Discrete({p: pv.where(p_next <= -1.2, -1.2, p_next), v: pv.where(p_next <= -1.2, 0.0, v_next), w: w}, inputs=[u])
     loop = pv.ClosedLoop(plant, stages=[pv.Stage(pv.load_network(str(CONTROLLER)), inputs=[p, v], output="u")])
     journal = tmp_path / "hint.jsonl"
-    res = pv.verify(loop, init={"p": (-0.58, -0.42), "v": (0, 0), "w": (0, 1)}, steps=150, goal=p >= 0.45, within=True,
-                    order=2, refine=True, min_width={"p": 0.005}, progress=False, journal=str(journal))
+    res = pv.verify(
+        loop,
+        init={"p": (-0.58, -0.42), "v": (0, 0), "w": (0, 1)},
+        steps=150,
+        goal=p >= 0.45,
+        within=True,
+        order=2,
+        refine=True,
+        min_width={"p": 0.005},
+        progress=False,
+        journal=str(journal),
+    )
     assert res.verdict == "verified"
     assert all(c.box["w"] == (0.0, 1.0) for c in res.cells)
     parents = [json.loads(line) for line in journal.read_text().splitlines()[1:]]
     assert [c["split"] for c in parents if c["verdict"] == "unknown"] and all(
-        c["split"] == "p" for c in parents if c["verdict"] == "unknown")
+        c["split"] == "p" for c in parents if c["verdict"] == "unknown"
+    )
     assert_contains_simulations(loop, res, n=200, goal_p=0.45)
 
 
@@ -243,8 +269,9 @@ def test_a_wall_hit_at_different_steps_forks_the_plant():
     # five steps. The hull of both sides of the wall loses the cell; forking the plant's guard
     # (one branch per side, both `where`s on it take the same side) keeps every branch precise.
     loop, p, v = mountain_car()
-    kwargs = dict(init={"p": (-0.41, -0.40), "v": (0, 0)}, steps=150, goal=p >= 0.45, within=True, progress=False,
-                  splitter=pv.Grid())  # one cell: the engine's own forks and splits are under test
+    kwargs = dict(
+        init={"p": (-0.41, -0.40), "v": (0, 0)}, steps=150, goal=p >= 0.45, within=True, progress=False, splitter=pv.Grid()
+    )  # one cell: the engine's own forks and splits are under test
     hull = pv.verify(loop, max_splits=0, **kwargs)
     forked = pv.verify(loop, max_splits=8, **kwargs)
     assert hull.verdict == "unknown" and forked.verdict == "verified"
@@ -283,7 +310,8 @@ def test_verisig_method_agrees_on_a_short_horizon():
 def test_journal_resume_after_sigkill(tmp_path):
     journal = tmp_path / "run.jsonl"
     script = tmp_path / "campaign.py"
-    script.write_text(textwrap.dedent(f"""
+    script.write_text(
+        textwrap.dedent(f"""
         import sys
         sys.path.insert(0, {str(Path(__file__).parent)!r})
         from test_verify import mountain_car
@@ -291,7 +319,8 @@ def test_journal_resume_after_sigkill(tmp_path):
         loop, p, v = mountain_car()
         pv.verify(loop, init={{"p": (-0.55, -0.45), "v": (0, 0)}}, steps=150, goal=p >= 0.45, within=True,
                   split={{"p": 60}}, journal={str(journal)!r}, progress=False, workers=1)
-    """))
+    """)
+    )
     proc = subprocess.Popen([sys.executable, str(script)])
     deadline = time.time() + 120
     while time.time() < deadline:
@@ -343,8 +372,12 @@ def test_continuous_plant_with_network_controller():
 
     x, v = pv.variables("x v")
     u = pv.variables("u")
-    net = Network([Layer(np.array([[-0.8, -1.2], [0.3, -0.5]]), np.array([0.0, 0.1]), "tanh"),
-                   Layer(np.array([[1.0, 0.5]]), np.array([0.0]), "identity")])
+    net = Network(
+        [
+            Layer(np.array([[-0.8, -1.2], [0.3, -0.5]]), np.array([0.0, 0.1]), "tanh"),
+            Layer(np.array([[1.0, 0.5]]), np.array([0.0]), "identity"),
+        ]
+    )
     plant = pv.Continuous({x: v, v: u - 0.1 * v}, inputs=[u], period=0.1, step=0.02)
     loop = pv.ClosedLoop(plant, stages=[pv.Stage(net, inputs=[x, v], output="u")])
     res = pv.verify(loop, init={"x": (0.9, 1.1), "v": (-0.1, 0.1)}, steps=30, safe=[x <= 1.5, x >= -1.5], progress=False)

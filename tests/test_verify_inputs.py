@@ -74,8 +74,9 @@ def test_property_over_unknown_or_non_state_variables(tmp_path):
 def test_bad_accumulators(tmp_path):
     loop, p, v, u = mountain_car()
     r, w = pv.variables("r w")
-    verify_refused(loop, tmp_path, r"accumulator 'r' uses \['w'\], which are neither states nor stage outputs",
-                   reward={"r": w**2}, goal=r >= 0)
+    verify_refused(
+        loop, tmp_path, r"accumulator 'r' uses \['w'\], which are neither states nor stage outputs", reward={"r": w**2}, goal=r >= 0
+    )
     verify_refused(loop, tmp_path, "accumulator 'v' has the name of an existing signal", reward={"v": u}, goal=p >= 0.45)
     verify_refused(loop, tmp_path, "must be an identifier", reward={"r 2": u}, goal=p >= 0.45)
     verify_refused(loop, tmp_path, r"give accumulators as \{name: expression\}", reward={}, goal=p >= 0.45)
@@ -117,4 +118,3 @@ def test_initial_box_outside_a_declared_input_range_warns():
     obs = pv.Stage([p, v], inputs=[p, v], output="obs")
     with pytest.raises(pv.InputError, match=r"domain= bounds scalar inputs only; \['obs'\]"):
         pv.ClosedLoop(plant, [obs, pv.Stage(ctrl, inputs=["obs"], output="u", domain={"obs": (0, 1)})])
-

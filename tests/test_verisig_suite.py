@@ -255,13 +255,17 @@ class TestBadFiles:
         with pytest.raises(pv.ParseError, match=rf"line {line_of(text, 'k + x1')}: .*mixing clocks/counters"):
             pv.formats.load_verisig(write(tmp_path, text), MC_NET)
         # The network evaluated on one branch only.
-        text = mc_text().replace("mode2 -> m0\n\t\tguard { clock = 0.0 x1 <= -1.2 }", "mode2 -> _reset_mode1\n\t\tguard { clock = 0.0 x1 <= -1.2 }")
+        text = mc_text().replace(
+            "mode2 -> m0\n\t\tguard { clock = 0.0 x1 <= -1.2 }", "mode2 -> _reset_mode1\n\t\tguard { clock = 0.0 x1 <= -1.2 }"
+        )
         with pytest.raises(pv.ParseError, match="DNN mode 'DNNm1' is reached on only some branches"):
             pv.formats.load_verisig(write(tmp_path, text), MC_NET)
         # A jump out of a flowing mode without 'clock = c' could fire in the middle of the flow.
         text = mc_text().replace("guard { clock = 1.0 x2 + temp >= 0.07 }", "guard { x2 + temp >= 0.07 }")
         line = line_of(text, "guard { x2 + temp >= 0.07 }") - 1  # the jump's 'A -> B' line
-        with pytest.raises(pv.ParseError, match=rf"line {line}: jump _reset_mode1 -> mode2 leaves the flowing mode .*without a 'clock = c' guard"):
+        with pytest.raises(
+            pv.ParseError, match=rf"line {line}: jump _reset_mode1 -> mode2 leaves the flowing mode .*without a 'clock = c' guard"
+        ):
             pv.formats.load_verisig(write(tmp_path, text), MC_NET)
         # Linear-time-invariant dynamics blocks.
         text = mc_text().replace("nonpoly ode", "lti ode", 1)
@@ -269,7 +273,10 @@ class TestBadFiles:
             pv.formats.load_verisig(write(tmp_path, text), MC_NET)
         # An unsafe jump from somewhere other than the step boundary.
         text = mc_text().replace("mode2 -> unsafe1", "m0 -> unsafe1")
-        with pytest.raises(pv.ParseError, match=rf"line {line_of(text, 'm0 -> unsafe1')}: jump m0 -> unsafe1 ends the run from 'm0', but jump mode2 -> mode3"):
+        with pytest.raises(
+            pv.ParseError,
+            match=rf"line {line_of(text, 'm0 -> unsafe1')}: jump m0 -> unsafe1 ends the run from 'm0', but jump mode2 -> mode3",
+        ):
             pv.formats.load_verisig(write(tmp_path, text), MC_NET)
 
     def test_absorbing_goal_must_end_every_run(self, tmp_path):

@@ -22,12 +22,24 @@ def problem(variant: str = ""):
     t_phi = [[1.0, 0.0, 0.0], [0.0, c(phi), -s(phi)], [0.0, s(phi), c(phi)]]
     xyz = matmul(matmul(matmul(t_psi, t_theta), t_phi), [[vx], [vy], [vz]])
     # JuliaReach's R(phi, theta), including its cos(theta) in the middle row.
-    rates = matmul([[1.0, pv.tan(theta) * s(phi), pv.tan(theta) * c(phi)], [0.0, c(theta), -s(phi)],
-                    [0.0, s(phi) / c(theta), c(phi) / c(theta)]], [[p], [q], [r]])
-    rhs = {sx: xyz[0][0], sy: xyz[1][0], sz: xyz[2][0],
-           vx: -s(theta) + Fx - q * vz + r * vy, vy: c(theta) * s(phi) + Fy - r * vx + p * vz,
-           vz: c(theta) * c(phi) + Fz - p * vy + q * vx,
-           phi: rates[0][0], theta: rates[1][0], psi: rates[2][0], r: Mz, p: Mx, q: My}
+    rates = matmul(
+        [[1.0, pv.tan(theta) * s(phi), pv.tan(theta) * c(phi)], [0.0, c(theta), -s(phi)], [0.0, s(phi) / c(theta), c(phi) / c(theta)]],
+        [[p], [q], [r]],
+    )
+    rhs = {
+        sx: xyz[0][0],
+        sy: xyz[1][0],
+        sz: xyz[2][0],
+        vx: -s(theta) + Fx - q * vz + r * vy,
+        vy: c(theta) * s(phi) + Fy - r * vx + p * vz,
+        vz: c(theta) * c(phi) + Fz - p * vy + q * vx,
+        phi: rates[0][0],
+        theta: rates[1][0],
+        psi: rates[2][0],
+        r: Mz,
+        p: Mx,
+        q: My,
+    }
     plant = pv.Continuous(rhs, inputs=["u"], period=0.1)
     stage = pv.Stage(network("Airplane", "controller_airplane.nnet"), inputs=STATES, output="u")
     init = {name: (0.0, 1.0) if name in ("v_x", "v_y", "v_z", "phi", "theta", "psi") else (0.0, 0.0) for name in STATES}

@@ -31,8 +31,7 @@ def problem(variant: str = "less_robust"):
     states = ["t1", "t2", "w1", "w2"]
     stage = pv.Stage(network("InvertedTwoLinkPendulum", file), inputs=states, output="T")
     lo, hi = (-1.7, 2.0) if less else (-1.5, 1.5)
-    kwargs = dict(init={s: (1.0, 1.3) for s in states}, steps=20, safe=pv.Box({s: (lo, hi) for s in states}), order=4,
-                  max_splits=16)
+    kwargs = dict(init={s: (1.0, 1.3) for s in states}, steps=20, safe=pv.Box({s: (lo, hi) for s in states}), order=4, max_splits=16)
     if less:
         # JuliaReach's grid: 2 x 2 x 3 x 6 pieces. Without state symbols its cells stop at period
         # 20 with w2 >= -1.7 unproved; with them one cell (of the 72) verifies in 53 s CPU.

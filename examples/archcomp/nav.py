@@ -16,8 +16,9 @@ def problem(variant: str = ""):
     init = {"x1": (2.9, 3.1), "x2": (2.9, 3.1), "x3": (0.0, 0.0), "x4": (0.0, 0.0)}
     goal = pv.Box({"x1": (-0.5, 0.5), "x2": (-0.5, 0.5)})
     obstacle = pv.Box({"x1": (1.0, 2.0), "x2": (1.0, 2.0)})
-    return pv.ClosedLoop(plant, [stage]), dict(init=init, steps=30, goal=goal, unsafe=obstacle, split={"x1": 2, "x2": 2},
-                                               order=3, max_splits=16)
+    return pv.ClosedLoop(plant, [stage]), dict(
+        init=init, steps=30, goal=goal, unsafe=obstacle, split={"x1": 2, "x2": 2}, order=3, max_splits=16
+    )
 
 
 if __name__ == "__main__":

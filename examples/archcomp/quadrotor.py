@@ -15,19 +15,27 @@ def problem(variant: str = ""):
     g, m, jx, jy = 9.81, 1.4, 0.054, 0.054
     s7, c7, s8, c8, s9, c9 = pv.sin(x7), pv.cos(x7), pv.sin(x8), pv.cos(x8), pv.sin(x9), pv.cos(x9)
     yaw_rate = s7 / c8 * x11
-    rhs = {x1: c9 * c8 * x4 + (s7 * c9 * s8 - c7 * s9) * x5 + (c7 * c9 * s8 + s7 * s9) * x6,
-           x2: s9 * c8 * x4 + (s7 * s9 * s8 + c7 * c9) * x5 + (c7 * s9 * s8 - s7 * c9) * x6,
-           x3: s8 * x4 - s7 * c8 * x5 - c7 * c8 * x6,
-           x4: -x11 * x6 - g * s8, x5: x10 * x6 + g * s7 * c8,
-           x6: x11 * x4 - x10 * x5 + g * c7 * c8 - (g + u1 / m),
-           x7: x10 + s8 * yaw_rate, x8: c7 * x11, x9: yaw_rate,
-           x10: u2 / jx, x11: u3 / jy, x12: 0.0 * x12}
+    rhs = {
+        x1: c9 * c8 * x4 + (s7 * c9 * s8 - c7 * s9) * x5 + (c7 * c9 * s8 + s7 * s9) * x6,
+        x2: s9 * c8 * x4 + (s7 * s9 * s8 + c7 * c9) * x5 + (c7 * s9 * s8 - s7 * c9) * x6,
+        x3: s8 * x4 - s7 * c8 * x5 - c7 * c8 * x6,
+        x4: -x11 * x6 - g * s8,
+        x5: x10 * x6 + g * s7 * c8,
+        x6: x11 * x4 - x10 * x5 + g * c7 * c8 - (g + u1 / m),
+        x7: x10 + s8 * yaw_rate,
+        x8: c7 * x11,
+        x9: yaw_rate,
+        x10: u2 / jx,
+        x11: u3 / jy,
+        x12: 0.0 * x12,
+    }
     plant = pv.Continuous(rhs, inputs=["u"], period=0.1)
     stage = pv.Stage(network("Quadrotor", "model.mat"), inputs=STATES, output="u")
     init = {name: (-0.004, 0.004) if i < 6 else (0.0, 0.0) for i, name in enumerate(STATES)}
     # State symbols: without them the pitch x8's enclosure wraps until 1/cos(x8) is undefined (step 19).
-    return pv.ClosedLoop(plant, [stage]), dict(init=init, steps=50, goal=pv.Box({"x3": (0.94, 1.06)}), order=3,
-                                               max_splits=16, state_symbols=True)
+    return pv.ClosedLoop(plant, [stage]), dict(
+        init=init, steps=50, goal=pv.Box({"x3": (0.94, 1.06)}), order=3, max_splits=16, state_symbols=True
+    )
 
 
 if __name__ == "__main__":

@@ -22,8 +22,9 @@ def problem(variant: str = "relu"):
         # JuliaReach's grid, 4 x 4 x 3 x 5 (240 cells). Without state symbols the enclosure grows
         # about 3x per period from any cell size (the controller's correction of an earlier error
         # does not cancel it), and no cell gets past period 10.
-        return pv.ClosedLoop(plant, [stage]), dict(init=init, steps=20, safe=box, split={"x1": 4, "x2": 4, "x3": 3, "x4": 5},
-                                                   order=3, max_splits=16, state_symbols=True)
+        return pv.ClosedLoop(plant, [stage]), dict(
+            init=init, steps=20, safe=box, split={"x1": 4, "x2": 4, "x3": 3, "x4": 5}, order=3, max_splits=16, state_symbols=True
+        )
     file = {"relutanh": "nn_tora_relu_tanh.mat", "sigmoid": "nn_tora_sigmoid.mat"}[variant]
     plant = pv.Continuous(rhs, inputs=[u], period=0.5)
     stage = pv.Stage(network("TORA", file), inputs=states, output="u", scale=11.0)

@@ -17,8 +17,7 @@ def problem(variant: str = ""):
     init = {"x1": (9.5, 9.55), "x2": (-4.5, -4.45), "x3": (2.1, 2.11), "x4": (1.5, 1.51), "w": (-1e-4, 1e-4)}
     goal = pv.Box({"x1": (-0.6, 0.6), "x2": (-0.2, 0.2), "x3": (-0.06, 0.06), "x4": (-0.3, 0.3)})
     # JuliaReach's grid: 3 x 1 x 7 x 1.
-    return pv.ClosedLoop(plant, [stage]), dict(init=init, steps=50, goal=goal, split={"x1": 3, "x3": 7}, order=3,
-                                               max_splits=16)
+    return pv.ClosedLoop(plant, [stage]), dict(init=init, steps=50, goal=goal, split={"x1": 3, "x3": 7}, order=3, max_splits=16)
 
 
 if __name__ == "__main__":

@@ -31,7 +31,7 @@ def argmax(scores):
     out = float(len(scores) - 1)
     for i in range(len(scores) - 2, -1, -1):
         rest = scores[i + 1]
-        for s in scores[i + 2:]:
+        for s in scores[i + 2 :]:
             rest = pv.max(rest, s)
         out = pv.where(scores[i] >= rest, float(i), out)
     return out

@@ -102,8 +102,10 @@ class Runner:
             self.capacity = lambda: n
             self.pool = executor
         else:
-            raise InputError(f"executor must be a dask.distributed.Client, a scheduler address 'tcp://host:8786' or a "
-                             f"concurrent.futures.Executor, got {type(executor).__name__}")
+            raise InputError(
+                f"executor must be a dask.distributed.Client, a scheduler address 'tcp://host:8786' or a "
+                f"concurrent.futures.Executor, got {type(executor).__name__}"
+            )
         if slots is not None and slots < 1:
             raise InputError(f"workers must be at least 1, got {slots}")
         if batch is not None and batch < 1:
@@ -132,8 +134,9 @@ class Runner:
             try:
                 future = self.pool.submit(run_batch, fingerprint, data, [c.bounds for c in cells], options)
             except RuntimeError as error:  # BrokenProcessPool, or shut down
-                raise ExecutorError(f"the executor cannot take work ({error}); finished cells are in the journal: "
-                                    "rerun with a working executor to resume") from error
+                raise ExecutorError(
+                    f"the executor cannot take work ({error}); finished cells are in the journal: rerun with a working executor to resume"
+                ) from error
             inflight[future] = (cells, tries)
 
         try:
@@ -156,8 +159,10 @@ class Runner:
                         raise
                     except Exception as error:  # the worker died or the task was lost
                         if tries >= RETRIES:
-                            raise ExecutorError(f"a batch of {len(cells)} cells failed {tries + 1} times on the executor "
-                                                f"(last: {error!r}); finished cells are in the journal: rerun to resume") from error
+                            raise ExecutorError(
+                                f"a batch of {len(cells)} cells failed {tries + 1} times on the executor "
+                                f"(last: {error!r}); finished cells are in the journal: rerun to resume"
+                            ) from error
                         payload = payload or dumps(problem)
                         submit(cells, payload, tries + 1)
                         continue

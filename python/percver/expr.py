@@ -20,9 +20,30 @@ Number = Union[int, float]
 ExprLike = Union[Expr, Number, str]
 
 __all__ = [
-    "Expr", "Condition", "variables", "as_expr", "parse", "name_of",
-    "sin", "cos", "tan", "atan", "exp", "log", "sqrt", "tanh", "sigmoid", "abs_", "sign",
-    "where", "clip", "minimum", "maximum", "uncertain", "evaluate", "bounds",
+    "Expr",
+    "Condition",
+    "variables",
+    "as_expr",
+    "parse",
+    "name_of",
+    "sin",
+    "cos",
+    "tan",
+    "atan",
+    "exp",
+    "log",
+    "sqrt",
+    "tanh",
+    "sigmoid",
+    "abs_",
+    "sign",
+    "where",
+    "clip",
+    "minimum",
+    "maximum",
+    "uncertain",
+    "evaluate",
+    "bounds",
 ]
 
 

@@ -55,8 +55,10 @@ class Flowpipe:
         over the normalised initial set plus an interval remainder."""
         names = self.names
         centre_radius = self._raw.initial_map()
-        return [FinalModel(name, names, dict((tuple(int(e) for e in exps), c) for exps, c in terms), tuple(rem), centre_radius, self._raw, i)
-                for i, (name, (terms, rem)) in enumerate(zip(names, self._raw.final_models()))]
+        return [
+            FinalModel(name, names, dict((tuple(int(e) for e in exps), c) for exps, c in terms), tuple(rem), centre_radius, self._raw, i)
+            for i, (name, (terms, rem)) in enumerate(zip(names, self._raw.final_models()))
+        ]
 
     def final_enclose(self, points: np.ndarray) -> np.ndarray:
         """Rigorous enclosures (N, n, 2) of the states reached at ``time_reached`` from initial
@@ -69,13 +71,14 @@ class Flowpipe:
     def boxes(self) -> list:
         """Per-step boxes as dicts ``{"t": (t0, t1), name: (lo, hi), ...}``."""
         return [
-            {"t": tuple(self.times[i]), **{n: tuple(self.array[i, j]) for j, n in enumerate(self.names)}}
-            for i in range(len(self.times))
+            {"t": tuple(self.times[i]), **{n: tuple(self.array[i, j]) for j, n in enumerate(self.names)}} for i in range(len(self.times))
         ]
 
     def hull(self) -> Box:
         """One box containing the whole flowpipe."""
-        return Box(tuple(self.names), tuple((float(self.array[:, j, 0].min()), float(self.array[:, j, 1].max())) for j in range(len(self.names))))
+        return Box(
+            tuple(self.names), tuple((float(self.array[:, j, 0].min()), float(self.array[:, j, 1].max())) for j in range(len(self.names)))
+        )
 
     def contains(self, t: np.ndarray, states: np.ndarray, tol: float = 0.0) -> np.ndarray:
         """Whether states (N x n) at times t (N) lie in the box of a step whose closed time interval holds their time.
@@ -86,7 +89,9 @@ class Flowpipe:
         t = np.asarray(t, dtype=float).reshape(-1)
         states = np.atleast_2d(np.asarray(states, dtype=float))
         if states.shape != (len(t), len(self.names)):
-            raise InputError(f"contains needs one state of {len(self.names)} values per time: {len(t)} times, states of shape {states.shape}")
+            raise InputError(
+                f"contains needs one state of {len(self.names)} values per time: {len(t)} times, states of shape {states.shape}"
+            )
         ok = np.zeros(len(t), dtype=bool)
         if len(self.times) == 0:
             return ok
@@ -232,7 +237,16 @@ def flowpipe(
         rem = [float(remainder)] * len(names)
     if on_failure not in ("raise", "return"):
         raise InputError("on_failure must be 'raise' or 'return'")
-    settings = dict(t_end=t_end, order=order_arg, step=step_arg, precondition=precondition, cutoff=cutoff, remainder=rem, refinements=refinements, symbolic_queue=symbolic_queue)
+    settings = dict(
+        t_end=t_end,
+        order=order_arg,
+        step=step_arg,
+        precondition=precondition,
+        cutoff=cutoff,
+        remainder=rem,
+        refinements=refinements,
+        symbolic_queue=symbolic_queue,
+    )
     bar = None
     callback = None
     if progress:
@@ -245,7 +259,20 @@ def flowpipe(
             bar.refresh()
 
     try:
-        raw = _core.flowpipe(names, rhs, list(box.bounds), float(t_end), step_arg, order_arg, cutoff, rem, precondition, refinements, symbolic_queue, callback)
+        raw = _core.flowpipe(
+            names,
+            rhs,
+            list(box.bounds),
+            float(t_end),
+            step_arg,
+            order_arg,
+            cutoff,
+            rem,
+            precondition,
+            refinements,
+            symbolic_queue,
+            callback,
+        )
     finally:
         if bar is not None:
             bar.close()

@@ -101,19 +101,14 @@ class Measurements:
             self.trajectory = self.trajectory.astype(np.int64)
         if self.trajectory is not None and self.time is None:
             raise MeasurementError(
-                f"'trajectory'{where} is given without 'time': give the time of each row so the "
-                "one-step pairs can be ordered"
+                f"'trajectory'{where} is given without 'time': give the time of each row so the one-step pairs can be ordered"
             )
 
         self.state_names = self._names("state", state_names, self.states.shape[1], "x", where)
         self.measurement_names = (
-            None
-            if self.measurements is None
-            else self._names("measurement", measurement_names, self.measurements.shape[1], "y", where)
+            None if self.measurements is None else self._names("measurement", measurement_names, self.measurements.shape[1], "y", where)
         )
-        self.control_names = (
-            None if self.controls is None else self._names("control", control_names, self.controls.shape[1], "u", where)
-        )
+        self.control_names = None if self.controls is None else self._names("control", control_names, self.controls.shape[1], "u", where)
         self.meta = dict(meta or {})
         self.dropped_rows = np.zeros(0, dtype=np.int64)
         self._check_finite(dropna, where)
@@ -130,8 +125,7 @@ class Measurements:
             array = array[:, None]
         if array.ndim != 2:
             raise MeasurementError(
-                f"'{field}'{where} has shape {array.shape}: give a 2-D array with one row per sample "
-                "(flatten images to one row each)"
+                f"'{field}'{where} has shape {array.shape}: give a 2-D array with one row per sample (flatten images to one row each)"
             )
         if array.shape[0] == 0:
             raise MeasurementError(f"'{field}'{where} has no rows")
@@ -153,9 +147,7 @@ class Measurements:
             return tuple(f"{prefix}{i}" for i in range(count))
         names = tuple(str(name) for name in names)
         if len(names) != count:
-            raise MeasurementError(
-                f"{len(names)} {kind} names{where} for {count} {kind} columns: give exactly one name per column"
-            )
+            raise MeasurementError(f"{len(names)} {kind} names{where} for {count} {kind} columns: give exactly one name per column")
         duplicates = sorted({name for name in names if names.count(name) > 1})
         if duplicates:
             raise MeasurementError(f"{kind} names{where} repeat {duplicates}: names must be unique")
@@ -292,9 +284,7 @@ class Measurements:
             rows = np.flatnonzero(previous[1:] == np.arange(len(self) - 1))
             following = self.states[rows + 1]
         else:
-            raise MeasurementError(
-                f"dynamics need 'next_states' or 'trajectory' and 'time'{where} to form one-step pairs"
-            )
+            raise MeasurementError(f"dynamics need 'next_states' or 'trajectory' and 'time'{where} to form one-step pairs")
         if len(rows) == 0:
             raise MeasurementError(f"no one-step pairs{where}: every trajectory has a single row")
         lagged = [self.controls[rows]]
@@ -350,9 +340,7 @@ class Measurements:
         suffix = path.suffix.lower()
         if suffix == ".npz":
             arrays = {field: getattr(self, field) for field in _ARRAYS if getattr(self, field) is not None}
-            np.savez_compressed(
-                path, **arrays, names=np.array(self._names_json()), meta=np.array(json.dumps(self.meta, default=str))
-            )
+            np.savez_compressed(path, **arrays, names=np.array(self._names_json()), meta=np.array(json.dumps(self.meta, default=str)))
         elif suffix == ".parquet":
             self._save_parquet(path)
         else:
@@ -392,9 +380,7 @@ class Measurements:
         meta = cls._json_field(path, content, "meta")
         unknown = sorted(set(content) - set(_ARRAYS) - {"names", "meta"})
         if unknown:
-            raise MeasurementError(
-                f"'{path}' has unknown arrays {unknown}: the keys are {list(_ARRAYS)}, 'names' and 'meta'"
-            )
+            raise MeasurementError(f"'{path}' has unknown arrays {unknown}: the keys are {list(_ARRAYS)}, 'names' and 'meta'")
         arrays = {field: content.get(field) for field in _ARRAYS}
         return cls(
             arrays.pop("states"),
@@ -427,8 +413,12 @@ class Measurements:
         import pyarrow.parquet as pq
 
         columns = {}
-        names = {"states": self.state_names, "measurements": self.measurement_names,
-                 "controls": self.control_names, "next_states": self.state_names}
+        names = {
+            "states": self.state_names,
+            "measurements": self.measurement_names,
+            "controls": self.control_names,
+            "next_states": self.state_names,
+        }
         for field, prefix in _NAMED.items():
             values = getattr(self, field)
             if values is not None:
@@ -463,8 +453,7 @@ class Measurements:
                 )
         if not groups["state"]:
             raise MeasurementError(
-                f"'{path}' has no 'state.<name>' columns (columns: {table.column_names[:10]}): "
-                "name state columns 'state.<name>'"
+                f"'{path}' has no 'state.<name>' columns (columns: {table.column_names[:10]}): name state columns 'state.<name>'"
             )
 
         def stack(prefix):

@@ -92,9 +92,7 @@ def _finite_array(value, ndim: int, label: str) -> np.ndarray:
     bad = np.argwhere(~np.isfinite(array))
     if bad.size:
         index = tuple(int(i) for i in bad[0])
-        raise NetworkFormatError(
-            f"{label} has the non-finite value {array[index]} at index {index} ({len(bad)} non-finite in all)"
-        )
+        raise NetworkFormatError(f"{label} has the non-finite value {array[index]} at index {index} ({len(bad)} non-finite in all)")
     array.setflags(write=False)
     return array
 
@@ -114,9 +112,7 @@ def _checked_layer(layer, index: int, where: str, n_prev: int | None) -> Layer:
         )
     activation = _checked_activation(layer.activation, label, weight.shape[0])
     if n_prev is not None and weight.shape[1] != n_prev:
-        raise NetworkFormatError(
-            f"{label}: weight has {weight.shape[1]} columns but layer {index - 1} has {n_prev} outputs"
-        )
+        raise NetworkFormatError(f"{label}: weight has {weight.shape[1]} columns but layer {index - 1} has {n_prev} outputs")
     return Layer(weight, bias, activation)
 
 
@@ -129,9 +125,7 @@ def _checked_activation(value, label: str, n_out: int) -> str | tuple[str, ...]:
     if isinstance(value, str):
         return lowered[0]
     if len(lowered) != n_out:
-        raise NetworkFormatError(
-            f"{label}: {len(lowered)} activations for {n_out} neurons; give one name, or one per neuron"
-        )
+        raise NetworkFormatError(f"{label}: {len(lowered)} activations for {n_out} neurons; give one name, or one per neuron")
     return lowered[0] if len(set(lowered)) == 1 else tuple(lowered)
 
 
@@ -219,8 +213,15 @@ class Network:
     def with_domain(self, domain) -> Network:
         """The same network with input domain ``domain``: a dict ``{input name: (lo, hi)}`` (inputs
         not named are unbounded), a list of one ``(lo, hi)`` per input, or ``None`` (unknown)."""
-        return Network(self._layers, scale=self._scale, offset=self._offset, name=self._name, source=self._source,
-                       input_names=self._input_names, domain=domain)
+        return Network(
+            self._layers,
+            scale=self._scale,
+            offset=self._offset,
+            name=self._name,
+            source=self._source,
+            input_names=self._input_names,
+            domain=domain,
+        )
 
     def _checked_domain(self, domain) -> tuple[tuple[float, float], ...]:
         where = f"{self._source}: " if self._source is not None else ""
@@ -228,7 +229,9 @@ class Network:
         if isinstance(domain, dict):
             unknown = [k for k in domain if k not in names]
             if unknown:
-                raise InputError(f"{where}network {self._name!r}: domain names {unknown[:8]}, not among its inputs ({', '.join(names[:8])} ...)")
+                raise InputError(
+                    f"{where}network {self._name!r}: domain names {unknown[:8]}, not among its inputs ({', '.join(names[:8])} ...)"
+                )
             domain = [domain.get(n, (-np.inf, np.inf)) for n in names]
         try:
             pairs = [(float(lo), float(hi)) for lo, hi in domain]
@@ -298,14 +301,25 @@ class Network:
         offset = None if self._offset is None else np.concatenate([self._offset, np.zeros(count)])
         domain = None if self._domain is None else [*self._domain, *[(-np.inf, np.inf)] * count]
         return Network(
-            layers, scale=scale, offset=offset, name=f"{self._name}+passthrough", input_names=[*self.input_names, *names],
+            layers,
+            scale=scale,
+            offset=offset,
+            name=f"{self._name}+passthrough",
+            input_names=[*self.input_names, *names],
             domain=domain,
         )
 
     def with_input_names(self, names) -> Network:
         """The same network with its inputs named ``names`` (for box dicts in :meth:`bounds`)."""
-        return Network(self._layers, scale=self._scale, offset=self._offset, name=self._name, source=self._source,
-                       input_names=names, domain=self._domain)
+        return Network(
+            self._layers,
+            scale=self._scale,
+            offset=self._offset,
+            name=self._name,
+            source=self._source,
+            input_names=names,
+            domain=self._domain,
+        )
 
     def _core(self):
         if self._rust is None:
@@ -344,8 +358,9 @@ class Network:
             splits.append((self.input_names.index(name), int(count)))
         return dict(order=order, symbolic=symbolic, max_vars=max_vars, splits=splits)
 
-    def bounds(self, box, method: str = "taylor", order: int = 5, *, pieces=None, symbolic: bool = True, max_vars: int = 4,
-               leaves: int = 1):
+    def bounds(
+        self, box, method: str = "taylor", order: int = 5, *, pieces=None, symbolic: bool = True, max_vars: int = 4, leaves: int = 1
+    ):
         """Sound bounds of every output over an input box: a list of ``(lo, hi)``.
 
         ``box`` is a dict ``{name: (lo, hi)}`` over :attr:`input_names`, a list of ``(lo, hi)`` in
@@ -469,10 +484,7 @@ def chain(*networks: Network) -> Network:
     layers = list(networks[0].layers)
     for previous, following in zip(networks, networks[1:]):
         if previous.n_out != following.n_in:
-            raise InputError(
-                f"cannot chain {previous.name!r} ({previous.n_out} outputs) into {following.name!r} "
-                f"({following.n_in} inputs)"
-            )
+            raise InputError(f"cannot chain {previous.name!r} ({previous.n_out} outputs) into {following.name!r} ({following.n_in} inputs)")
         first, *rest = following.layers
         weight, bias = first.weight, first.bias
         if previous.offset is not None:

@@ -59,9 +59,12 @@ class Region:
     def holds(self, names: Sequence[str], x: np.ndarray, parameters: Optional[dict] = None) -> np.ndarray:
         """Row-wise membership of float states (N x n, columns in ``names`` order), member by
         member; ``parameters`` gives the uncertain parameters' values per row (``{id: values}``)."""
-        inside = [p.holds(names, x, parameters) if isinstance(p, Region) else
-                  _HOLDS[p.op](_core.eval_float([p.margin()], list(names), np.ascontiguousarray(x), parameters)[:, 0], 0.0)
-                  for p in self.parts]
+        inside = [
+            p.holds(names, x, parameters)
+            if isinstance(p, Region)
+            else _HOLDS[p.op](_core.eval_float([p.margin()], list(names), np.ascontiguousarray(x), parameters)[:, 0], 0.0)
+            for p in self.parts
+        ]
         return np.logical_and.reduce(inside) if self.kind == "all" else np.logical_or.reduce(inside)
 
     def __str__(self) -> str:
@@ -88,8 +91,9 @@ def as_region(value, what: str) -> Region:
         return Region("all", [c for x, (lo, hi) in zip(v, value.bounds) for c in (x >= lo, x <= hi)])
     if isinstance(value, (list, tuple)) and value:
         return Region("all", [as_region(p, what) for p in value]) if len(value) > 1 else as_region(value[0], what)
-    raise InputError(f"{what} must be a condition such as p >= 0.45, a pv.Box, pv.all_of(...) or pv.any_of(...) "
-                     f"(or a list of them), got {value!r}")
+    raise InputError(
+        f"{what} must be a condition such as p >= 0.45, a pv.Box, pv.all_of(...) or pv.any_of(...) (or a list of them), got {value!r}"
+    )
 
 
 def all_of(*sets: SetLike) -> Region:
@@ -124,8 +128,10 @@ class Window:
             lo, hi = self.steps
             return (lo, float(horizon) if hi is None else hi)
         if period is None:
-            raise InputError(f"during({self.region}, time=...) needs a continuous plant (pv.Continuous) to turn times "
-                             f"into steps; for a discrete plant give steps=(first, last)")
+            raise InputError(
+                f"during({self.region}, time=...) needs a continuous plant (pv.Continuous) to turn times "
+                f"into steps; for a discrete plant give steps=(first, last)"
+            )
         snap = lambda s: float(round(s)) if abs(s - round(s)) <= 1e-9 else s  # noqa: E731
         lo, hi = self.time
         return (snap(lo / period), float(horizon) if hi is None else snap(hi / period))

@@ -67,8 +67,15 @@ class Continuous:
     ``inputs=["T"]`` and read its components ``T_0, T_1, ...`` in the right-hand sides, or
     declare the components themselves, ``inputs=["T_0", "T_1"]``, as with ``pv.Discrete``."""
 
-    def __init__(self, rhs: Mapping[Union[Expr, str], ExprLike], inputs: Sequence[Union[Expr, str]] = (), *, period: float,
-                 step: Optional[float] = None, remainder: float = 1e-4):
+    def __init__(
+        self,
+        rhs: Mapping[Union[Expr, str], ExprLike],
+        inputs: Sequence[Union[Expr, str]] = (),
+        *,
+        period: float,
+        step: Optional[float] = None,
+        remainder: float = 1e-4,
+    ):
         if not period > 0:
             raise InputError(f"the control period must be positive, got {period}")
         self.states = [name_of(k) for k in rhs]
@@ -80,8 +87,9 @@ class Continuous:
             raise InputError(f"the integration step must be in (0, period], got {step}")
         self.remainder = float(remainder)
 
-    def advance(self, x: np.ndarray, u: np.ndarray, parameters: Optional[dict] = None,
-                inputs: Optional[Sequence[str]] = None) -> np.ndarray:
+    def advance(
+        self, x: np.ndarray, u: np.ndarray, parameters: Optional[dict] = None, inputs: Optional[Sequence[str]] = None
+    ) -> np.ndarray:
         """States after one period from the rows of x with the inputs u held (scipy, tight
         tolerances); ``parameters`` maps an uncertain parameter's id to its value per row,
         ``inputs`` names u's columns (default: the declared inputs)."""
@@ -131,8 +139,14 @@ class Jump:
     (forced then if ``urgent``; otherwise forced only by the source's invariant); ``reset`` gives
     new values of some states, the others keep theirs."""
 
-    def __init__(self, source: str, target: Optional[str], guard: Sequence[Union[Condition, str]] = (),
-                 reset: Optional[Mapping[Union[Expr, str], ExprLike]] = None, urgent: bool = False):
+    def __init__(
+        self,
+        source: str,
+        target: Optional[str],
+        guard: Sequence[Union[Condition, str]] = (),
+        reset: Optional[Mapping[Union[Expr, str], ExprLike]] = None,
+        urgent: bool = False,
+    ):
         self.source, self.target, self.urgent = source, target, bool(urgent)
         self.guard = _constraints(guard, f"jump {source} -> {target}: guard")
         self.reset = {name_of(k): as_expr(v) for k, v in (reset or {}).items()}
@@ -146,8 +160,18 @@ class Hybrid:
     A period fails if a run flows longer than ``max_time`` or jumps more than ``max_jumps`` times.
     """
 
-    def __init__(self, modes: Mapping[str, Mode], jumps: Sequence[Jump], inputs: Sequence[Union[Expr, str]] = (), *,
-                 start: Optional[str] = None, max_time: float, step: float, remainder: float = 1e-4, max_jumps: int = 100):
+    def __init__(
+        self,
+        modes: Mapping[str, Mode],
+        jumps: Sequence[Jump],
+        inputs: Sequence[Union[Expr, str]] = (),
+        *,
+        start: Optional[str] = None,
+        max_time: float,
+        step: float,
+        remainder: float = 1e-4,
+        max_jumps: int = 100,
+    ):
         if not modes:
             raise InputError("a hybrid plant needs at least one mode, e.g. {'fly': pv.Mode({x: v, v: -9.81})}")
         self.modes = dict(modes)
@@ -199,25 +223,44 @@ class Hybrid:
 
     def signature(self) -> tuple:
         """The plant's structure and numbers, beside its expressions (for fingerprints)."""
-        return (list(self.modes), [(j.source, j.target, [c.op for c in j.guard], list(j.reset), j.urgent) for j in self.jumps],
-                [[c.op for c in m.invariant] for m in self.modes.values()], self.start, self.max_time, self.step, self.remainder,
-                self.max_jumps)
+        return (
+            list(self.modes),
+            [(j.source, j.target, [c.op for c in j.guard], list(j.reset), j.urgent) for j in self.jumps],
+            [[c.op for c in m.invariant] for m in self.modes.values()],
+            self.start,
+            self.max_time,
+            self.step,
+            self.remainder,
+            self.max_jumps,
+        )
 
     def _core(self, input_indices: list) -> tuple:
         names = self.states + self.inputs
         zero = as_expr(0.0)
         order = list(self.modes)
         modes = [(n, self.rhs_of(n) + [zero] * len(self.inputs), [(c.margin(), c.op) for c in m.invariant]) for n, m in self.modes.items()]
-        jumps = [(order.index(j.source), None if j.target is None else order.index(j.target), [(c.margin(), c.op) for c in j.guard],
-                  [j.reset.get(n, Expr.var(n)) for n in names] if j.reset else None, j.urgent) for j in self.jumps]
+        jumps = [
+            (
+                order.index(j.source),
+                None if j.target is None else order.index(j.target),
+                [(c.margin(), c.op) for c in j.guard],
+                [j.reset.get(n, Expr.var(n)) for n in names] if j.reset else None,
+                j.urgent,
+            )
+            for j in self.jumps
+        ]
         return (names, modes, jumps, order.index(self.start), input_indices, self.max_time, self.step, self.remainder, self.max_jumps)
 
     def advance(self, x: np.ndarray, u: np.ndarray, parameters: Optional[dict] = None) -> np.ndarray:
         """States at the end of one period from the rows of x with the inputs u held (scipy DOP853
         with events, one run per row): a jump is taken as soon as its guard holds, the first listed
         when several do (one of the runs the plant allows)."""
-        return np.array([self._run(np.concatenate([xi, ui]), {k: v[r] for k, v in (parameters or {}).items()})
-                         for r, (xi, ui) in enumerate(zip(np.atleast_2d(x), np.atleast_2d(u)))]).reshape(len(x), len(self.states))
+        return np.array(
+            [
+                self._run(np.concatenate([xi, ui]), {k: v[r] for k, v in (parameters or {}).items()})
+                for r, (xi, ui) in enumerate(zip(np.atleast_2d(x), np.atleast_2d(u)))
+            ]
+        ).reshape(len(x), len(self.states))
 
     def _run(self, z: np.ndarray, parameters: dict) -> np.ndarray:
         from scipy.integrate import solve_ivp
@@ -249,6 +292,7 @@ class Hybrid:
                     def g(_t, y):
                         v = values([c.margin() for c in conds], y)
                         return sign * min(_signed(c, vi) for c, vi in zip(conds, v)) + (1e-9 if sign > 0 else 0.0)
+
                     g.terminal, g.direction = True, -1.0 if sign < 0 else 1.0
                     return g
 
@@ -309,8 +353,10 @@ class Stage:
                 self.component = _with_output_map(self.component, self._output_map(self.component.n_out))
         else:
             if self.constants:
-                raise InputError(f"stage '{self.name}': constant inputs {list(self.constants.values())} feed networks; "
-                                 "an expression can use the constant itself")
+                raise InputError(
+                    f"stage '{self.name}': constant inputs {list(self.constants.values())} feed networks; "
+                    "an expression can use the constant itself"
+                )
             exprs = self.component if isinstance(self.component, (list, tuple)) else [self.component]
             exprs = [as_expr(e) for e in exprs]
             if self.scale is not None or self.offset is not None:
@@ -363,8 +409,9 @@ def _with_output_map(net, output_map):
     s, o = output_map
     s1 = np.ones(n) if net.scale is None else np.asarray(net.scale, float)
     o1 = np.zeros(n) if net.offset is None else np.asarray(net.offset, float)
-    return Network(net.layers, scale=s * s1, offset=s * o1 + o, name=net.name, source=net.source, input_names=net.input_names,
-                   domain=net.domain)
+    return Network(
+        net.layers, scale=s * s1, offset=s * o1 + o, name=net.name, source=net.source, input_names=net.input_names, domain=net.domain
+    )
 
 
 class ClosedLoop:
@@ -372,8 +419,11 @@ class ClosedLoop:
 
     def __init__(self, plant: Union[Discrete, Continuous, Hybrid], stages: Sequence[Stage] = ()):
         if not isinstance(plant, (Discrete, Continuous, Hybrid)):
-            hint = (" (a pv.diagnose result gives one: pv.ClosedLoop(diagnosis.model, ...), or diagnosis.system(uncertainty='ci95'))"
-                    if type(plant).__module__.startswith("percver.validate") else "")
+            hint = (
+                " (a pv.diagnose result gives one: pv.ClosedLoop(diagnosis.model, ...), or diagnosis.system(uncertainty='ci95'))"
+                if type(plant).__module__.startswith("percver.validate")
+                else ""
+            )
             raise InputError(f"plant must be pv.Discrete(...), pv.Continuous(...) or pv.Hybrid(...){hint}")
         self.plant = plant
         self.states = list(plant.states)
@@ -400,15 +450,16 @@ class ClosedLoop:
         for e in used:
             unknown = set(e.variables()) - allowed
             if unknown:
-                raise InputError(f"the plant uses {sorted(unknown)}, which are neither states nor its declared inputs{self._vector_hint(unknown)}")
+                raise InputError(
+                    f"the plant uses {sorted(unknown)}, which are neither states nor its declared inputs{self._vector_hint(unknown)}"
+                )
         if isinstance(plant, Hybrid):
             wide = [u for u in plant.inputs if len(self.signals.get(u, [0])) != 1]
             if wide:
                 raise InputError(f"hybrid plant inputs must be scalar signals; {wide} are vectors")
         # Column maps of the float simulation, fixed once wired: a stage's consecutive inputs (an
         # image) are read as a view, not gathered; a discrete plant gets only the columns it reads.
-        self._float_inputs = [slice(i[0], i[0] + len(i)) if i and i == list(range(i[0], i[0] + len(i))) else i
-                              for i in self.stage_inputs]
+        self._float_inputs = [slice(i[0], i[0] + len(i)) if i and i == list(range(i[0], i[0] + len(i))) else i for i in self.stage_inputs]
         names = {n for e in used for n in e.variables()}
         self._plant_reads = [i for i, n in enumerate(self.env_names) if n in names]
 
@@ -421,14 +472,18 @@ class ClosedLoop:
                 indices.append(self.signals[_CONSTANTS][self._constant_values.index(stage.constants[j])])
                 continue
             if name not in self.signals:
-                raise InputError(f"{where} reads '{name}', which is neither a state nor an earlier output (known: {', '.join(self.signals)})")
+                raise InputError(
+                    f"{where} reads '{name}', which is neither a state nor an earlier output (known: {', '.join(self.signals)})"
+                )
             indices += self.signals[name]
         wired = [self.env_names[i] for i in indices]
         if stage.is_network:
             net = stage.component
             if net.n_in != len(indices):
-                parts = " + ".join(f"{n} ({len(self.signals[n])})" if n is not None else f"{stage.constants[j]:g} (1)"
-                                   for j, n in enumerate(stage.input_names))
+                parts = " + ".join(
+                    f"{n} ({len(self.signals[n])})" if n is not None else f"{stage.constants[j]:g} (1)"
+                    for j, n in enumerate(stage.input_names)
+                )
                 raise InputError(f"{where} takes {net.n_in} inputs but is wired to {parts} = {len(indices)}")
             # A network that names its inputs (not the default in0, in1, ...) must get those signals, in its order.
             # A constant input matches any name.
@@ -455,8 +510,9 @@ class ClosedLoop:
 
     def _vector_hint(self, names) -> str:
         wide = [n for n in sorted(names) if len(self.signals.get(n, [0])) > 1]
-        return "".join(f"; '{n}' is a vector of {len(self.signals[n])}: use its components {n}_0 .. {n}_{len(self.signals[n]) - 1}"
-                       for n in wide)
+        return "".join(
+            f"; '{n}' is a vector of {len(self.signals[n])}: use its components {n}_0 .. {n}_{len(self.signals[n]) - 1}" for n in wide
+        )
 
     def with_accumulators(self, sums: Mapping[Union[Expr, str], ExprLike]) -> "ClosedLoop":
         """This loop with one more state per entry, ``name[k+1] = name[k] + expr(step k)``: a reward
@@ -476,8 +532,10 @@ class ClosedLoop:
             e = as_expr(value)
             unknown = set(e.variables()) - set(self.env_names)
             if unknown:
-                raise InputError(f"accumulator '{name}' uses {sorted(unknown)}, which are neither states nor stage outputs "
-                                 f"({', '.join(self.env_names)}){self._vector_hint(unknown)}")
+                raise InputError(
+                    f"accumulator '{name}' uses {sorted(unknown)}, which are neither states nor stage outputs "
+                    f"({', '.join(self.env_names)}){self._vector_hint(unknown)}"
+                )
             added[name] = e
         if not added:
             raise InputError("give accumulators as {name: expression}, e.g. {'r': -0.1 * u**2}")
@@ -519,9 +577,12 @@ class ClosedLoop:
         for stage in self.stages:
             for name, (lo, hi) in stage.domain.items():
                 if name in box.names and (box[name][0] < lo or box[name][1] > hi):
-                    warnings.warn(f"initial {name} in [{box[name][0]:g}, {box[name][1]:g}] leaves [{lo:g}, {hi:g}], the input range "
-                                  f"stage '{stage.name}' declares: its component is used outside the range it was made for",
-                                  InputRangeWarning, stacklevel=3)
+                    warnings.warn(
+                        f"initial {name} in [{box[name][0]:g}, {box[name][1]:g}] leaves [{lo:g}, {hi:g}], the input range "
+                        f"stage '{stage.name}' declares: its component is used outside the range it was made for",
+                        InputRangeWarning,
+                        stacklevel=3,
+                    )
         return box
 
     def stage_float(self, k: int, env: np.ndarray, parameters: Optional[dict] = None) -> np.ndarray:
@@ -555,7 +616,7 @@ class ClosedLoop:
         for k in range(len(self.stages)):
             start = self.signals[self.stages[k].output][0]
             width = len(self.signals[self.stages[k].output])
-            env[:, start: start + width] = self.stage_float(k, env, parameters)
+            env[:, start : start + width] = self.stage_float(k, env, parameters)
         if isinstance(self.plant, Continuous):
             u = env[:, [self.env_names.index(i) for i in self.plant_inputs]]
             return self.plant.advance(env[:, : len(self.states)], u, parameters, self.plant_inputs)
@@ -563,8 +624,7 @@ class ClosedLoop:
             u = env[:, [self.env_names.index(i) for i in self.plant_inputs]]
             return self.plant.advance(env[:, : len(self.states)], u, parameters)
         reads = self._plant_reads
-        return _core.eval_float(self.plant.update, [self.env_names[i] for i in reads], np.ascontiguousarray(env[:, reads]),
-                                parameters)
+        return _core.eval_float(self.plant.update, [self.env_names[i] for i in reads], np.ascontiguousarray(env[:, reads]), parameters)
 
     def simulate(self, x0: np.ndarray, steps: int, parameters: Optional[dict] = None) -> np.ndarray:
         """Trajectories (N x (steps + 1) x n) from the rows of ``x0``, each run with its own
@@ -596,8 +656,14 @@ class ClosedLoop:
         if isinstance(self.plant, Continuous):
             pl = self.plant
             zero = as_expr(0.0)
-            plant = (pl.rhs + [zero] * len(self.plant_inputs), pl.states + self.plant_inputs, [env.index(u) for u in self.plant_inputs],
-                     pl.period, pl.step, pl.remainder)
+            plant = (
+                pl.rhs + [zero] * len(self.plant_inputs),
+                pl.states + self.plant_inputs,
+                [env.index(u) for u in self.plant_inputs],
+                pl.period,
+                pl.step,
+                pl.remainder,
+            )
         elif isinstance(self.plant, Hybrid):
             plant = self.plant._core([env.index(u) for u in self.plant_inputs])
         else:

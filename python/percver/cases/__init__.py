@@ -4,4 +4,5 @@ from percver.cases import mountain_car
 
 __all__ = ["mountain_car"]
 from percver.cases import f1tenth  # noqa: E402
+
 __all__ += ["f1tenth"]

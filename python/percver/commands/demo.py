@@ -36,13 +36,17 @@ Exit status: 0 verified, 3 unknown, 4 falsified, 1 bad input.
 def register(sub) -> None:
     import argparse
 
-    parser = sub.add_parser("demo", help="verify a slice of the Mountain Car case study with the shipped networks and plot it",
-                            description=DESCRIPTION, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser = sub.add_parser(
+        "demo",
+        help="verify a slice of the Mountain Car case study with the shipped networks and plot it",
+        description=DESCRIPTION,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
     parser.add_argument("--out", default="percver-demo.png", help="PNG of the reach tube; the JSON goes beside it (default: %(default)s)")
-    parser.add_argument("--p0", nargs=2, type=float, default=P0, metavar=("LO", "HI"),
-                        help="initial positions (default: %(default)s)")
-    parser.add_argument("--delta-c", nargs=2, type=float, default=DELTA_C, metavar=("LO", "HI"),
-                        help="contrast range (default: %(default)s)")
+    parser.add_argument("--p0", nargs=2, type=float, default=P0, metavar=("LO", "HI"), help="initial positions (default: %(default)s)")
+    parser.add_argument(
+        "--delta-c", nargs=2, type=float, default=DELTA_C, metavar=("LO", "HI"), help="contrast range (default: %(default)s)"
+    )
     parser.add_argument("--workers", type=int, help="threads (default: all cores)")
     parser.add_argument("--no-progress", action="store_true", help="hide the progress bar")
     parser.add_argument("--json", action="store_true", help="print the result as JSON")
@@ -53,13 +57,21 @@ def run(args) -> int:
     from percver.cases.mountain_car import verification
 
     started = time.time()
-    result = verification.verify("contrast", args.p0, "ours", delta_c=args.delta_c, workers=args.workers,
-                                 progress=not args.no_progress and not args.json)
+    result = verification.verify(
+        "contrast", args.p0, "ours", delta_c=args.delta_c, workers=args.workers, progress=not args.no_progress and not args.json
+    )
     figure = Path(args.out)
     record = figure.with_suffix(".json")
-    doc = {"verdict": result.verdict, "init": result.init, "row": verification.table_row(result),
-           "reasons": verification.reasons(result), "seconds": time.time() - started, "json": str(record), "plot": None,
-           "domain_exits": result.domain_exits}
+    doc = {
+        "verdict": result.verdict,
+        "init": result.init,
+        "row": verification.table_row(result),
+        "reasons": verification.reasons(result),
+        "seconds": time.time() - started,
+        "json": str(record),
+        "plot": None,
+        "domain_exits": result.domain_exits,
+    }
     # The result is written before any plotting, so a missing or failing matplotlib never loses it.
     record.write_text(json.dumps(doc, indent=1))
     try:
@@ -74,8 +86,10 @@ def run(args) -> int:
         print(json.dumps(doc))
         return EXIT[result.verdict]
     (p_lo, p_hi), (c_lo, c_hi) = result.init["p"], result.init["dc"]
-    print(f"Mountain Car with percver's shipped networks: from p0 in [{p_lo:g}, {p_hi:g}], v0 = 0, contrast in "
-          f"[{c_lo:g}, {c_hi:g}], reach p >= 0.45 within 150 steps with reward > 90")
+    print(
+        f"Mountain Car with percver's shipped networks: from p0 in [{p_lo:g}, {p_hi:g}], v0 = 0, contrast in "
+        f"[{c_lo:g}, {c_hi:g}], reach p >= 0.45 within 150 steps with reward > 90"
+    )
     print(verification.format_row("contrast", doc["row"], verification.published("contrast")))
     for line in unknown_lines(doc["reasons"]):
         print(line)

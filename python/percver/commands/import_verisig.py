@@ -42,8 +42,19 @@ def run(args) -> int:
         raise InputError(f"{out} exists; pass --force to overwrite it or -o to write elsewhere")
     out.write_text(config_text(problem, Path(args.model), [Path(n) for n in networks], out))
     if args.json:
-        print(json.dumps({"config": str(out), "model": args.model, "networks": networks, "states": problem.states,
-                          "init": problem.init, "steps": problem.steps, "kind": problem.kind}))
+        print(
+            json.dumps(
+                {
+                    "config": str(out),
+                    "model": args.model,
+                    "networks": networks,
+                    "states": problem.states,
+                    "init": problem.init,
+                    "steps": problem.steps,
+                    "kind": problem.kind,
+                }
+            )
+        )
     else:
         print(problem.summary())
         print(f"wrote {out}; run: percver verify {out}")
@@ -58,15 +69,29 @@ def config_text(problem, model: Path, networks: list, out: Path) -> str:
         r = os.path.relpath(p.resolve(), out.resolve().parent)
         return str(p.resolve()) if r.startswith("..") else r
 
-    lines = [f"# percver verify config for {model.name}, written by percver import-verisig.",
-             *(f"# {line}" for line in problem.summary().splitlines()),
-             "", "[plant]", f"model = {_toml(rel(model))}", f"networks = {_toml([rel(n) for n in networks])}",
-             "", "[init]", *(f"{_key(k)} = {_toml(list(v))}" for k, v in problem.init.items()),
-             "", "[split]  # cells per state (an integer) or the largest cell width (a float), e.g.",
-             f"# {_key(problem.states[0])} = 4",
-             "", "[property]  # the model's own property (its unsafe block) unless goal/safe/unsafe are given here",
-             f"steps = {problem.steps}",
-             "", "[verify]", 'method = "taylor"  # or "verisig"', "order = 5", "refine = false", ""]
+    lines = [
+        f"# percver verify config for {model.name}, written by percver import-verisig.",
+        *(f"# {line}" for line in problem.summary().splitlines()),
+        "",
+        "[plant]",
+        f"model = {_toml(rel(model))}",
+        f"networks = {_toml([rel(n) for n in networks])}",
+        "",
+        "[init]",
+        *(f"{_key(k)} = {_toml(list(v))}" for k, v in problem.init.items()),
+        "",
+        "[split]  # cells per state (an integer) or the largest cell width (a float), e.g.",
+        f"# {_key(problem.states[0])} = 4",
+        "",
+        "[property]  # the model's own property (its unsafe block) unless goal/safe/unsafe are given here",
+        f"steps = {problem.steps}",
+        "",
+        "[verify]",
+        'method = "taylor"  # or "verisig"',
+        "order = 5",
+        "refine = false",
+        "",
+    ]
     return "\n".join(lines)
 
 

@@ -29,26 +29,41 @@ def register(sub) -> None:
     parser.add_argument("--out", default="validation-report", help="directory for the HTML report (default: %(default)s)")
     parser.add_argument("--effects", help="comma-separated effect names to consider (default: the whole library)")
     parser.add_argument("--max-steps", type=int, default=6, help="most effects to add (default: %(default)s)")
-    parser.add_argument("--min-gain", type=float, default=0.05,
-                        help="smallest held-out share of the current model's squared error an effect must remove "
-                        "(lower end of its bootstrap interval; default: %(default)s)")
-    parser.add_argument("--learn", action="store_true",
-                        help="when effects leave a localized residual, train the paper's learned noise model on it "
-                        "(a knock-out classifier or a generative model; needs torch) and write it as ONNX into --out")
+    parser.add_argument(
+        "--min-gain",
+        type=float,
+        default=0.05,
+        help="smallest held-out share of the current model's squared error an effect must remove "
+        "(lower end of its bootstrap interval; default: %(default)s)",
+    )
+    parser.add_argument(
+        "--learn",
+        action="store_true",
+        help="when effects leave a localized residual, train the paper's learned noise model on it "
+        "(a knock-out classifier or a generative model; needs torch) and write it as ONNX into --out",
+    )
     parser.add_argument("--dropna", action="store_true", help="drop rows with NaN or inf instead of refusing the data")
     parser.add_argument("--seed", type=int, default=0, help="seed of the folds and the bootstrap (default: %(default)s)")
     parser.add_argument("--no-progress", action="store_true", help="hide the progress bar")
     parser.add_argument("--json", action="store_true", help="print the diagnosis as JSON instead of tables")
-    parser.add_argument("--verify", metavar="CONFIG.toml",
-                        help="then verify the diagnosed model: the config of 'percver verify' whose [plant] python = "
-                        "\"FILE.py:NAME\" names a function taking the diagnosed plant (or sensor expressions) and "
-                        "returning the pv.ClosedLoop; exit status as 'percver verify' (0 verified, 3 unknown, 4 falsified)")
-    parser.add_argument("--uncertainty", default="ci95",
-                        help="with --verify: fitted parameters as their bootstrap confidence intervals (ci95, ci99, "
-                        "a level such as 0.9) or 'none' for the fitted values (default: %(default)s)")
-    parser.add_argument("--residual",
-                        help="with --verify: the unexplained residual as a bounded disturbance, 'max' (the largest "
-                        "measured) or a quantile such as 0.999 (statistical, not worst case); default: none")
+    parser.add_argument(
+        "--verify",
+        metavar="CONFIG.toml",
+        help="then verify the diagnosed model: the config of 'percver verify' whose [plant] python = "
+        '"FILE.py:NAME" names a function taking the diagnosed plant (or sensor expressions) and '
+        "returning the pv.ClosedLoop; exit status as 'percver verify' (0 verified, 3 unknown, 4 falsified)",
+    )
+    parser.add_argument(
+        "--uncertainty",
+        default="ci95",
+        help="with --verify: fitted parameters as their bootstrap confidence intervals (ci95, ci99, "
+        "a level such as 0.9) or 'none' for the fitted values (default: %(default)s)",
+    )
+    parser.add_argument(
+        "--residual",
+        help="with --verify: the unexplained residual as a bounded disturbance, 'max' (the largest "
+        "measured) or a quantile such as 0.999 (statistical, not worst case); default: none",
+    )
     parser.set_defaults(func=run)
 
 
@@ -90,7 +105,13 @@ def run(args) -> int:
     data = Measurements.load(args.data, dropna=args.dropna)
     effects = [name.strip() for name in args.effects.split(",")] if args.effects else None
     diagnosis = validate.diagnose(
-        model, data, effects, max_steps=args.max_steps, min_gain=args.min_gain, learn=args.learn, seed=args.seed,
+        model,
+        data,
+        effects,
+        max_steps=args.max_steps,
+        min_gain=args.min_gain,
+        learn=args.learn,
+        seed=args.seed,
         progress=not args.no_progress and not args.json,
     )
     page = diagnosis.to_html(args.out).resolve()
@@ -117,8 +138,11 @@ def verify_diagnosed(diagnosis, args) -> int:
     spec = config.section("plant").get("python")
     path, colon, name = str(spec).rpartition(":")
     if spec is None or not colon or not path.endswith(".py"):
-        raise config.error("[plant] python", "--verify needs python = \"FILE.py:NAME\", a function of the diagnosed model "
-                           "returning the pv.ClosedLoop (e.g. def loop(plant): return pv.ClosedLoop(plant, stages=[...]))")
+        raise config.error(
+            "[plant] python",
+            '--verify needs python = "FILE.py:NAME", a function of the diagnosed model '
+            "returning the pv.ClosedLoop (e.g. def loop(plant): return pv.ClosedLoop(plant, stages=[...]))",
+        )
     namespace = runpy.run_path(str(config.file("[plant] python", path)))
     function = namespace.get(name)
     if not callable(function):

@@ -48,12 +48,25 @@ else:  # the same parser, from PyPI (a dependency on these Pythons)
 NUMBER = (int, float)
 OPTIONS = {
     "steps": ("property", int, "150", "horizon in control steps (models: the file's)"),
-    "goal": ("property", (str, list), '["p >= 0.45", "r + 100 > 90"]', "to reach: at the last step, or at some step with within; a list is a conjunction"),
+    "goal": (
+        "property",
+        (str, list),
+        '["p >= 0.45", "r + 100 > 90"]',
+        "to reach: at the last step, or at some step with within; a list is a conjunction",
+    ),
     "within": ("property", bool, "true", "the goal at some step up to steps (else at the last step)"),
-    "safe": ("property", (str, list, dict), '["v >= -0.07", "v <= 0.07"]',
-             "must hold at every step; a list is a conjunction; {conditions = [...], time = [t0, t1]} (or steps = [a, b]): in that window"),
-    "unsafe": ("property", (str, list, dict), '["p <= -1.3"]',
-               "a set to avoid at every step; a list is one set, the conjunction of its conditions; a table as for safe: in a window"),
+    "safe": (
+        "property",
+        (str, list, dict),
+        '["v >= -0.07", "v <= 0.07"]',
+        "must hold at every step; a list is a conjunction; {conditions = [...], time = [t0, t1]} (or steps = [a, b]): in that window",
+    ),
+    "unsafe": (
+        "property",
+        (str, list, dict),
+        '["p <= -1.3"]',
+        "a set to avoid at every step; a list is one set, the conjunction of its conditions; a table as for safe: in a window",
+    ),
     "reward": ("property", dict, '{r = "-0.1 * u^2"}', "accumulators: summed along the run from 0, readable in goal and safe"),
     "method": ("verify", str, '"taylor"', 'network propagation: "taylor" or "verisig"'),
     "order": ("verify", int, "5", "Taylor model order"),
@@ -68,9 +81,13 @@ OPTIONS = {
     "workers": ("verify", int, "2", "local threads (default: all cores; --workers overrides)"),
     "executor": ("verify", str, '"tcp://host:8786"', "a Dask scheduler to run the cells on (--scheduler overrides)"),
     "batch": ("verify", int, "8", "cells per executor task (default: sized to about a quarter second)"),
-    "splitter": ("verify", (str, dict), '{kind = "adaptive", max_cells = 512}',
-                 'how cells are made: "grid", "bisection" or "adaptive" (pv.Grid, pv.Bisection, pv.Adaptive), '
-                 "or a table with kind and their keywords (instead of [split], refine, min_width)"),
+    "splitter": (
+        "verify",
+        (str, dict),
+        '{kind = "adaptive", max_cells = 512}',
+        'how cells are made: "grid", "bisection" or "adaptive" (pv.Grid, pv.Bisection, pv.Adaptive), '
+        "or a table with kind and their keywords (instead of [split], refine, min_width)",
+    ),
     "strict": ("verify", bool, "false", "an initial or reach set leaving a network's input domain is an error (else a warning)"),
     "journal": ("verify", str, '"run.jsonl"', "append finished cells here, skip them on a rerun (--journal overrides)"),
     "progress": ("verify", bool, "true", "the progress bar (--no-progress turns it off)"),
@@ -104,8 +121,12 @@ def reference() -> str:
     defaults = {k: p.default for k, p in inspect.signature(verify).parameters.items()}
     rows = ["| key | table | type | default | meaning |", "|---|---|---|---|---|"]
     for k, (table, kind, _, meaning) in OPTIONS.items():
-        kinds = " or ".join({"str": "string", "list": "list of strings", "dict": "table", "int": "integer", "float": "number",
-                             "bool": "boolean"}[t.__name__] for t in (kind if isinstance(kind, tuple) else (kind,)))
+        kinds = " or ".join(
+            {"str": "string", "list": "list of strings", "dict": "table", "int": "integer", "float": "number", "bool": "boolean"}[
+                t.__name__
+            ]
+            for t in (kind if isinstance(kind, tuple) else (kind,))
+        )
         kinds = "number" if kind is NUMBER else kinds
         default = defaults[k]
         default = "-" if default is None else f"`{str(default).lower() if isinstance(default, bool) else default}`"
@@ -166,8 +187,10 @@ def run(args) -> int:
 
 def report(result) -> str:
     """The summary table, then what decided the verdict (counterexample, or where precision ran out)."""
-    lines = [result.summary(), f"verdict: {result.verdict} ({100 * result.coverage:.2f}% of the initial set verified, "
-                               f"{result.seconds:.2f} s)"]
+    lines = [
+        result.summary(),
+        f"verdict: {result.verdict} ({100 * result.coverage:.2f}% of the initial set verified, {result.seconds:.2f} s)",
+    ]
     cex = result.counterexample
     if cex is not None:
         start = ", ".join(f"{k} = {v:.9g}" for k, v in cex.initial.items())
@@ -224,7 +247,7 @@ class Config:
         plant = self.section("plant")
         given = [k for k in ("python", "model") if k in plant]
         if len(given) != 1:
-            raise self.error("[plant]", "give exactly one of python = \"FILE.py:NAME\" or model = \"FILE.model\"")
+            raise self.error("[plant]", 'give exactly one of python = "FILE.py:NAME" or model = "FILE.model"')
         if given == ["python"]:
             if "networks" in plant or "period" in plant:
                 raise self.error("[plant]", "networks and period belong to model = ..., not python = ...")
@@ -271,8 +294,7 @@ class Config:
         own = getattr(target, "defaults", {})
         given = [source.get(k) for source in (kwargs, own) for k in ("goal", "safe", "unsafe")]
         if all(v is None or (isinstance(v, list) and not v) for v in given):
-            raise self.error("[property]", 'nothing to verify: give goal = "...", safe = [...] or unsafe = [...] '
-                                           '(e.g. goal = "p >= 0.45")')
+            raise self.error("[property]", 'nothing to verify: give goal = "...", safe = [...] or unsafe = [...] (e.g. goal = "p >= 0.45")')
         return target
 
     def verify_kwargs(self) -> dict:
@@ -305,8 +327,10 @@ class Config:
             if key in prop:
                 items = prop.pop(key)
                 items = items if isinstance(items, list) else [items]
-                kwargs[key] = [self._window(f"[property] {key}", t) if isinstance(t, dict) else
-                               self._parsed(f"[property] {key}", t, condition) for t in items]
+                kwargs[key] = [
+                    self._window(f"[property] {key}", t) if isinstance(t, dict) else self._parsed(f"[property] {key}", t, condition)
+                    for t in items
+                ]
         if "reward" in prop:
             kwargs["reward"] = {k: self._parsed(f"[property] reward.{k}", v, _expression) for k, v in prop.pop("reward").items()}
         kwargs.update(self.section("verify"))
@@ -348,7 +372,9 @@ class Config:
 
         keys = set(table)
         if "conditions" not in keys or len(keys & {"time", "steps"}) != 1 or keys - {"conditions", "time", "steps"}:
-            raise self.error(field, f"a window is {{conditions = [\"x1 >= 0\", ...], time = [t0, t1]}} or steps = [first, last]; got {table!r}")
+            raise self.error(
+                field, f'a window is {{conditions = ["x1 >= 0", ...], time = [t0, t1]}} or steps = [first, last]; got {table!r}'
+            )
         texts = table["conditions"] if isinstance(table["conditions"], list) else [table["conditions"]]
         conds = [self._parsed(f"{field} conditions", t, condition) for t in texts]
         unit = "time" if "time" in table else "steps"
@@ -362,7 +388,7 @@ class Config:
 
     def _parsed(self, field: str, text, parse):
         if not isinstance(text, str):
-            raise self.error(field, f"expected a string such as \"p >= 0.45\", got {text!r}")
+            raise self.error(field, f'expected a string such as "p >= 0.45", got {text!r}')
         try:
             return parse(text)
         except PercverError as error:
@@ -393,7 +419,11 @@ class FlowstarProblem:
         if not self.period > 0:
             raise InputError(f"{model.path}: the period must be positive, got {self.period}")
         self.steps = max(1, round(model.t_end / self.period))
-        plant = Continuous({v: parse(model.odes[v]) for v in model.variables}, period=self.period,
-                           step=min(step, self.period), remainder=max(model.remainder))
+        plant = Continuous(
+            {v: parse(model.odes[v]) for v in model.variables},
+            period=self.period,
+            step=min(step, self.period),
+            remainder=max(model.remainder),
+        )
         self.loop = ClosedLoop(plant)
         self.defaults = {"init": dict(model.init), "steps": self.steps}

@@ -190,18 +190,22 @@ def load_flowstar(path: str) -> Union[FlowstarModel, "HybridModel"]:
             raise ParseError(f"{name}, line {_line_of(text, line)}: expected \"x' = expression\", got '{line}'")
         v, rhs = mm.group(1), mm.group(2)
         if v not in variables:
-            raise ParseError(f"{name}, line {_line_of(text, line)}: equation for undeclared variable '{v}' (state var: {', '.join(variables)})")
+            raise ParseError(
+                f"{name}, line {_line_of(text, line)}: equation for undeclared variable '{v}' (state var: {', '.join(variables)})"
+            )
         try:
             unknown = sorted(set(_core.Expr.parse(rhs).variables()) - set(variables))
         except ParseError as e:
             raise ParseError(f"{name}, line {_line_of(text, line)}: {e}") from None
         if unknown:
-            raise ParseError(f"{name}, line {_line_of(text, line)}: the ODE \"{v}' = {rhs}\" uses {', '.join(map(repr, unknown))}, "
-                             f"which is not a state variable (state var: {', '.join(variables)}); declare it or fix the name")
+            raise ParseError(
+                f'{name}, line {_line_of(text, line)}: the ODE "{v}\' = {rhs}" uses {", ".join(map(repr, unknown))}, '
+                f"which is not a state variable (state var: {', '.join(variables)}); declare it or fix the name"
+            )
         odes[v] = rhs
     missing = [v for v in variables if v not in odes]
     if missing:
-        raise ParseError(f"{name}: no equation for {', '.join(missing)}; add \"{missing[0]}' = ...\" to the ODE block")
+        raise ParseError(f'{name}: no equation for {", ".join(missing)}; add "{missing[0]}\' = ..." to the ODE block')
     i = re.search(r"\binit\b", rest[end:])
     if not i:
         raise ParseError(f"{name}: missing 'init {{ ... }}' block")
@@ -212,7 +216,21 @@ def load_flowstar(path: str) -> Union[FlowstarModel, "HybridModel"]:
     missing = [v for v in variables if v not in init]
     if missing:
         raise ParseError(f"{name}: the init block gives no interval for {', '.join(missing)}")
-    return FlowstarModel(name, variables, odes, init, t_end, step, order, found["remainder"], found["precondition"], found["cutoff"], kind, symbolic_queue, found["ignored"])
+    return FlowstarModel(
+        name,
+        variables,
+        odes,
+        init,
+        t_end,
+        step,
+        order,
+        found["remainder"],
+        found["precondition"],
+        found["cutoff"],
+        kind,
+        symbolic_queue,
+        found["ignored"],
+    )
 
 
 # ----------------------------------------------------------------------------- hybrid models
@@ -315,7 +333,9 @@ class HybridModel:
         for clock, c in mode.dwell_atoms:
             lo, hi = box[clock]
             if lo != hi:
-                raise ParseError(f"{self.path}: mode {mode.name} is entered with {clock} in [{lo}, {hi}]; the runner needs a clock reset to one value")
+                raise ParseError(
+                    f"{self.path}: mode {mode.name} is entered with {clock} in [{lo}, {hi}]; the runner needs a clock reset to one value"
+                )
             dwells.append(max(0.0, c - lo))
         return min(dwells)
 
@@ -365,8 +385,16 @@ class HybridModel:
         adaptive = self.step if isinstance(self.step, tuple) else None
         remainder = {v: self.remainder[self.variables.index(v)] for v in ode}
         try:
-            fp = flowpipe(ode, box, dwell, order=self.order, step=0.0 if adaptive else self.step, adaptive=adaptive,
-                          cutoff=self.cutoff, remainder=remainder)
+            fp = flowpipe(
+                ode,
+                box,
+                dwell,
+                order=self.order,
+                step=0.0 if adaptive else self.step,
+                adaptive=adaptive,
+                cutoff=self.cutoff,
+                remainder=remainder,
+            )
             return fp.final_box()
         except BlowUpError:
             widest = max(box, key=lambda v: box[v][1] - box[v][0])
@@ -392,7 +420,9 @@ class HybridModel:
                 return None
             if variable is not None and constant is not None:
                 vlo, vhi = box[variable]
-                vlo, vhi = (vlo, min(vhi, constant)) if op in ("<=", "<") else (max(vlo, constant), vhi) if op in (">=", ">") else (vlo, vhi)
+                vlo, vhi = (
+                    (vlo, min(vhi, constant)) if op in ("<=", "<") else (max(vlo, constant), vhi) if op in (">=", ">") else (vlo, vhi)
+                )
                 if vlo > vhi:
                     return None
                 box[variable] = (vlo, vhi)
@@ -454,7 +484,10 @@ def _load_hybrid(path: str) -> HybridModel:
     src, variables = aut.src, aut.variables
     dnn = [name for name in aut.modes if name.startswith("DNN")]
     if dnn:
-        raise src.error(aut.modes[dnn[0]].pos, f"mode {dnn[0]} is a Verisig 2.0 network mode (evaluated by the tool from a network file): read the model with pv.formats.load_verisig(model, networks=[...])")
+        raise src.error(
+            aut.modes[dnn[0]].pos,
+            f"mode {dnn[0]} is a Verisig 2.0 network mode (evaluated by the tool from a network file): read the model with pv.formats.load_verisig(model, networks=[...])",
+        )
     found = _integration_settings(aut.settings["ignored"], variables, path, src.text)
     for what, value in (("a step size", found["step"]), ("an order", found["order"])):
         if value is None:
@@ -470,7 +503,10 @@ def _load_hybrid(path: str) -> HybridModel:
                 if _core.eval_interval([rate], [], [])[0] == (1.0, 1.0):
                     atoms.append((clock, rhs[1]))
         if not atoms:
-            raise src.error(mode.pos, f"mode {name} has no invariant 'clock <= c' with clock' = 1: the runner reads time-triggered models (each mode dwells a fixed time), as Verisig writes them")
+            raise src.error(
+                mode.pos,
+                f"mode {name} has no invariant 'clock <= c' with clock' = 1: the runner reads time-triggered models (each mode dwells a fixed time), as Verisig writes them",
+            )
         modes[name] = HybridMode(name, ode, atoms)
     jumps = []
     for j in aut.jumps:
@@ -479,8 +515,24 @@ def _load_hybrid(path: str) -> HybridModel:
         # say so (guard clock = c), or it could fire earlier, from states the runner never sees.
         for clock, c in modes[j.src].dwell_atoms:
             if c > 0 and not any(g[0] == clock and g[2] == "=" and g[3] == c for g in guard):
-                raise src.error(j.pos, f"jump {j.src} -> {j.dst} can fire during the flow of {j.src}; the runner reads jumps at the end of a mode's dwell: add '{clock} = {c:g}' to the guard")
+                raise src.error(
+                    j.pos,
+                    f"jump {j.src} -> {j.dst} can fire during the flow of {j.src}; the runner reads jumps at the end of a mode's dwell: add '{clock} = {c:g}' to the guard",
+                )
         jumps.append(HybridJump(j.src, j.dst, guard, {v: _expr(ast) for v, ast in j.reset.items()}))
     ignored = found["ignored"] + ([f"unsafe sets of {sorted(aut.unsafe)} (run() computes reach sets only)"] if aut.unsafe else [])
-    return HybridModel(path, variables, modes, jumps, aut.init_mode, dict(aut.init), aut.settings["time"],
-                       aut.settings.get("max_jumps", 10**9), found["step"], order, found["remainder"], found["cutoff"], ignored)
+    return HybridModel(
+        path,
+        variables,
+        modes,
+        jumps,
+        aut.init_mode,
+        dict(aut.init),
+        aut.settings["time"],
+        aut.settings.get("max_jumps", 10**9),
+        found["step"],
+        order,
+        found["remainder"],
+        found["cutoff"],
+        ignored,
+    )

@@ -13,8 +13,19 @@ import numpy as np
 from percver.errors import NetworkFormatError
 from percver.networks import Layer, Network
 
-ACTIVATIONS = {"relu": "relu", "poslin": "relu", "tanh": "tanh", "tansig": "tanh", "sigmoid": "sigmoid", "logsig": "sigmoid",
-               "linear": "identity", "purelin": "identity", "identity": "identity", "id": "identity", "none": "identity"}
+ACTIVATIONS = {
+    "relu": "relu",
+    "poslin": "relu",
+    "tanh": "tanh",
+    "tansig": "tanh",
+    "sigmoid": "sigmoid",
+    "logsig": "sigmoid",
+    "linear": "identity",
+    "purelin": "identity",
+    "identity": "identity",
+    "id": "identity",
+    "none": "identity",
+}
 ACTIVATION_KEYS = ("act_fcns", "act", "activation_fcns", "activations")
 
 
@@ -31,8 +42,10 @@ def read_mat(path) -> Network:
     keys = sorted(k for k in doc if not k.startswith("__"))
     act_key = next((k for k in ACTIVATION_KEYS if k in doc), None)
     if "W" not in doc or "b" not in doc or act_key is None:
-        raise NetworkFormatError(f"{path}: a network needs the variables W, b and one of {', '.join(ACTIVATION_KEYS)} "
-                                 f"(NNV/CORA/JuliaReach layout); found {', '.join(keys) or 'none'}")
+        raise NetworkFormatError(
+            f"{path}: a network needs the variables W, b and one of {', '.join(ACTIVATION_KEYS)} "
+            f"(NNV/CORA/JuliaReach layout); found {', '.join(keys) or 'none'}"
+        )
     weights, biases, acts = _cells(doc["W"]), _cells(doc["b"]), _names(doc[act_key], act_key, path)
     if not (len(weights) == len(biases) == len(acts)):
         raise NetworkFormatError(f"{path}: W has {len(weights)} layers, b {len(biases)} and {act_key} {len(acts)}; they must agree")

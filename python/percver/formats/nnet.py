@@ -52,15 +52,21 @@ def read_nnet(path) -> Network:
     layers, n_in, n_out = (_count(v, path, reader.last, what) for v, what in zip(head[:3], ("layer count", "input size", "output size")))
     sizes = [_count(v, path, reader.last, "layer size") for v in reader.take(f"the {layers + 1} layer sizes", layers + 1, exact=False)]
     if sizes[0] != n_in or sizes[-1] != n_out:
-        raise NetworkFormatError(f"{path}, line {reader.last}: the layer sizes start at {sizes[0]} and end at {sizes[-1]}, "
-                                 f"but the header says {n_in} inputs and {n_out} outputs")
+        raise NetworkFormatError(
+            f"{path}, line {reader.last}: the layer sizes start at {sizes[0]} and end at {sizes[-1]}, "
+            f"but the header says {n_in} inputs and {n_out} outputs"
+        )
     reader.take("the flag line", 1, exact=False)
     normalization = [reader.take(what, 1, exact=False) for what in ("the input minima", "the input maxima", "the means", "the ranges")]
     if not all(len(v) == 1 and v[0] == 0.0 for v in normalization):
-        warnings.warn(f"{path}: the file's normalization is not applied (as JuliaReach's read_NNet): inputs clipped to "
-                      f"{normalization[0]}..{normalization[1]}, shifted by the means {normalization[2][:n_in]} and divided by "
-                      f"the ranges {normalization[3][:n_in]}, the output scaled back; apply them in stages of their own if "
-                      f"the network needs them", NNetNormalizationWarning, stacklevel=3)
+        warnings.warn(
+            f"{path}: the file's normalization is not applied (as JuliaReach's read_NNet): inputs clipped to "
+            f"{normalization[0]}..{normalization[1]}, shifted by the means {normalization[2][:n_in]} and divided by "
+            f"the ranges {normalization[3][:n_in]}, the output scaled back; apply them in stages of their own if "
+            f"the network needs them",
+            NNetNormalizationWarning,
+            stacklevel=3,
+        )
     out = []
     for k in range(layers):
         rows = [reader.take(f"layer {k + 1} weights, row {i + 1}", sizes[k]) for i in range(sizes[k + 1])]
@@ -70,8 +76,9 @@ def read_nnet(path) -> Network:
             raise NetworkFormatError(f"{path}: layer {k + 1} has a non-finite weight or bias")
         out.append(Layer(weight, bias, "relu" if k < layers - 1 else "identity"))
     if reader.remaining():
-        raise NetworkFormatError(f"{path}, line {reader.next_line()}: numbers after the last layer's biases; "
-                                 f"the layer sizes {sizes} may be wrong")
+        raise NetworkFormatError(
+            f"{path}, line {reader.next_line()}: numbers after the last layer's biases; the layer sizes {sizes} may be wrong"
+        )
     return Network(out, name=path.stem, source=path)
 
 

@@ -126,9 +126,7 @@ def _conv(x: np.ndarray, lead: int, weight: np.ndarray, strides, pads, dilations
     outer = x.shape[: lead + 1]
     x = x.reshape((-1, *x.shape[lead + 1 :]))
     x = np.pad(x, [(0, 0), (0, 0), *zip(pads[:n_spatial], pads[n_spatial:])])
-    size = [
-        (x.shape[2 + i] - dilations[i] * (weight.shape[2 + i] - 1) - 1) // strides[i] + 1 for i in range(n_spatial)
-    ]
+    size = [(x.shape[2 + i] - dilations[i] * (weight.shape[2 + i] - 1) - 1) // strides[i] + 1 for i in range(n_spatial)]
     if min(size) < 1:
         raise _NodeError(f"the kernel {weight.shape[2:]} does not fit the padded input {x.shape[2:]}")
     y = np.zeros((x.shape[0], weight.shape[0], *size))
@@ -204,9 +202,7 @@ class _GraphReader:
         return array
 
     def error(self, message: str) -> NetworkFormatError:
-        return NetworkFormatError(
-            f"{self.path}: {message}; percver reads feed-forward chains of the ONNX ops {', '.join(SUPPORTED_OPS)}"
-        )
+        return NetworkFormatError(f"{self.path}: {message}; percver reads feed-forward chains of the ONNX ops {', '.join(SUPPORTED_OPS)}")
 
     def read(self) -> Network:
         inputs = [i for i in self.graph.input if i.name not in self.values]
@@ -261,9 +257,7 @@ class _GraphReader:
             raise self.error(f"{label} ({op_type}) reads {name!r}, which no earlier node or initializer provides")
         value = self.values[name]
         if isinstance(value, _Affine) and len(self.readers[name]) > 1:
-            raise self.error(
-                f"{label} ({op_type}): the graph branches: tensor {name!r} is read by {', '.join(self.readers[name])}"
-            )
+            raise self.error(f"{label} ({op_type}): the graph branches: tensor {name!r} is read by {', '.join(self.readers[name])}")
         return value
 
     def evaluate(self, op: str, args: list, attributes: dict):
@@ -390,9 +384,7 @@ class _GraphReader:
         if square and np.array_equal(matrix, np.eye(len(offset))) and not offset.any():
             return self.network()
         if self.layers and square and np.array_equal(matrix, np.diag(scale)):
-            return self.network(
-                scale=None if np.all(scale == 1.0) else scale, offset=offset if offset.any() else None
-            )
+            return self.network(scale=None if np.all(scale == 1.0) else scale, offset=offset if offset.any() else None)
         self.layers.append(Layer(matrix.T, offset, "identity"))
         return self.network()
 

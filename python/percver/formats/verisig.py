@@ -251,7 +251,10 @@ def _section(src: _Source, text: str, pos: int, keyword: str):
     m = _match_at(keyword, text, pos)
     if not m:
         found = text[pos:].strip().split("\n", 1)[0][:40] or "the end of the file"
-        raise src.error(pos + len(text[pos:]) - len(text[pos:].lstrip()), f"expected '{keyword.replace(chr(92) + 's+', ' ')} {{ ... }}', found '{found}'")
+        raise src.error(
+            pos + len(text[pos:]) - len(text[pos:].lstrip()),
+            f"expected '{keyword.replace(chr(92) + 's+', ' ')} {{ ... }}', found '{found}'",
+        )
     inner, end = _block(text, m.end(), src.path)
     return inner, text.index("{", m.end()) + 1, end
 
@@ -268,7 +271,9 @@ def _parse(path: str) -> _Automaton:
     m = _match_at(r"hybrid\s+reachability", text, 0)
     if not m:
         if re.match(r"\s*continuous\s+reachability", text):
-            raise src.error(0, "a continuous model: read it with percver.formats.load_flowstar; load_verisig needs 'hybrid reachability' with DNN modes")
+            raise src.error(
+                0, "a continuous model: read it with percver.formats.load_flowstar; load_verisig needs 'hybrid reachability' with DNN modes"
+            )
         raise src.error(0, "expected 'hybrid reachability { ... }' at the top (a Verisig/Flow* hybrid model)")
     body_at = text.index("{", m.end()) + 1
     _, after = _block(text, m.end(), src.path)
@@ -287,7 +292,7 @@ def _parse(path: str) -> _Automaton:
     jumps = _parse_jumps(src, jumps_text, jumps_at, modes, set(variables))
     init_text, init_at, pos = _section(src, text, pos, r"init")
     init_mode, init, init_pos = _parse_init(src, init_text, init_at, modes, set(variables))
-    rest = text[pos:after - 1]
+    rest = text[pos : after - 1]
     if rest.strip():
         at = pos + len(rest) - len(rest.lstrip())
         raise src.error(at, f"unexpected '{rest.strip()[:30]}' after the init block of the hybrid model")
@@ -302,8 +307,10 @@ def _parse(path: str) -> _Automaton:
         at = end + len(trailing) - len(trailing.lstrip())
         # Flow* runs the analysis when it has read the unsafe block and ignores what follows;
         # do the same, loudly, so a misplaced brace cannot silently drop a property.
-        msg = (f"{src.path}, line {src.line(at)}: ignoring '{' '.join(trailing.split())[:40]}...' after the model "
-               f"(Flow* ignores it too: a stray '}}' closed the unsafe block early?)")
+        msg = (
+            f"{src.path}, line {src.line(at)}: ignoring '{' '.join(trailing.split())[:40]}...' after the model "
+            f"(Flow* ignores it too: a stray '}}' closed the unsafe block early?)"
+        )
         warnings.warn(msg, stacklevel=3)
         notes.append(msg)
     return _Automaton(src, variables, settings, modes, jumps, init_mode, init, init_pos, unsafe, notes)
@@ -311,11 +318,8 @@ def _parse(path: str) -> _Automaton:
 
 def _parse_settings(src: _Source, text: str, base: int) -> dict:
     out: dict = {"ignored": []}
-    offset = 0
     for raw in text.split("\n"):
         line = raw.strip()
-        at = base + offset + len(raw) - len(raw.lstrip())
-        offset += len(raw) + 1
         if not line:
             continue
         if mm := re.fullmatch(rf"time\s+({_NUMBER})", line):
@@ -497,8 +501,18 @@ def _fold(op: str, a, b):
 
 def _call(name: str, x):
     if _is_num(x):
-        f = {"sin": math.sin, "cos": math.cos, "tan": math.tan, "atan": math.atan, "exp": math.exp, "log": math.log,
-             "sqrt": math.sqrt, "tanh": math.tanh, "abs": abs, "sigmoid": lambda v: 1 / (1 + math.exp(-v))}[name]
+        f = {
+            "sin": math.sin,
+            "cos": math.cos,
+            "tan": math.tan,
+            "atan": math.atan,
+            "exp": math.exp,
+            "log": math.log,
+            "sqrt": math.sqrt,
+            "tanh": math.tanh,
+            "abs": abs,
+            "sigmoid": lambda v: 1 / (1 + math.exp(-v)),
+        }[name]
         return float(f(x))
     return Expr.apply(name, x)
 
@@ -519,7 +533,7 @@ def _build(src: _Source, ast, lookup):
         base, exp = _build(src, ast[1], lookup), _build(src, ast[2], lookup)
         if not _is_num(exp):
             raise ParseError(f"{src.path}: exponents must be constants in '^'")
-        return float(base ** exp) if _is_num(base) else base ** exp
+        return float(base**exp) if _is_num(base) else base**exp
     if kind == "call":
         return _call(ast[1], _build(src, ast[2], lookup))
     if kind == "interval":
@@ -609,8 +623,7 @@ class VerisigProblem:
 
     @property
     def defaults(self) -> dict:
-        return {"init": dict(self.init), "steps": self.steps, "goal": self.goal, "safe": list(self.safe) or None,
-                "within": self.within}
+        return {"init": dict(self.init), "steps": self.steps, "goal": self.goal, "safe": list(self.safe) or None, "within": self.within}
 
     def verify(self, **kwargs):
         """``pv.verify`` with this file's initial set, horizon and property as defaults."""
@@ -639,7 +652,9 @@ class VerisigProblem:
         elif isinstance(plant, Hybrid):
             for name in plant.modes:
                 lines.append(f"  mode {name}: " + "; ".join(f"{s}' = {short(e, 60)}" for s, e in zip(plant.states, plant.rhs_of(name))))
-            lines += [f"  jump {j.source} -> {j.target or 'the networks'} when {' and '.join(map(str, j.guard)) or 'always'}" for j in plant.jumps]
+            lines += [
+                f"  jump {j.source} -> {j.target or 'the networks'} when {' and '.join(map(str, j.guard)) or 'always'}" for j in plant.jumps
+            ]
             lines.append(f"  inputs {', '.join(plant.inputs)} held for {self.period} s")
         else:
             lines += [f"  {s}' = {short(e)}" for s, e in zip(plant.states, plant.rhs)]
@@ -647,8 +662,14 @@ class VerisigProblem:
         for st in self.loop.stages:
             if st.is_network:
                 net = st.component
-                lines.append(f"  stage {st.output} = network {net.name or ''} ({net.n_in} -> {net.n_out}) of {', '.join(st.input_labels)}"
-                             + (f", scale {np.asarray(net.scale).tolist()} offset {np.asarray(net.offset).tolist()}" if net.scale is not None else ""))
+                lines.append(
+                    f"  stage {st.output} = network {net.name or ''} ({net.n_in} -> {net.n_out}) of {', '.join(st.input_labels)}"
+                    + (
+                        f", scale {np.asarray(net.scale).tolist()} offset {np.asarray(net.offset).tolist()}"
+                        if net.scale is not None
+                        else ""
+                    )
+                )
             elif st.input_names:
                 lines.append(f"  stage {st.output} = {len(st.component)} expression(s) of {', '.join(st.input_names)}")
             else:
@@ -720,7 +741,10 @@ class _Translator:
         self.terminal = {m for m in self.modes if not self.out[m]}
         for m in aut.unsafe:
             if self.out[m]:
-                raise self.src.error(aut.unsafe[m][1], f"unsafe mode '{m}' has outgoing jumps; only terminal unsafe modes (entered by a jump, never left) are supported")
+                raise self.src.error(
+                    aut.unsafe[m][1],
+                    f"unsafe mode '{m}' has outgoing jumps; only terminal unsafe modes (entered by a jump, never left) are supported",
+                )
         if aut.init_mode in self.terminal:
             raise self.src.error(aut.init_pos, f"the initial mode '{aut.init_mode}' has no outgoing jumps")
         self.dnn_modes = [m for m in self.modes if m.startswith("DNN")]
@@ -733,8 +757,10 @@ class _Translator:
         for m, mode in self.modes.items():
             states = [a for a in mode.inv if not (_ast_vars(a[0], set()) | _ast_vars(a[2], set())) <= set(self.timers)]
             if states and m not in self.terminal:
-                self.notes.append(f"mode '{m}' (line {self.src.line(mode.pos)}): state invariants ignored (an over-approximation: "
-                                  f"runs Verisig would block there are kept)")
+                self.notes.append(
+                    f"mode '{m}' (line {self.src.line(mode.pos)}): state invariants ignored (an over-approximation: "
+                    f"runs Verisig would block there are kept)"
+                )
         self.sym = {v: Expr.var(v) for v in self.vars if v not in self.timers}
         self.flow_mode = self._find_flow_mode()
         self.calls: list = []
@@ -813,15 +839,21 @@ class _Translator:
         return True
 
     def _inv_bound(self, mode: _Mode) -> Optional[float]:
-        bounds = [self._const(rhs) for lhs, op, rhs, _ in mode.inv
-                  if op in ("<=", "<") and lhs[0] == "var" and lhs[1] in self.timers and self._const(rhs) is not None]
+        bounds = [
+            self._const(rhs)
+            for lhs, op, rhs, _ in mode.inv
+            if op in ("<=", "<") and lhs[0] == "var" and lhs[1] in self.timers and self._const(rhs) is not None
+        ]
         return min(bounds) if bounds else None
 
     def _find_flow_mode(self) -> Optional[str]:
         """The mode that integrates the plant; with several (a period through plant modes with
         guards), the first of them, the others in ``self.region`` (see :meth:`_hybrid`)."""
-        flows = [m for m, mode in self.modes.items()
-                 if m not in self.terminal and not self._solvable(mode) and (self._inv_bound(mode) or 0.0) > 0]
+        flows = [
+            m
+            for m, mode in self.modes.items()
+            if m not in self.terminal and not self._solvable(mode) and (self._inv_bound(mode) or 0.0) > 0
+        ]
         self.region = flows
         return flows[0] if flows else None
 
@@ -852,7 +884,10 @@ class _Translator:
                 timer_atoms.append((lhs, op, rhs, pos))
                 continue
             if used & set(self.timers):
-                raise self.src.error(pos, f"{where}: a constraint mixing clocks/counters ({', '.join(sorted(used & set(self.timers)))}) with states is not supported")
+                raise self.src.error(
+                    pos,
+                    f"{where}: a constraint mixing clocks/counters ({', '.join(sorted(used & set(self.timers)))}) with states is not supported",
+                )
             lv, rv = self._value(lhs, state), self._value(rhs, state)
             if op == "=":
                 conds += [_condition(lv, "<=", rv), _condition(lv, ">=", rv)]
@@ -879,8 +914,11 @@ class _Translator:
                 try:
                     values[v] = ("e", self._value(ast, state))
                 except _NeedAbsolute as e:
-                    raise self.src.error(e.pos, f"jump {jump.src} -> {jump.dst}: '{v}' is computed from the counter '{e.var}', "
-                                                f"whose value depends on the step; not supported") from None
+                    raise self.src.error(
+                        e.pos,
+                        f"jump {jump.src} -> {jump.dst}: '{v}' is computed from the counter '{e.var}', "
+                        f"whose value depends on the step; not supported",
+                    ) from None
                 except ArithmeticError as e:
                     raise self.src.error(jump.pos, f"jump {jump.src} -> {jump.dst}: {e}") from None
         for v, (kind, val) in values.items():
@@ -902,9 +940,15 @@ class _Translator:
             if dst in self.timers or arg in self.timers:
                 raise self.src.error(mode.pos, f"function mode '{name}' applies {op} to a clock/counter")
             x = state.env[arg]
-            f = {"cos": lambda a: _call("cos", a), "sin": lambda a: _call("sin", a), "tan": lambda a: _call("tan", a),
-                 "arc": lambda a: _call("atan", a), "sqrt": lambda a: _call("sqrt", a),
-                 "div": lambda a: _fold("/", 1.0, a), "sec": lambda a: _fold("/", 1.0, _call("cos", a))}[op]
+            f = {
+                "cos": lambda a: _call("cos", a),
+                "sin": lambda a: _call("sin", a),
+                "tan": lambda a: _call("tan", a),
+                "arc": lambda a: _call("atan", a),
+                "sqrt": lambda a: _call("sqrt", a),
+                "div": lambda a: _fold("/", 1.0, a),
+                "sec": lambda a: _fold("/", 1.0, _call("cos", a)),
+            }[op]
             state.env[dst] = f(x)
         elif special and initial:
             raise self.src.error(mode.pos, f"the initial mode '{name}' is a function mode; start in an ordinary mode")
@@ -912,15 +956,21 @@ class _Translator:
             if initial:
                 raise self.src.error(mode.pos, f"the initial mode '{name}' is a DNN mode; start in a plant mode")
             if depth > 0:
-                raise self.src.error(mode.pos, f"DNN mode '{name}' is reached on only some branches of a period; every period must evaluate each network once")
+                raise self.src.error(
+                    mode.pos,
+                    f"DNN mode '{name}' is reached on only some branches of a period; every period must evaluate each network once",
+                )
             self._call_network(name, state)
         dwell = state.dwell = self._dwell(name, state.timers)
         if dwell > _TOL:
             if name == self.flow_mode:
                 raise AssertionError("the plant mode is handled by the caller")
             if not self._solvable(mode):
-                raise self.src.error(mode.pos, f"mode '{name}' flows for {dwell} with non-constant dynamics between the networks of a period; "
-                                               f"the plant modes ({', '.join(self.region)}) must follow one another")
+                raise self.src.error(
+                    mode.pos,
+                    f"mode '{name}' flows for {dwell} with non-constant dynamics between the networks of a period; "
+                    f"the plant modes ({', '.join(self.region)}) must follow one another",
+                )
             lookup = self._lookup(state)
             updates = {}
             for v in self.vars:
@@ -967,7 +1017,9 @@ class _Translator:
         for i in range(net.n_in):
             v = f"_f{i + 1}"
             if v not in state.env:
-                raise self.src.error(self.modes[mode].pos, f"network {k + 1} takes {net.n_in} inputs but '{v}' is not a state variable of the model")
+                raise self.src.error(
+                    self.modes[mode].pos, f"network {k + 1} takes {net.n_in} inputs but '{v}' is not a state variable of the model"
+                )
             ins.append(state.env[v])
         name = self._fresh(f"dnn{len(self.calls) + 1}")
         outs = [name] if net.n_out == 1 else [f"{name}_{i}" for i in range(net.n_out)]
@@ -1019,7 +1071,10 @@ class _Translator:
                     colour[node] = 2
                     stack.pop()
                 elif colour.get(nxt) == 1:
-                    raise self.src.error(self._pos(nxt), f"mode '{nxt}' lies on a cycle that does not pass '{stop}': a loop inside one control period is not supported")
+                    raise self.src.error(
+                        self._pos(nxt),
+                        f"mode '{nxt}' lies on a cycle that does not pass '{stop}': a loop inside one control period is not supported",
+                    )
                 elif not colour.get(nxt):
                     colour[nxt] = 1
                     stack.append((nxt, iter(succ[nxt])))
@@ -1071,11 +1126,15 @@ class _Translator:
         while True:
             edges = []
             for j in self._continuing(node):
-                if state.dwell > _TOL and not any(op == "=" and _ast_vars(l, set()) <= set(self.timers) and _ast_vars(l, set())
-                                                  for l, op, r, _ in j.guard):
+                if state.dwell > _TOL and not any(
+                    op == "=" and _ast_vars(l, set()) <= set(self.timers) and _ast_vars(l, set()) for l, op, r, _ in j.guard
+                ):
                     # Without 'clock = c' the jump may fire at any time of the flow, not just at its end.
-                    raise self.src.error(j.pos, f"jump {j.src} -> {j.dst} leaves the flowing mode '{j.src}' without a 'clock = c' guard, "
-                                                f"so it can fire during the flow; only jumps at the end of a flow are supported")
+                    raise self.src.error(
+                        j.pos,
+                        f"jump {j.src} -> {j.dst} leaves the flowing mode '{j.src}' without a 'clock = c' guard, "
+                        f"so it can fire during the flow; only jumps at the end of a flow are supported",
+                    )
                 timer_atoms, conds = self._split_atoms(j.guard, state, f"jump {j.src} -> {j.dst}")
                 if (timer_atoms and not self._timer_holds(timer_atoms, state)) or any(c is False for c in conds):
                     continue
@@ -1119,11 +1178,15 @@ class _Translator:
             raise self.src.error(self._pos(node), f"every jump out of '{node}' resets plant states; a continuous plant cannot jump")
         for j, conds, s, changed in dropped:
             if not conds:
-                raise self.src.error(j.pos, f"jump {j.src} -> {j.dst} resets {', '.join(changed)} unconditionally; a continuous plant cannot jump")
+                raise self.src.error(
+                    j.pos, f"jump {j.src} -> {j.dst} resets {', '.join(changed)} unconditionally; a continuous plant cannot jump"
+                )
             line = self.src.line(j.pos)
             self.obligations.append((conds, f"jump {j.src} -> {j.dst} (line {line}) resets {', '.join(sorted(changed))}"))
-            self.notes.append(f"jump {j.src} -> {j.dst} (line {line}) resets plant states {', '.join(sorted(changed))}; "
-                              f"translated as the obligation that its guard never holds (checked at every step)")
+            self.notes.append(
+                f"jump {j.src} -> {j.dst} (line {line}) resets plant states {', '.join(sorted(changed))}; "
+                f"translated as the obligation that its guard never holds (checked at every step)"
+            )
         return [(j, c, s) for j, c, s, _ in keep]
 
     def _merge(self, node: str, branches: list) -> _Path:
@@ -1134,8 +1197,11 @@ class _Translator:
         for j, conds, _ in branches:
             if not conds:
                 others = ", ".join(f"{b[0].src} -> {b[0].dst} (line {self.src.line(b[0].pos)})" for b in branches if b[0] is not j)
-                raise self.src.error(j.pos, f"jump {j.src} -> {j.dst} has no state guard but other jumps leave '{node}' at the same time ({others}); "
-                                            f"Verisig takes all of them, percver needs exclusive guards")
+                raise self.src.error(
+                    j.pos,
+                    f"jump {j.src} -> {j.dst} has no state guard but other jumps leave '{node}' at the same time ({others}); "
+                    f"Verisig takes all of them, percver needs exclusive guards",
+                )
         order = sorted(range(len(branches)), key=lambda i: len(branches[i][1]))
         default = branches[order[-1]][2]
         merged = _Path({}, {}, min(b[2].jumps for b in branches), max(b[2].max_jumps for b in branches), default.elapsed)
@@ -1145,7 +1211,9 @@ class _Translator:
         for v in default.timers:
             values = [b[2].timers[v] for b in branches]
             if any(not _timer_equal(x, values[0]) for x in values):
-                raise self.src.error(self._pos(node), f"branches from '{node}' leave the counter '{v}' at different values ({values}); not supported")
+                raise self.src.error(
+                    self._pos(node), f"branches from '{node}' leave the counter '{v}' at different values ({values}); not supported"
+                )
             merged.timers[v] = values[0]
         for v in default.env:
             value = default.env[v]
@@ -1210,7 +1278,10 @@ class _Translator:
             if j.dst not in self.terminal:
                 continue
             if j.src != source:
-                raise self.src.error(j.pos, f"jump {j.src} -> {j.dst} ends the run from '{j.src}'; properties are read from jumps leaving '{source}' (the step boundary) only")
+                raise self.src.error(
+                    j.pos,
+                    f"jump {j.src} -> {j.dst} ends the run from '{j.src}'; properties are read from jumps leaving '{source}' (the step boundary) only",
+                )
             (unsafe if j.dst in self.aut.unsafe else absorbing).append(j)
         return unsafe, absorbing
 
@@ -1222,7 +1293,9 @@ class _Translator:
             after = self._apply_reset(j, state)
             more_t, more_c = self._split_atoms(self.aut.unsafe[j.dst][0], after, f"unsafe set of '{j.dst}'")
             if more_t:
-                raise self.src.error(self.aut.unsafe[j.dst][1], f"unsafe set of '{j.dst}' constrains clocks/counters; put those in the jump guard")
+                raise self.src.error(
+                    self.aut.unsafe[j.dst][1], f"unsafe set of '{j.dst}' constrains clocks/counters; put those in the jump guard"
+                )
             conds = conds + more_c
         return timer_atoms, _dedupe(conds)
 
@@ -1245,9 +1318,11 @@ class _Translator:
             return
         need = prefix + H * per_period + (1 if property_jump else 0)
         if need > mj:
-            self.notes.append(f"'max jumps {mj}' stops Flow* after {mj} jumps, but {H} periods of {per_period} jumps"
-                              f"{' plus the jump into the unsafe mode' if property_jump else ''} need {need}: Flow* never checks the final-step property. "
-                              f"percver checks the intended one ({H} steps)")
+            self.notes.append(
+                f"'max jumps {mj}' stops Flow* after {mj} jumps, but {H} periods of {per_period} jumps"
+                f"{' plus the jump into the unsafe mode' if property_jump else ''} need {need}: Flow* never checks the final-step property. "
+                f"percver checks the intended one ({H} steps)"
+            )
 
     def _classify(self, trig, what: str, pos: int, H: int):
         """'always', ('final', step), or None (never within the horizon); else refused."""
@@ -1255,13 +1330,18 @@ class _Translator:
             return "always"
         steps = sorted(trig)
         if not steps:
-            self.notes.append(f"{what} (line {self.src.line(pos)}) cannot fire before the time horizon ends ({H} steps; Flow* computes no flow past 'time'); dropped")
+            self.notes.append(
+                f"{what} (line {self.src.line(pos)}) cannot fire before the time horizon ends ({H} steps; Flow* computes no flow past 'time'); dropped"
+            )
             return None
         if steps == list(range(H + 1)):
             return "always"
         if len(steps) == 1:
             return ("final", steps[0])
-        raise self.src.error(pos, f"{what} fires at steps {steps[:5]}{'...' if len(steps) > 5 else ''} only; percver checks a property at every step or at one final step")
+        raise self.src.error(
+            pos,
+            f"{what} fires at steps {steps[:5]}{'...' if len(steps) > 5 else ''} only; percver checks a property at every step or at one final step",
+        )
 
     def _horizon(self, finals: list, safe: list, H: int) -> int:
         """The final-step properties set the horizon (ex2 checks at 1.4 s of a 1.8 s run)."""
@@ -1272,7 +1352,9 @@ class _Translator:
             return H
         s = steps.pop()
         if s < H and safe:
-            raise ParseError(f"{self.src.path}: a property at step {s} and properties at every step up to {H}; not expressible as one verification")
+            raise ParseError(
+                f"{self.src.path}: a property at step {s} and properties at every step up to {H}; not expressible as one verification"
+            )
         return s
 
     def _discrete(self, init_timers: dict) -> VerisigProblem:
@@ -1281,8 +1363,11 @@ class _Translator:
         others = [j for j in ending if j.src != ending[0].src]
         if others:
             a, b = ending[0], others[0]
-            raise self.src.error(b.pos, f"jump {b.src} -> {b.dst} ends the run from '{b.src}', but jump {a.src} -> {a.dst} (line {self.src.line(a.pos)}) "
-                                        f"from '{a.src}'; properties must be read at one step-boundary mode")
+            raise self.src.error(
+                b.pos,
+                f"jump {b.src} -> {b.dst} ends the run from '{b.src}', but jump {a.src} -> {a.dst} (line {self.src.line(a.pos)}) "
+                f"from '{a.src}'; properties must be read at one step-boundary mode",
+            )
         anchor = ending[0].src if ending else aut.init_mode
         if self._inv_bound(self.modes[anchor]) not in (0.0,):
             raise self.src.error(self.modes[anchor].pos, f"the step boundary mode '{anchor}' must take no time (invariant clock <= 0)")
@@ -1347,7 +1432,9 @@ class _Translator:
         if prefix_jumps:
             for v in states:
                 if start_env[v] is not self.sym[v]:
-                    raise self.src.error(aut.init_pos, f"the jumps from the initial mode to '{anchor}' change the state '{v}'; not supported")
+                    raise self.src.error(
+                        aut.init_pos, f"the jumps from the initial mode to '{anchor}' change the state '{v}'; not supported"
+                    )
         order = [v for v in self.vars if v in states]
         init = self._init_box(order)
         update = {v: nxt[v] for v in order}
@@ -1361,8 +1448,10 @@ class _Translator:
         for v in self.assumed_absolute:
             e = end_timers[v]
             if isinstance(e, _Rel) or abs(e - start_timers[v]) > _TOL:
-                raise ParseError(f"{self.src.path}: a jump guard inside the period reads the counter '{v}', which changes from step to step "
-                                 f"(start {start_timers[v]}, after one period {e}); step-dependent control flow is not supported")
+                raise ParseError(
+                    f"{self.src.path}: a jump guard inside the period reads the counter '{v}', which changes from step to step "
+                    f"(start {start_timers[v]}, after one period {e}); step-dependent control flow is not supported"
+                )
 
     def _timer_sequence(self, start: dict, end: dict, H: int, advance) -> list:
         """Counter values at the boundary of each step 0..H (``advance`` adds the flow)."""
@@ -1392,20 +1481,31 @@ class _Translator:
         if within_goals:
             if len(within_goals) != 1 or len(finals) != 1:
                 j = within_goals[0][0]
-                raise self.src.error(j.pos, "an absorbing goal mode is supported with exactly one goal jump and one final-step unsafe jump (the Mountain Car pattern)")
-            (gj, gconds), (uj, uconds, _) = within_goals[0], finals[0]
+                raise self.src.error(
+                    j.pos,
+                    "an absorbing goal mode is supported with exactly one goal jump and one final-step unsafe jump (the Mountain Car pattern)",
+                )
+            (gj, _), (uj, uconds, _) = within_goals[0], finals[0]
             g_atoms = [a for a in gj.guard if not (_ast_vars(a[0], set()) | _ast_vars(a[2], set())) <= set(self.timers)]
-            u_atoms = _dedupe_atoms([a for a in uj.guard if not (_ast_vars(a[0], set()) | _ast_vars(a[2], set())) <= set(self.timers)]
-                                    + (self.aut.unsafe[uj.dst][0] if uj.dst in self.aut.unsafe else []))
+            u_atoms = _dedupe_atoms(
+                [a for a in uj.guard if not (_ast_vars(a[0], set()) | _ast_vars(a[2], set())) <= set(self.timers)]
+                + (self.aut.unsafe[uj.dst][0] if uj.dst in self.aut.unsafe else [])
+            )
             if len(g_atoms) != 1 or len(u_atoms) != 1 or not _complementary(g_atoms[0], u_atoms[0]):
-                raise self.src.error(gj.pos, f"goal jump {gj.src} -> {gj.dst} and unsafe jump {uj.src} -> {uj.dst} must test one constraint in opposite directions "
-                                             f"(e.g. x >= c and x <= c) for a 'reach the goal within the horizon' property")
+                raise self.src.error(
+                    gj.pos,
+                    f"goal jump {gj.src} -> {gj.dst} and unsafe jump {uj.src} -> {uj.dst} must test one constraint in opposite directions "
+                    f"(e.g. x >= c and x <= c) for a 'reach the goal within the horizon' property",
+                )
             # Runs continue only while the goal is not reached; else Verisig's runs could go on
             # from the goal region and the within-goal would be unsound.
             for j in self._continuing(anchor):
                 if not any(_implies(a, u_atoms[0]) for a in j.guard):
-                    raise self.src.error(j.pos, f"jump {j.src} -> {j.dst} continues the run without requiring {_atom_text(u_atoms[0])}; "
-                                                f"the goal mode would not end every run that reaches the goal")
+                    raise self.src.error(
+                        j.pos,
+                        f"jump {j.src} -> {j.dst} continues the run without requiring {_atom_text(u_atoms[0])}; "
+                        f"the goal mode would not end every run that reaches the goal",
+                    )
             return _negate(uconds, self.src, uj), True
         if not finals:
             return None, False
@@ -1423,10 +1523,13 @@ class _Translator:
         plant_set = set(plant)
         # Prefix: from the initial mode to the first entry into the plant mode.
         if aut.init_mode == F:
-            raise self.src.error(aut.init_pos, f"the run starts in the plant mode '{F}' with its input from the init block; "
-                                               f"start before the controller (as Verisig's generated files do)")
+            raise self.src.error(
+                aut.init_pos,
+                f"the run starts in the plant mode '{F}' with its input from the init block; "
+                f"start before the controller (as Verisig's generated files do)",
+            )
         pre = self._run(aut.init_mode, _Path(dict(self.sym), dict(init_timers)), F, plant_set)
-        pre_calls, pre_obligations = self.calls, self.obligations
+        pre_calls = self.calls  # its obligations are the cycle's own (the same jumps)
         for v in plant:
             if pre.env[v] is not self.sym[v]:
                 raise self.src.error(aut.init_pos, f"the jumps before the first flow change the plant state '{v}'; not supported")
@@ -1438,10 +1541,15 @@ class _Translator:
         for v in self.assumed_absolute:
             e = end.timers[v]
             if isinstance(e, _Rel) or abs(e + self.timers[v][F] * P - anchor1[v]) > _TOL:
-                raise ParseError(f"{self.src.path}: a jump guard inside the period reads the counter '{v}', which changes from step to step; not supported")
+                raise ParseError(
+                    f"{self.src.path}: a jump guard inside the period reads the counter '{v}', which changes from step to step; not supported"
+                )
         for v in plant:
             if end.env[v] is not self.sym[v]:
-                raise self.src.error(fmode.pos, f"the jumps of one period change the plant state '{v}' of the continuous mode '{F}'; a continuous plant cannot jump")
+                raise self.src.error(
+                    fmode.pos,
+                    f"the jumps of one period change the plant state '{v}' of the continuous mode '{F}'; a continuous plant cannot jump",
+                )
         self._same_controller(pre_calls, pre.env, self.calls, end.env, plant)
         calls = self.calls
         H = self._steps(end.elapsed + P, end.max_jumps, pre.jumps)
@@ -1487,7 +1595,9 @@ class _Translator:
                 if kind != "always":
                     self.notes.append(f"jump {j.src} -> {j.dst} (line {self.src.line(j.pos)}) ends the run at step {kind[1]} only; ignored")
                     continue
-                raise self.src.error(j.pos, f"jump {j.src} -> {j.dst} ends the run early (an absorbing goal) in a continuous model; not supported")
+                raise self.src.error(
+                    j.pos, f"jump {j.src} -> {j.dst} ends the run early (an absorbing goal) in a continuous model; not supported"
+                )
             if kind == "always":
                 safe.append(_negate(conds, self.src, j))
             else:
@@ -1519,11 +1629,17 @@ class _Translator:
             fire = []
             for j in inner:
                 if any(not (_ast_vars(l, set()) | _ast_vars(r, set())) <= set(self.timers) for l, _, r, _ in j.guard):
-                    raise self.src.error(j.pos, f"jump {j.src} -> {j.dst} between plant modes has a state guard; only clock-triggered jumps between plant modes are supported")
+                    raise self.src.error(
+                        j.pos,
+                        f"jump {j.src} -> {j.dst} between plant modes has a state guard; only clock-triggered jumps between plant modes are supported",
+                    )
                 if self._timer_holds(j.guard, _Path({}, t)):
                     fire.append(j)
             if len(fire) != 1:
-                raise self.src.error(self.modes[node].pos, f"plant mode '{node}' must leave by exactly one jump into the next plant mode when its clock runs out, found {len(fire)}")
+                raise self.src.error(
+                    self.modes[node].pos,
+                    f"plant mode '{node}' must leave by exactly one jump into the next plant mode when its clock runs out, found {len(fire)}",
+                )
             j = fire[0]
             for v, ast in j.reset.items():
                 if v in self.timers:
@@ -1537,7 +1653,7 @@ class _Translator:
         out = []
         for lhs, op, rhs, pos in atoms:
             lv, rv = (_build(self.src, a, lambda n, p: Expr.var(n)) for a in (lhs, rhs))
-            for o in (["<=", ">="] if op == "=" else [op]):
+            for o in ["<=", ">="] if op == "=" else [op]:
                 c = _condition(lv, o, rv)
                 if c is False:
                     raise self.src.error(pos, f"{where}: the constraint never holds")
@@ -1554,15 +1670,22 @@ class _Translator:
         entering = {j.dst for j in aut.jumps if j.dst in R and j.src not in R}
         leaving = [j for j in aut.jumps if j.src in R and j.dst not in R and j.dst not in self.terminal]
         if len(entering) != 1 or len({j.src for j in leaving}) != 1:
-            raise self.src.error(self.modes[self.region[0]].pos, f"the plant modes {', '.join(self.region)} must be entered through one mode and left "
-                                                                 f"(back to the networks) from one mode")
+            raise self.src.error(
+                self.modes[self.region[0]].pos,
+                f"the plant modes {', '.join(self.region)} must be entered through one mode and left (back to the networks) from one mode",
+            )
         first, last = entering.pop(), leaving[0].src
         if any(j.dst in R for j in self.out[last]):
             raise self.src.error(self.modes[last].pos, f"plant mode '{last}' leaves to the networks and to plant modes; not supported")
-        plant = [v for v in self.vars if v not in self.timers and any(self._const(self.modes[m].ode.get(v, ("num", 0.0))) != 0.0 for m in R)]
+        plant = [
+            v for v in self.vars if v not in self.timers and any(self._const(self.modes[m].ode.get(v, ("num", 0.0))) != 0.0 for m in R)
+        ]
         plant_set = set(plant)
         if aut.init_mode in R:
-            raise self.src.error(aut.init_pos, f"the run starts in the plant mode '{aut.init_mode}'; start before the controller (as Verisig's generated files do)")
+            raise self.src.error(
+                aut.init_pos,
+                f"the run starts in the plant mode '{aut.init_mode}'; start before the controller (as Verisig's generated files do)",
+            )
         pre = self._run(aut.init_mode, _Path(dict(self.sym), dict(init_timers)), first, plant_set)
         pre_calls = self.calls
         for v in plant:
@@ -1577,7 +1700,9 @@ class _Translator:
         self._check_entry_clock(end.timers, first)
         for v in plant:
             if end.env[v] is not self.sym[v]:
-                raise self.src.error(self.modes[first].pos, f"the jumps between the plant modes' visits change the plant state '{v}'; not supported")
+                raise self.src.error(
+                    self.modes[first].pos, f"the jumps between the plant modes' visits change the plant state '{v}'; not supported"
+                )
         self._same_controller(pre_calls, pre.env, self.calls, end.env, plant)
         calls = self.calls
         H = self._steps(end.elapsed + period, end.max_jumps + len(seq) - 1, pre.jumps)
@@ -1597,7 +1722,9 @@ class _Translator:
         clocks = [v for v in self.vars if v in self.timers and v in tested]
         for v in clocks:
             if any(abs(e[v] - entry0[v]) > _TOL for e in entries):
-                raise ParseError(f"{self.src.path}: the clock '{v}' enters the plant mode '{first}' at different values in different periods; not supported")
+                raise ParseError(
+                    f"{self.src.path}: the clock '{v}' enters the plant mode '{first}' at different values in different periods; not supported"
+                )
         read = set()
         for m in R:
             for v in plant:
@@ -1607,7 +1734,9 @@ class _Translator:
             for ast in j.reset.values():
                 read |= _ast_vars(ast, set())
         if read & set(self.timers) - set(clocks):
-            raise self.src.error(self.modes[first].pos, f"the plant modes read the counters {sorted(read & set(self.timers) - set(clocks))}; not supported")
+            raise self.src.error(
+                self.modes[first].pos, f"the plant modes read the counters {sorted(read & set(self.timers) - set(clocks))}; not supported"
+            )
         inputs, params = [], []
         for v in self.vars:
             if v in read and v not in plant_set and v not in self.timers:
@@ -1627,8 +1756,12 @@ class _Translator:
                 if v in state_set:
                     resets[v] = build(ast)
                 elif j in inner:
-                    raise self.src.error(j.pos, f"jump {j.src} -> {j.dst} between plant modes assigns '{v}', which is not a plant state; not supported")
-            jumps.append(Jump(j.src, j.dst if j in inner else None, guard=self._conditions(j.guard, f"jump {j.src} -> {j.dst}"), reset=resets))
+                    raise self.src.error(
+                        j.pos, f"jump {j.src} -> {j.dst} between plant modes assigns '{v}', which is not a plant state; not supported"
+                    )
+            jumps.append(
+                Jump(j.src, j.dst if j in inner else None, guard=self._conditions(j.guard, f"jump {j.src} -> {j.dst}"), reset=resets)
+            )
         # The property: jumps into unsafe modes leave the last plant mode at the end of a period, or at any time.
         unsafe, absorbing = self._property_edges(last)
         at = _Path(dict(self.sym), {v: 0.0 for v in self.timers})
@@ -1637,13 +1770,17 @@ class _Translator:
         last_entries = [self._through(R, first, last, e)[1][-1][1] for e in entries[:H]] + [None]
         for j in unsafe + absorbing:
             if j in absorbing:
-                raise self.src.error(j.pos, f"jump {j.src} -> {j.dst} ends the run early (an absorbing goal) in a hybrid model; not supported")
+                raise self.src.error(
+                    j.pos, f"jump {j.src} -> {j.dst} ends the run early (an absorbing goal) in a hybrid model; not supported"
+                )
             timer_atoms, conds = self._edge_conditions(j, at)
             dwell = seq[-1][2]
             trig = self._flow_trigger(timer_atoms, last_entries, last, dwell, H)
             ends = {n + 1 for n in range(H) if self._timer_holds(timer_atoms, _Path({}, self._through(R, first, last, entries[n])[0]))}
             if trig != "always" and set(trig) != ends:
-                raise self.src.error(j.pos, f"jump {j.src} -> {j.dst} fires inside a period; only at the ends of periods or at all times is supported")
+                raise self.src.error(
+                    j.pos, f"jump {j.src} -> {j.dst} fires inside a period; only at the ends of periods or at all times is supported"
+                )
             kind = self._classify(trig, f"jump {j.src} -> {j.dst}", j.pos, H)
             if kind == "always":
                 safe.append(_negate(conds, self.src, j))
@@ -1662,7 +1799,9 @@ class _Translator:
         step = min(d for _, _, d in seq if d > _TOL) / 10
         hybrid = Hybrid(modes, jumps, inputs=inputs, start=first, max_time=2 * period, step=step, max_jumps=4 * len(seq))
         loop = ClosedLoop(hybrid, stages)
-        self.notes.append(f"plant modes {' -> '.join(m for m, _, _ in seq)} per period, verified as a hybrid plant (Taylor models through the jumps)")
+        self.notes.append(
+            f"plant modes {' -> '.join(m for m, _, _ in seq)} per period, verified as a hybrid plant (Taylor models through the jumps)"
+        )
         self._jump_note(H - 1, end.max_jumps + len(seq) - 1, pre.jumps, bool(finals))
         return self._problem(loop, init, H, goal, safe, within, period)
 
@@ -1684,6 +1823,7 @@ class _Translator:
             span = P
             lo, hi = 0.0, span
             for lhs, op, rhs, pos in atoms:
+
                 def margin(tau):
                     st = _Path({}, {v: entries[n][v] + self.timers[v][F] * tau for v in self.timers})
                     return _fold("-", self._value(lhs, st), self._value(rhs, st))
@@ -1709,7 +1849,9 @@ class _Translator:
             elif abs(lo - span) <= _TOL:
                 steps.add(n + 1)
             else:
-                raise ParseError(f"{self.src.path}: a property jump out of '{F}' fires inside period {n} (t = {lo} of {span}); only step boundaries are supported")
+                raise ParseError(
+                    f"{self.src.path}: a property jump out of '{F}' fires inside period {n} (t = {lo} of {span}); only step boundaries are supported"
+                )
         if always:
             return "always"
         if any_full:
@@ -1720,11 +1862,15 @@ class _Translator:
         """The jumps before the first flow must compute what each period computes: compare the
         network inputs and plant-mode inputs on random states."""
         if len(pre_calls) != len(calls) or any(a.net is not b.net for a, b in zip(pre_calls, calls)):
-            raise ParseError(f"{self.src.path}: the jumps before the first flow evaluate the networks differently from a period; not supported")
+            raise ParseError(
+                f"{self.src.path}: the jumps before the first flow evaluate the networks differently from a period; not supported"
+            )
         box = {v: self.aut.init.get(v, (0.0, 0.0)) for v in self.vars}
         rng = np.random.default_rng(0)
-        names = sorted({n for c in calls for v in c.inputs if isinstance(v, Expr) for n in v.variables()}
-                       | {n for c in pre_calls for v in c.inputs if isinstance(v, Expr) for n in v.variables()})
+        names = sorted(
+            {n for c in calls for v in c.inputs if isinstance(v, Expr) for n in v.variables()}
+            | {n for c in pre_calls for v in c.inputs if isinstance(v, Expr) for n in v.variables()}
+        )
         values = {}
         for n in names:
             lo, hi = box.get(n, (-1.0, 1.0))
@@ -1732,7 +1878,9 @@ class _Translator:
         for a, b in zip(pre_calls, calls):
             x, y = _evaluate(a.inputs, values), _evaluate(b.inputs, values)
             if not np.allclose(x, y, equal_nan=True, rtol=1e-9, atol=1e-12):
-                raise ParseError(f"{self.src.path}: the network inputs computed before the first flow differ from those of a period; not supported")
+                raise ParseError(
+                    f"{self.src.path}: the network inputs computed before the first flow differ from those of a period; not supported"
+                )
 
     def _stages(self, calls: list, states: set, computed_inputs: dict) -> tuple:
         """Stages for the network calls (with an expression stage for their inputs unless they
@@ -1765,7 +1913,9 @@ class _Translator:
                 used = sorted({n for e in exprs for n in e.variables()}, key=_order_key(self.vars))
                 missing = [n for n in used if n not in known]
                 if missing:
-                    raise ParseError(f"{self.src.path}: the inputs of the network in '{c.mode}' read {missing}, which are neither plant states nor earlier signals")
+                    raise ParseError(
+                        f"{self.src.path}: the inputs of the network in '{c.mode}' read {missing}, which are neither plant states nor earlier signals"
+                    )
                 if not used:
                     raise ParseError(f"{self.src.path}: the inputs of the network in '{c.mode}' are constants")
                 stages.append(Stage(exprs, inputs=used, output=in_name))
@@ -1790,7 +1940,9 @@ class _Translator:
             used = sorted(set(e.variables()), key=_order_key(self.vars))
             missing = [n for n in used if n not in known]
             if missing:
-                raise ParseError(f"{self.src.path}: the plant input '{u}' reads {missing} from the previous period; only plant states carry over between periods")
+                raise ParseError(
+                    f"{self.src.path}: the plant input '{u}' reads {missing} from the previous period; only plant states carry over between periods"
+                )
             if not used:
                 raise ParseError(f"{self.src.path}: the plant input '{u}' is a constant; make it a parameter instead")
             stages.append(Stage([e], inputs=used, output=u))
@@ -1808,8 +1960,19 @@ class _Translator:
         ignored = self.aut.settings.get("ignored", [])
         if ignored:
             self.notes.append(f"Flow* integration settings not used by percver: {'; '.join(ignored)}")
-        return VerisigProblem(self.src.path, loop, init, H, goal, safe, within, period, list(self.networks), self.notes,
-                              {k: v for k, v in self.aut.settings.items() if k != "ignored"})
+        return VerisigProblem(
+            self.src.path,
+            loop,
+            init,
+            H,
+            goal,
+            safe,
+            within,
+            period,
+            list(self.networks),
+            self.notes,
+            {k: v for k, v in self.aut.settings.items() if k != "ignored"},
+        )
 
 
 # ----------------------------------------------------------------------------- small helpers
@@ -1972,10 +2135,10 @@ def _assignments(t, src, variables, op: str, what: str) -> dict:
     (``:=``); ``what`` starts the error message for an undeclared variable."""
     out = {}
     while t.peek()[1] != "}":
-        _, v, vpos = t.ident(f"\"x' {op} expression\"")
+        _, v, vpos = t.ident(f'"x\' {op} expression"')
         if v not in variables:
             raise src.error(vpos, f"{what} undeclared variable '{v}'")
         t.expect("'", f"after '{v}' in \"{v}' {op} ...\"")
-        t.expect(op, f"in \"{v}' {op} ...\"")
+        t.expect(op, f'in "{v}\' {op} ..."')
         out[v] = t.expr()
     return out

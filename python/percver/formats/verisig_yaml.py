@@ -35,8 +35,7 @@ def read_verisig_yaml(path) -> Network:
     if not isinstance(document, dict) or any(key not in document for key in _SECTIONS):
         keys = ", ".join(map(str, document)) if isinstance(document, dict) else type(document).__name__
         raise NetworkFormatError(
-            f"{path}: not a Verisig network file: it needs top-level 'weights', 'offsets' and 'activations' "
-            f"(found: {keys})"
+            f"{path}: not a Verisig network file: it needs top-level 'weights', 'offsets' and 'activations' (found: {keys})"
         )
     sections = {key: _by_layer(document[key], key, path) for key in _SECTIONS}
     counts = {key: len(section) for key, section in sections.items()}
@@ -49,13 +48,11 @@ def read_verisig_yaml(path) -> Network:
         bias = _offsets(sections["offsets"][index], index, path)
         if bias.shape[0] != weight.shape[0]:
             raise NetworkFormatError(
-                f"{path}: layer {index} offsets have {bias.shape[0]} entries but its weights have "
-                f"{weight.shape[0]} rows"
+                f"{path}: layer {index} offsets have {bias.shape[0]} entries but its weights have {weight.shape[0]} rows"
             )
         if layers and weight.shape[1] != layers[-1].n_out:
             raise NetworkFormatError(
-                f"{path}: layer {index} weights have {weight.shape[1]} columns but layer {index - 1} has "
-                f"{layers[-1].n_out} neurons"
+                f"{path}: layer {index} weights have {weight.shape[1]} columns but layer {index - 1} has {layers[-1].n_out} neurons"
             )
         layers.append(Layer(weight, bias, _activation(sections["activations"][index], index, path)))
     return Network(layers, name=path.stem, source=path)
@@ -64,17 +61,13 @@ def read_verisig_yaml(path) -> Network:
 def _by_layer(section, key: str, path: Path) -> dict:
     """The section as {1: ..., 2: ..., L: ...}; layer keys may be integers or digit strings."""
     if not isinstance(section, dict) or not section:
-        raise NetworkFormatError(
-            f"{path}: '{key}' must be a non-empty mapping from the layer number (1, 2, ...) to the layer's {key}"
-        )
+        raise NetworkFormatError(f"{path}: '{key}' must be a non-empty mapping from the layer number (1, 2, ...) to the layer's {key}")
     try:
         by_layer = {int(number): value for number, value in section.items()}
     except (TypeError, ValueError):
         raise NetworkFormatError(f"{path}: '{key}' has a key that is not a layer number: {list(section)}") from None
     if sorted(by_layer) != list(range(1, len(by_layer) + 1)):
-        raise NetworkFormatError(
-            f"{path}: '{key}' must number its layers 1, 2, ..., {len(by_layer)}; found {sorted(by_layer)}"
-        )
+        raise NetworkFormatError(f"{path}: '{key}' must number its layers 1, 2, ..., {len(by_layer)}; found {sorted(by_layer)}")
     return by_layer
 
 
@@ -94,14 +87,10 @@ def _numeric(value, label: str, path: Path) -> np.ndarray:
 def _weights(rows, index: int, path: Path) -> np.ndarray:
     label = f"layer {index} weights"
     if not isinstance(rows, list) or not rows or not all(isinstance(row, list) and row for row in rows):
-        raise NetworkFormatError(
-            f"{path}: {label} must be a non-empty list of rows (row i: the incoming weights of neuron i)"
-        )
+        raise NetworkFormatError(f"{path}: {label} must be a non-empty list of rows (row i: the incoming weights of neuron i)")
     for number, row in enumerate(rows, start=1):
         if len(row) != len(rows[0]):
-            raise NetworkFormatError(
-                f"{path}: {label}: row {number} has {len(row)} entries but row 1 has {len(rows[0])}"
-            )
+            raise NetworkFormatError(f"{path}: {label}: row {number} has {len(row)} entries but row 1 has {len(rows[0])}")
     return _numeric(rows, label, path)
 
 
@@ -133,9 +122,7 @@ def write_verisig_yaml(network: Network, path) -> None:
         offset = network.offset if network.offset is not None else np.zeros(n)
         layers.append(Layer(np.diag(scale), offset, "identity"))
     document = {
-        "activations": {
-            i: _TO_VERISIG[layer.uniform_activation("the Verisig format")] for i, layer in enumerate(layers, start=1)
-        },
+        "activations": {i: _TO_VERISIG[layer.uniform_activation("the Verisig format")] for i, layer in enumerate(layers, start=1)},
         "offsets": {i: layer.bias.tolist() for i, layer in enumerate(layers, start=1)},
         "weights": {i: layer.weight.tolist() for i, layer in enumerate(layers, start=1)},
     }

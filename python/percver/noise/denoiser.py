@@ -21,8 +21,9 @@ class Denoiser:
 
     def __init__(self, network, scale: float = 0.5, name: str | None = None):
         if network.n_in != network.n_out:
-            raise InputError(f"a denoiser maps a measurement to one of the same size; '{network.name}' maps "
-                             f"{network.n_in} -> {network.n_out}")
+            raise InputError(
+                f"a denoiser maps a measurement to one of the same size; '{network.name}' maps {network.n_in} -> {network.n_out}"
+            )
         self.network = network
         self.scale = float(scale)
         self.name = name or network.name
@@ -43,9 +44,20 @@ class Denoiser:
         return f"Denoiser({self.name!r}, {self.network!r})"
 
 
-def train_denoiser(real, canonical, *, scale: float = 0.5, hidden: int = 100, epochs: int = 60, batch: int = 256,
-                   lr: float = 2e-3, weight_decay: float = 1e-5, seed: int = 0, threads: int | None = None,
-                   progress: bool = False) -> Denoiser:
+def train_denoiser(
+    real,
+    canonical,
+    *,
+    scale: float = 0.5,
+    hidden: int = 100,
+    epochs: int = 60,
+    batch: int = 256,
+    lr: float = 2e-3,
+    weight_decay: float = 1e-5,
+    seed: int = 0,
+    threads: int | None = None,
+    progress: bool = False,
+) -> Denoiser:
     """Train h_d on pairs (real, canonical) of normalised measurements in [-scale, scale]
     (N x n each): n -> ``hidden`` tanh -> n tanh, times ``scale``."""
     real, canonical = np.asarray(real, dtype=float), np.asarray(canonical, dtype=float)
@@ -62,6 +74,18 @@ def train_denoiser(real, canonical, *, scale: float = 0.5, hidden: int = 100, ep
         return bce(((scale * output + scale) / (2 * scale)).clamp(1e-7, 1 - 1e-7), (target + scale) / (2 * scale))
 
     target = np.clip(canonical, -scale, scale)
-    training.fit(torch, module, real, target, loss, epochs=epochs, batch=batch, lr=lr,
-                 weight_decay=weight_decay, seed=seed, progress=progress, desc="denoiser")
+    training.fit(
+        torch,
+        module,
+        real,
+        target,
+        loss,
+        epochs=epochs,
+        batch=batch,
+        lr=lr,
+        weight_decay=weight_decay,
+        seed=seed,
+        progress=progress,
+        desc="denoiser",
+    )
     return Denoiser(training.to_network(module, f"denoiser1x{hidden}"), scale)

@@ -50,9 +50,22 @@ class GenerativeModel:
         return f"GenerativeModel({self.name!r}, {self.network!r})"
 
 
-def train_generative(canonical, conditions, measured, hidden=(64,), *, loss: str | None = None, epochs: int = 300,
-                     batch: int = 32, lr: float = 3e-3, weight_decay: float = 0.0, seed: int = 0,
-                     threads: int | None = None, progress: bool = False, name: str = "generative") -> GenerativeModel:
+def train_generative(
+    canonical,
+    conditions,
+    measured,
+    hidden=(64,),
+    *,
+    loss: str | None = None,
+    epochs: int = 300,
+    batch: int = 32,
+    lr: float = 3e-3,
+    weight_decay: float = 0.0,
+    seed: int = 0,
+    threads: int | None = None,
+    progress: bool = False,
+    name: str = "generative",
+) -> GenerativeModel:
     """Train g on (``canonical`` N x m, ``conditions`` N x c) -> ``measured`` N x m.
 
     ``loss`` "bce" (sigmoid outputs; the default when every measured value lies in [0, 1]) or
@@ -62,8 +75,7 @@ def train_generative(canonical, conditions, measured, hidden=(64,), *, loss: str
     conditions = np.asarray(conditions, dtype=float).reshape(len(canonical), -1)
     if canonical.ndim != 2 or canonical.shape != measured.shape:
         raise InputError(
-            f"generative training needs canonical and measured values of one shape N x m, got {canonical.shape} "
-            f"and {measured.shape}"
+            f"generative training needs canonical and measured values of one shape N x m, got {canonical.shape} and {measured.shape}"
         )
     bounded = bool(np.all((measured >= 0) & (measured <= 1)))
     loss = loss or ("bce" if bounded else "mse")
@@ -81,8 +93,20 @@ def train_generative(canonical, conditions, measured, hidden=(64,), *, loss: str
         offset, scale = measured.mean(axis=0), np.maximum(measured.std(axis=0), 1e-9)
         targets = (measured - offset) / scale
         loss_fn = torch.nn.MSELoss()
-    training.fit(torch, module, inputs, targets, loss_fn, epochs=epochs, batch=batch, lr=lr, weight_decay=weight_decay,
-                 seed=seed, progress=progress, desc=name)
+    training.fit(
+        torch,
+        module,
+        inputs,
+        targets,
+        loss_fn,
+        epochs=epochs,
+        batch=batch,
+        lr=lr,
+        weight_decay=weight_decay,
+        seed=seed,
+        progress=progress,
+        desc=name,
+    )
     if loss == "bce":
         module.append(torch.nn.Sigmoid())
     return GenerativeModel(training.to_network(module, name, scale=scale, offset=offset, inputs=inputs), conditions.shape[1], name)

@@ -26,9 +26,7 @@ class KnockoutModel:
     def __init__(self, network, thresholds, knocked, name: str | None = None):
         thresholds = np.asarray(thresholds, dtype=float).reshape(-1)
         if thresholds.shape != (network.n_out,):
-            raise InputError(
-                f"need one threshold per output of '{network.name}' ({network.n_out}), got {thresholds.shape[0]}"
-            )
+            raise InputError(f"need one threshold per output of '{network.name}' ({network.n_out}), got {thresholds.shape[0]}")
         if network.n_in < network.n_out:
             raise InputError(
                 f"a knock-out classifier takes the canonical measurement ({network.n_out} values) and state "
@@ -78,9 +76,22 @@ class KnockoutModel:
         return f"{type(self).__name__}({self.name!r}, {self.network!r})"
 
 
-def train_knockout(inputs, labels, hidden=(64, 64), *, knocked, epochs: int = 200, batch: int = 128,
-                   lr: float = 3e-3, positive_weight: float = POSITIVE_WEIGHT, threshold_gains=None, seed: int = 0,
-                   threads: int | None = None, progress: bool = False, name: str = "knockout") -> KnockoutModel:
+def train_knockout(
+    inputs,
+    labels,
+    hidden=(64, 64),
+    *,
+    knocked,
+    epochs: int = 200,
+    batch: int = 128,
+    lr: float = 3e-3,
+    positive_weight: float = POSITIVE_WEIGHT,
+    threshold_gains=None,
+    seed: int = 0,
+    threads: int | None = None,
+    progress: bool = False,
+    name: str = "knockout",
+) -> KnockoutModel:
     """Train c_n on ``inputs`` (N x (m + features): canonical measurements, then state features)
     and ``labels`` (N x m); thresholds fitted on the same data, for accuracy (the paper's choice)
     or, given ``threshold_gains`` (N x m: the error knocking out each entry removes, negative
@@ -88,15 +99,14 @@ def train_knockout(inputs, labels, hidden=(64, 64), *, knocked, epochs: int = 20
     torch = training.require_torch()
     inputs, labels = np.asarray(inputs, dtype=float), np.asarray(labels, dtype=float)
     if labels.ndim != 2 or inputs.ndim != 2 or len(inputs) != len(labels) or inputs.shape[1] < labels.shape[1]:
-        raise InputError(
-            f"knock-out training needs inputs N x (m + features) and labels N x m, got {inputs.shape} and {labels.shape}"
-        )
+        raise InputError(f"knock-out training needs inputs N x (m + features) and labels N x m, got {inputs.shape} and {labels.shape}")
     training.session(torch, seed, threads)
     module = training.mlp(torch, (inputs.shape[1], *hidden, labels.shape[1]), torch.nn.Tanh)
     # The sigmoid is folded into the loss for stability and appended for export.
     loss = torch.nn.BCEWithLogitsLoss(pos_weight=torch.tensor(positive_weight))
-    training.fit(torch, module, inputs, labels, loss, epochs=epochs, batch=batch, lr=lr, weight_decay=0.0, seed=seed,
-                 progress=progress, desc=name)
+    training.fit(
+        torch, module, inputs, labels, loss, epochs=epochs, batch=batch, lr=lr, weight_decay=0.0, seed=seed, progress=progress, desc=name
+    )
     module.append(torch.nn.Sigmoid())
     network = training.to_network(module, name, inputs=inputs)
     probabilities = network(inputs)

@@ -118,14 +118,25 @@ class Tally:
     def line(self) -> str:
         verdicts = ", ".join(f"{k} {v}" for k, v in sorted(self.verdicts.items()))
         found = len(self.findings)
-        return (f"seed {self.seed}: {self.programs} program{'s' * (self.programs != 1)} ({verdicts}), {self.runs:,} runs sampled, "
-                f"{self.box_checks:,} box checks, {found} violation{'s' * (found != 1)} in {self.seconds:.0f} s"
-                + (f" ({self.diverged:,} runs not finite in the oracle, left out)" if self.diverged else ""))
+        return (
+            f"seed {self.seed}: {self.programs} program{'s' * (self.programs != 1)} ({verdicts}), {self.runs:,} runs sampled, "
+            f"{self.box_checks:,} box checks, {found} violation{'s' * (found != 1)} in {self.seconds:.0f} s"
+            + (f" ({self.diverged:,} runs not finite in the oracle, left out)" if self.diverged else "")
+        )
 
 
-def run_campaign(seed: int = 0, *, programs: Optional[int] = None, minutes: Optional[float] = None, runs: int = 350,
-             start: int = 0, shrink_seconds: float = 120.0, keep_going: bool = False, progress: bool = False,
-             on_finding: Optional[Callable] = None) -> Tally:
+def run_campaign(
+    seed: int = 0,
+    *,
+    programs: Optional[int] = None,
+    minutes: Optional[float] = None,
+    runs: int = 350,
+    start: int = 0,
+    shrink_seconds: float = 120.0,
+    keep_going: bool = False,
+    progress: bool = False,
+    on_finding: Optional[Callable] = None,
+) -> Tally:
     """Programs ``start``, ``start + 1``, ... of ``seed`` until ``programs`` are done or ``minutes`` have passed (the
     first that comes), each checked with ``runs`` oracle runs. Stops at the first violation unless
     ``keep_going``; each violation is shrunk for up to ``shrink_seconds`` (0: not at all) and
@@ -149,7 +160,9 @@ def run_campaign(seed: int = 0, *, programs: Optional[int] = None, minutes: Opti
             tally.diverged += outcome.report.diverged
             tally.verdicts[outcome.verdict] += 1
             bar.update(1)
-            bar.set_postfix(runs=tally.runs, boxes=tally.box_checks, violations=len(tally.findings) + len(outcome.report.violations), refresh=False)
+            bar.set_postfix(
+                runs=tally.runs, boxes=tally.box_checks, violations=len(tally.findings) + len(outcome.report.violations), refresh=False
+            )
             if outcome.report.violations:
                 finding = _finding(index, program, outcome.report.violations[0], runs, seed, shrink_seconds)
                 tally.findings.append(finding)
@@ -169,6 +182,7 @@ def _finding(index: int, program: Program, violation: Violation, runs: int, seed
 
     small, small_violation = violation.program, violation  # the boxes-only form when its rerun failed
     if seconds > 0:
+
         def fails(candidate: Program) -> Optional[Violation]:
             found = run(candidate, runs, seed).report.violations
             return next((v for v in found if v.kind == violation.kind), None)
@@ -180,21 +194,34 @@ def _finding(index: int, program: Program, violation: Violation, runs: int, seed
 def reproducer(program: Program, violation: Violation, seed: int, index: int) -> str:
     """A script that builds the loop, verifies it and prints what the oracle found wrong."""
     w = violation.witness
-    lines = [f'"""percver selftest (seed {seed}, program {index}): {violation.kind}.', "", *_wrap(violation.message), '"""', "",
-             loop_source(program).rstrip(), "res = pv.verify(loop, **kwargs, progress=False)",
-             "print('verdict:', res.verdict)"]
+    lines = [
+        f'"""percver selftest (seed {seed}, program {index}): {violation.kind}.',
+        "",
+        *_wrap(violation.message),
+        '"""',
+        "",
+        loop_source(program).rstrip(),
+        "res = pv.verify(loop, **kwargs, progress=False)",
+        "print('verdict:', res.verdict)",
+    ]
     if violation.kind == "box":
         j = program.all_states.index(w["state"])
-        lines += [f"# The run from {_assignments(program, w['initial'], w['params'])} has {w['state']} = {w['value']!r} at step {w['step']}",
-                  f"# (its trajectory: {w['trajectory']}).",
-                  f"print('reach box of {w['state']} at step {w['step']} in cell {w['cell']}:', res.cells[{w['cell']}].boxes[{w['step']}][{j}])"]
+        lines += [
+            f"# The run from {_assignments(program, w['initial'], w['params'])} has {w['state']} = {w['value']!r} at step {w['step']}",
+            f"# (its trajectory: {w['trajectory']}).",
+            f"print('reach box of {w['state']} at step {w['step']} in cell {w['cell']}:', res.cells[{w['cell']}].boxes[{w['step']}][{j}])",
+        ]
     elif violation.kind == "verified-but-violated":
-        lines += [f"# The run from {_assignments(program, w['initial'], w['params'])} violates {w['label']} at step {w['step']}",
-                  f"# (its trajectory: {w['trajectory']})."]
+        lines += [
+            f"# The run from {_assignments(program, w['initial'], w['params'])} violates {w['label']} at step {w['step']}",
+            f"# (its trajectory: {w['trajectory']}).",
+        ]
     elif violation.kind == "counterexample":
-        lines += [f"# percver's counterexample for cell {w['cell']} starts at {_assignments(program, w['initial'], w['params'])}",
-                  f"# (claimed: {w['label']} at step {w['step']}); the oracle's run from there does not violate the property.",
-                  f"print(res.cells[{w['cell']}].counterexample)"]
+        lines += [
+            f"# percver's counterexample for cell {w['cell']} starts at {_assignments(program, w['initial'], w['params'])}",
+            f"# (claimed: {w['label']} at step {w['step']}); the oracle's run from there does not violate the property.",
+            f"print(res.cells[{w['cell']}].counterexample)",
+        ]
     return "\n".join(lines) + "\n"
 
 

@@ -17,7 +17,26 @@ from __future__ import annotations
 import numpy as np
 
 from percver.selftest.oracle import Simulator, evaluate
-from percver.selftest.program import COMPARISONS, SIMPLEST, UNARY, Binary, Clip, Cond, Const, Net, Param, Pow, Program, Stage, Unary, Var, Where, names_in, params_in, walk
+from percver.selftest.program import (
+    COMPARISONS,
+    SIMPLEST,
+    UNARY,
+    Binary,
+    Clip,
+    Cond,
+    Const,
+    Net,
+    Param,
+    Pow,
+    Program,
+    Stage,
+    Unary,
+    Var,
+    Where,
+    names_in,
+    params_in,
+    walk,
+)
 
 STATE_RANGES = [(0.0031, 0.0131), (-0.5, 0.5), (0.0, 1.0), (0.9, 1.1), (-1.0, -0.8), (0.2, 0.25), (0.5, 0.5)]
 PARAM_RANGES = [(-1.0, 1.0), (0.0, 1.0), (-0.5, 0.5), (0.9, 1.1)]
@@ -159,7 +178,11 @@ class _Draw:
         layers, fan_in = [], n_in
         for k, width in enumerate(widths):
             last = k == len(widths) - 1
-            activation = self.pick(["identity", "identity", "tanh"]) if last else (act if self.chance(0.8) else self.pick(["sigmoid", "tanh", "relu"]))
+            activation = (
+                self.pick(["identity", "identity", "tanh"])
+                if last
+                else (act if self.chance(0.8) else self.pick(["sigmoid", "tanh", "relu"]))
+            )
             weight = np.round(self.rng.normal(0, 1.5 / np.sqrt(fan_in), (width, fan_in)), 3).tolist()
             bias = np.round(self.rng.normal(0, 0.5, width), 3).tolist()
             layers.append((weight, bias, activation))
@@ -214,8 +237,9 @@ class _Draw:
             used = set().union(*(names_in(e) for e in update.values()))
             inputs = [u for u in scalar if u in used]
             period = float(self.pick(PERIODS))
-            program = Program(states, init, update, stages, list(self.params), period=period,
-                              step=period / int(self.pick([1, 2, 3, 5])), inputs=inputs)
+            program = Program(
+                states, init, update, stages, list(self.params), period=period, step=period / int(self.pick([1, 2, 3, 5])), inputs=inputs
+            )
         else:
             names = states + outputs
             update = {}
@@ -252,8 +276,11 @@ class _Draw:
             opts["refine"] = True
             opts["min_width"] = {s: _round((program.init[s][1] - program.init[s][0]) / 4) for s in free}
         else:
-            opts["splitter"] = (("Adaptive", {"start": int(self.pick([1, 2])), "max_cells": int(self.pick([4, 8]))})
-                                if cells == "adaptive" else SIMPLEST["splitter"])
+            opts["splitter"] = (
+                ("Adaptive", {"start": int(self.pick([1, 2])), "max_cells": int(self.pick([4, 8]))})
+                if cells == "adaptive"
+                else SIMPLEST["splitter"]
+            )
         if self.chance(0.4):
             opts["max_splits"] = int(self.pick([0, 2, 4]))
         if self.chance(0.3):
@@ -290,8 +317,9 @@ class _Draw:
             return Unary(self.pick(["sin", "tanh"]), Var(self.pick(names)))
 
         def values(q):  # runs x steps
-            return np.stack([evaluate(q, {s: traj[:, t, j] for j, s in enumerate(names)}, params[: len(traj)])
-                             for t in range(traj.shape[1])], axis=1)
+            return np.stack(
+                [evaluate(q, {s: traj[:, t, j] for j, s in enumerate(names)}, params[: len(traj)]) for t in range(traj.shape[1])], axis=1
+            )
 
         def bound(v, upper: bool) -> float:
             top, bottom = np.nanmax(v), np.nanmin(v)
@@ -314,7 +342,9 @@ class _Draw:
                 program.safe.append(Cond(q2, ">=", Const(bound(values(q2), False))))
         else:
             # Final goal: the last step's values; within: each run's best value along the way.
-            reach = v[:, -1] if form == "goal" else (v[:, 1:].max(axis=1) if upper else v[:, 1:].min(axis=1)) if v.shape[1] > 1 else v[:, -1]
+            reach = (
+                v[:, -1] if form == "goal" else (v[:, 1:].max(axis=1) if upper else v[:, 1:].min(axis=1)) if v.shape[1] > 1 else v[:, -1]
+            )
             thr = _round(np.quantile(reach, self.pick([0.0, 0.05, 0.3])) if upper else np.quantile(reach, self.pick([1.0, 0.95, 0.7])), 4)
             program.goal = [Cond(q, ">=" if upper else "<=", Const(thr))]
             program.within = form == "within"
@@ -334,8 +364,15 @@ def _wide_atom(node, program: Program):
     multiple of a state whose initial range spans a period. None for anything else."""
     if isinstance(node, Param):
         return ("param", tuple(program.params[node.index]))
-    if (isinstance(node, Unary) and node.fn in ("sin", "cos") and isinstance(node.arg, Binary) and node.arg.op == "*"
-            and isinstance(node.arg.a, Const) and isinstance(node.arg.b, Var) and node.arg.b.name in program.init):
+    if (
+        isinstance(node, Unary)
+        and node.fn in ("sin", "cos")
+        and isinstance(node.arg, Binary)
+        and node.arg.op == "*"
+        and isinstance(node.arg.a, Const)
+        and isinstance(node.arg.b, Var)
+        and node.arg.b.name in program.init
+    ):
         lo, hi = program.init[node.arg.b.name]
         if abs(node.arg.a.value) * (hi - lo) >= 2 * np.pi:
             return ("wave",)
@@ -354,7 +391,7 @@ def aliasing_pairs(program: Program) -> list:
     for group in groups:
         conds = list(dict.fromkeys(n.cond for e in group for n in walk(e) if isinstance(n, Where)))
         for i, a in enumerate(conds):
-            for b in conds[i + 1:]:
+            for b in conds[i + 1 :]:
                 key = _wide_atom(a.lhs, program)
                 if key is not None and key == _wide_atom(b.lhs, program) and a.lhs != b.lhs and a.op == b.op and a.rhs == b.rhs:
                     pairs.append((a, b))

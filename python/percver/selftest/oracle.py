@@ -34,8 +34,17 @@ ODE_TOLERANCE = 1e-8
 # its own tolerances and evaluates in another order, so a margin can differ in the last digits.
 REPLAY_SLACK = {"discrete": 1e-12, "continuous": 1e-6}
 
-FUNCTIONS = {"sin": np.sin, "cos": np.cos, "tanh": np.tanh, "sigmoid": expit, "atan": np.arctan, "exp": np.exp, "abs": np.abs,
-             "sqrt": np.sqrt, "log": np.log}
+FUNCTIONS = {
+    "sin": np.sin,
+    "cos": np.cos,
+    "tanh": np.tanh,
+    "sigmoid": expit,
+    "atan": np.arctan,
+    "exp": np.exp,
+    "abs": np.abs,
+    "sqrt": np.sqrt,
+    "log": np.log,
+}
 OPERATORS = {"+": np.add, "-": np.subtract, "*": np.multiply, "/": np.divide, "min": np.minimum, "max": np.maximum}
 
 
@@ -88,8 +97,10 @@ class Simulator:
 
             options = onnxruntime.SessionOptions()
             options.intra_op_num_threads = options.inter_op_num_threads = 1
-            sessions = {id(net): onnxruntime.InferenceSession(str(f), options, providers=["CPUExecutionProvider"])
-                        for net, f in zip(program.nets(), net_files, strict=True)}
+            sessions = {
+                id(net): onnxruntime.InferenceSession(str(f), options, providers=["CPUExecutionProvider"])
+                for net, f in zip(program.nets(), net_files, strict=True)
+            }
             self.run_net = lambda net, x: sessions[id(net)].run(None, {"input": x})[0]
 
     def _stage(self, k: int, env: dict, params: np.ndarray) -> np.ndarray:
@@ -141,7 +152,7 @@ class Simulator:
 
         def rhs(_t, flat):
             env = dict(held)
-            env.update({s: flat[j * n: (j + 1) * n] for j, s in enumerate(p.states)})
+            env.update({s: flat[j * n : (j + 1) * n] for j, s in enumerate(p.states)})
             return np.concatenate([evaluate(p.update[s], env, params) for s in p.states])
 
         sol = solve_ivp(rhs, (0.0, p.period), x.T.reshape(-1), method="DOP853", rtol=1e-10, atol=1e-12)
@@ -186,8 +197,9 @@ def judge(program: Program, traj: np.ndarray, params: np.ndarray, slack: float =
     for t in range(steps + 1):
         env = {s: traj[:, t, j] for j, s in enumerate(names)}
         with np.errstate(all="ignore"):
-            for label, cond, bad_when in ([(f"safe {source_of(c)}", c, False) for c in program.safe]
-                                          + [(f"unsafe {source_of(c)}", c, True) for c in program.unsafe]):
+            for label, cond, bad_when in [(f"safe {source_of(c)}", c, False) for c in program.safe] + [
+                (f"unsafe {source_of(c)}", c, True) for c in program.unsafe
+            ]:
                 broken = holds(cond, env, params, -slack if bad_when else slack) == bad_when
                 for i in np.nonzero(broken & ~done & np.array([f is None for f in found], dtype=bool))[0]:
                     found[i] = (t, label)
@@ -210,8 +222,7 @@ def sample(program: Program, cell: dict, n: int, rng: np.random.Generator):
     hi = np.array([cell[s][1] for s in program.all_states], dtype=float)
     free = np.nonzero(hi > lo)[0]
     count = min(2 ** len(free), max(n // 2, 1))
-    bits = rng.integers(0, 2, (count, len(free))) if 2 ** len(free) > count else \
-        ((np.arange(count)[:, None] >> np.arange(len(free))) & 1)
+    bits = rng.integers(0, 2, (count, len(free))) if 2 ** len(free) > count else ((np.arange(count)[:, None] >> np.arange(len(free))) & 1)
     x0 = lo + (hi - lo) * rng.random((n, len(lo)))
     x0[:count] = lo
     x0[:count, free] = np.where(bits, hi[free], lo[free])
@@ -269,11 +280,20 @@ def check(program: Program, simulator: Simulator, result, runs: int, rng: np.ran
             if bad:
                 i = bad[0]
                 step, label = found[i]
-                report.violations.append(Violation(
-                    "verified-but-violated", f"cell {k} is verified, but the run from {_point(program, x0[i], params[i])} "
-                    f"violates {label} at step {step}",
-                    {"cell": k, "initial": x0[i].tolist(), "params": params[i].tolist(), "step": step, "label": label,
-                     "trajectory": traj[i, : step + 1].tolist()}))
+                report.violations.append(
+                    Violation(
+                        "verified-but-violated",
+                        f"cell {k} is verified, but the run from {_point(program, x0[i], params[i])} violates {label} at step {step}",
+                        {
+                            "cell": k,
+                            "initial": x0[i].tolist(),
+                            "params": params[i].tolist(),
+                            "step": step,
+                            "label": label,
+                            "trajectory": traj[i, : step + 1].tolist(),
+                        },
+                    )
+                )
         if cell.counterexample is not None:
             _check_counterexample(program, simulator, k, cell, report, list(param_ids))
     return report
@@ -292,11 +312,23 @@ def _check_boxes(program, k, cell, traj, params, end, report):
         value = part[i, t, j]
         gap = lo - value if value < lo else value - hi
         name = program.all_states[j]
-        report.violations.append(Violation(
-            "box", f"cell {k} ({cell.verdict}): {np.count_nonzero(outside)} sampled values outside the reach boxes; first "
-            f"{name} = {float(value)!r} at step {t}, outside [{float(lo)!r}, {float(hi)!r}] by {gap:.3g}, from {_point(program, traj[i, 0], params[i])}",
-            {"cell": k, "initial": traj[i, 0].tolist(), "params": params[i].tolist(), "step": int(t), "state": name,
-             "value": float(value), "box": [float(lo), float(hi)], "trajectory": traj[i, : t + 1].tolist()}))
+        report.violations.append(
+            Violation(
+                "box",
+                f"cell {k} ({cell.verdict}): {np.count_nonzero(outside)} sampled values outside the reach boxes; first "
+                f"{name} = {float(value)!r} at step {t}, outside [{float(lo)!r}, {float(hi)!r}] by {gap:.3g}, from {_point(program, traj[i, 0], params[i])}",
+                {
+                    "cell": k,
+                    "initial": traj[i, 0].tolist(),
+                    "params": params[i].tolist(),
+                    "step": int(t),
+                    "state": name,
+                    "value": float(value),
+                    "box": [float(lo), float(hi)],
+                    "trajectory": traj[i, : t + 1].tolist(),
+                },
+            )
+        )
 
 
 def _check_counterexample(program, simulator, k, cell, report, param_ids):
@@ -310,10 +342,14 @@ def _check_counterexample(program, simulator, k, cell, report, param_ids):
     found, _ = judge(program, simulator.simulate(x0, params), params, REPLAY_SLACK["continuous" if program.continuous else "discrete"])
     if found[0] is None or not inside:
         why = "starts outside its cell" if not inside else "does not violate the property in the oracle's run"
-        report.violations.append(Violation(
-            "counterexample", f"cell {k} is falsified by a counterexample from {_point(program, x0[0], params[0])} "
-            f"(percver: {cex.violated} at step {cex.step}) that {why}",
-            {"cell": k, "initial": x0[0].tolist(), "params": params[0].tolist(), "step": cex.step, "label": cex.violated}))
+        report.violations.append(
+            Violation(
+                "counterexample",
+                f"cell {k} is falsified by a counterexample from {_point(program, x0[0], params[0])} "
+                f"(percver: {cex.violated} at step {cex.step}) that {why}",
+                {"cell": k, "initial": x0[0].tolist(), "params": params[0].tolist(), "step": cex.step, "label": cex.violated},
+            )
+        )
 
 
 def _point(program: Program, x: np.ndarray, params: np.ndarray) -> str:

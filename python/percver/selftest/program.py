@@ -271,8 +271,13 @@ def loop_source(program: Program) -> str:
     names = program.env_names + [n for n in program.reward if n not in program.env_names]
     lines = ["import percver as pv"]
     if program.nets():
-        lines += ["import tempfile", "from pathlib import Path", "from percver.selftest.program import write_onnx", "",
-                  "DIR = Path(tempfile.mkdtemp(prefix='percver-selftest-'))"]
+        lines += [
+            "import tempfile",
+            "from pathlib import Path",
+            "from percver.selftest.program import write_onnx",
+            "",
+            "DIR = Path(tempfile.mkdtemp(prefix='percver-selftest-'))",
+        ]
     lines.append("")
     lines.append(f"{', '.join(names)} = pv.variables({' '.join(names)!r})")
     for i, (lo, hi) in enumerate(program.params):
@@ -294,12 +299,16 @@ def loop_source(program: Program) -> str:
         stage_lines.append(f"    pv.Stage({component}, inputs={list(s.inputs)!r}, output={s.output!r}{maps}),")
     update = ", ".join(f"{n}: {source_of(e)}" for n, e in program.update.items())
     if program.continuous:
-        lines.append(f"plant = pv.Continuous({{{update}}}, inputs=[{', '.join(program.inputs)}], "
-                     f"period={program.period!r}, step={program.step!r})")
+        lines.append(
+            f"plant = pv.Continuous({{{update}}}, inputs=[{', '.join(program.inputs)}], period={program.period!r}, step={program.step!r})"
+        )
     else:
         lines.append(f"plant = pv.Discrete({{{update}}})")
     lines += ["loop = pv.ClosedLoop(plant, stages=[", *stage_lines, "])"] if stage_lines else ["loop = pv.ClosedLoop(plant, stages=[])"]
-    args = [f"steps={program.steps}", "init={" + ", ".join(f"{n!r}: ({_num(lo)}, {_num(hi)})" for n, (lo, hi) in program.init.items()) + "}"]
+    args = [
+        f"steps={program.steps}",
+        "init={" + ", ".join(f"{n!r}: ({_num(lo)}, {_num(hi)})" for n, (lo, hi) in program.init.items()) + "}",
+    ]
     if program.reward:
         args.append("reward={" + ", ".join(f"{n!r}: {source_of(e)}" for n, e in program.reward.items()) + "}")
     for what in ("safe", "unsafe", "goal"):
@@ -360,9 +369,13 @@ def write_onnx(path, layers, scale=None, offset=None, style: str = "gemm") -> Pa
         emit("Add", constant(offset))
     nodes[-1].output[0] = "output"
     n_in, n_out = len(layers[0][0][0]), len(layers[-1][1])
-    graph = helper.make_graph(nodes, "selftest",
-                              [helper.make_tensor_value_info("input", TensorProto.DOUBLE, ["batch", n_in])],
-                              [helper.make_tensor_value_info("output", TensorProto.DOUBLE, ["batch", n_out])], constants)
+    graph = helper.make_graph(
+        nodes,
+        "selftest",
+        [helper.make_tensor_value_info("input", TensorProto.DOUBLE, ["batch", n_in])],
+        [helper.make_tensor_value_info("output", TensorProto.DOUBLE, ["batch", n_out])],
+        constants,
+    )
     model = helper.make_model(graph, opset_imports=[helper.make_opsetid("", 17)], producer_name="percver-selftest")
     model.ir_version = 8
     onnx.checker.check_model(model)

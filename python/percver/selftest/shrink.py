@@ -57,15 +57,18 @@ def variants(p: Program) -> Iterator[Program]:
     used = sorted(set().union(*(params_in(e) for e in p.expressions())))
     if len(used) < len(p.params):
         renumber = {i: Param(k) for k, i in enumerate(used)}
-        yield replace(_substituted(p, lambda node: renumber.get(node.index) if isinstance(node, Param) else None),
-                      params=[p.params[i] for i in used])
+        yield replace(
+            _substituted(p, lambda node: renumber.get(node.index) if isinstance(node, Param) else None), params=[p.params[i] for i in used]
+        )
     for s, (lo, hi) in p.init.items():
         if hi - lo > 1e-3:  # a narrower box would not be simpler to read
             mid = 0.5 * (lo + hi)
             for half in ((lo, mid), (mid, hi)):
                 yield replace(p, init={**p.init, s: half})
     yield from _smaller_expressions(p)
-    rounded = _substituted(p, lambda node: Const(float(f"{node.value:.2g}")) if isinstance(node, Const) and float(f"{node.value:.2g}") != node.value else None)
+    rounded = _substituted(
+        p, lambda node: Const(float(f"{node.value:.2g}")) if isinstance(node, Const) and float(f"{node.value:.2g}") != node.value else None
+    )
     if rounded != p:
         yield rounded
 
@@ -75,7 +78,7 @@ def _fewer_conditions(p: Program) -> Iterator[Program]:
         for what in ("safe", "unsafe", "goal"):
             conds = getattr(p, what)
             for i in range(len(conds)):
-                rest = conds[:i] + conds[i + 1:]
+                rest = conds[:i] + conds[i + 1 :]
                 yield replace(p, **{what: rest}, within=p.within and bool(p.goal if what != "goal" else rest))
     if p.within:
         yield replace(p, within=False)
@@ -84,7 +87,7 @@ def _fewer_conditions(p: Program) -> Iterator[Program]:
 def _without_stage(p: Program, k: int) -> Iterator[Program]:
     """Stage k removed, its outputs read as 0 (not when a later network reads it: its width would change)."""
     stage = p.stages[k]
-    if any(s.nets and stage.output in s.inputs for s in p.stages[k + 1:]):
+    if any(s.nets and stage.output in s.inputs for s in p.stages[k + 1 :]):
         return
     zero = {n: Const(0.0) for n in stage.names}
     q = _substituted(p, lambda node: zero.get(node.name) if isinstance(node, Var) else None)
@@ -99,9 +102,16 @@ def _without_state(p: Program, name: str) -> Iterator[Program]:
     if len(p.states) == 1 or any(name in names_in(e) for e in others) or any(name in s.inputs for s in p.stages):
         return
     keep = lambda conds: [c for c in conds if name not in names_in(c)]
-    q = replace(p, states=[s for s in p.states if s != name], init={s: b for s, b in p.init.items() if s != name},
-                update={s: e for s, e in p.update.items() if s != name}, safe=keep(p.safe), unsafe=keep(p.unsafe), goal=keep(p.goal),
-                options={k: ({s: v for s, v in o.items() if s != name} if isinstance(o, dict) else o) for k, o in p.options.items()})
+    q = replace(
+        p,
+        states=[s for s in p.states if s != name],
+        init={s: b for s, b in p.init.items() if s != name},
+        update={s: e for s, e in p.update.items() if s != name},
+        safe=keep(p.safe),
+        unsafe=keep(p.unsafe),
+        goal=keep(p.goal),
+        options={k: ({s: v for s, v in o.items() if s != name} if isinstance(o, dict) else o) for k, o in p.options.items()},
+    )
     if q.conditions():
         yield replace(q, within=q.within and bool(q.goal))
 
@@ -115,17 +125,21 @@ def _slots(p: Program) -> list:
         slots.append((lambda q, s=s: q.reward[s], lambda q, e, s=s: replace(q, reward={**q.reward, s: e})))
     for k, stage in enumerate(p.stages):
         for i in range(len(stage.exprs or [])):
+
             def put(q, e, k=k, i=i):
                 stages = list(q.stages)
                 stages[k] = replace(stages[k], exprs=[e if j == i else x for j, x in enumerate(stages[k].exprs)])
                 return replace(q, stages=stages)
+
             slots.append((lambda q, k=k, i=i: q.stages[k].exprs[i], put))
     for what in ("safe", "unsafe", "goal"):
         for i in range(len(getattr(p, what))):
+
             def put(q, c, what=what, i=i):
                 conds = list(getattr(q, what))
                 conds[i] = replace(conds[i], lhs=c)
                 return replace(q, **{what: conds})
+
             slots.append((lambda q, what=what, i=i: getattr(q, what)[i].lhs, put))
     return slots
 
@@ -176,6 +190,6 @@ def _substituted(p: Program, f) -> Program:
     """Every expression of ``p`` (loop and property) mapped with ``f``."""
     stages = [replace(s, exprs=[_map(e, f) for e in s.exprs]) if s.exprs is not None else s for s in p.stages]
     conds = {w: [_map(c, f) for c in getattr(p, w)] for w in ("safe", "unsafe", "goal")}
-    return replace(p, update={s: _map(e, f) for s, e in p.update.items()}, reward={s: _map(e, f) for s, e in p.reward.items()},
-                   stages=stages, **conds)
-
+    return replace(
+        p, update={s: _map(e, f) for s, e in p.update.items()}, reward={s: _map(e, f) for s, e in p.reward.items()}, stages=stages, **conds
+    )

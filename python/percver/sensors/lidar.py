@@ -224,10 +224,7 @@ class Lidar:
         return tuple(f"ray{i}" for i in range(len(self.angles)))
 
     def __repr__(self) -> str:
-        return (
-            f"Lidar({len(self.angles)} rays, {self.angles_deg[0]:g}..{self.angles_deg[-1]:g} deg, "
-            f"max_range={self.max_range:g} m)"
-        )
+        return f"Lidar({len(self.angles)} rays, {self.angles_deg[0]:g}..{self.angles_deg[-1]:g} deg, max_range={self.max_range:g} m)"
 
     def cast(self, track: Track, x, y, theta) -> Hits:
         """Cast every ray from every pose against every wall (vectorised, in blocks of poses)."""

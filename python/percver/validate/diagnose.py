@@ -97,8 +97,7 @@ class Diagnosis:
         computed once per level, draws and seed)."""
         key = (level, draws, seed)
         if key not in self._intervals:
-            self._intervals[key] = parameter_intervals(self.final_model, self.final.evaluation, level=level,
-                                                       draws=draws, seed=seed)
+            self._intervals[key] = parameter_intervals(self.final_model, self.final.evaluation, level=level, draws=draws, seed=seed)
         return self._intervals[key]
 
     def system(self, uncertainty=None, residual=None, *, draws: int = 100, seed: int = 0):
@@ -140,7 +139,9 @@ class Diagnosis:
                 f"step {i}: + {s.effect:<20} {s.error_before:.4g} -> {s.error_after:.4g} "
                 f"(held-out gain {s.explained_fraction:.1%})  {params}"
             )
-        lines.append(f"final {self.final.metric}: {self.final_error:.4g} ({self.final_error / max(self.baseline_error, 1e-300):.1%} of baseline)")
+        lines.append(
+            f"final {self.final.metric}: {self.final_error:.4g} ({self.final_error / max(self.baseline_error, 1e-300):.1%} of baseline)"
+        )
         if self.noise_sigma is not None:
             lines.append(f"noise floor sigma: {self.noise_sigma:.4g}")
         if self.learned is not None and not self.learned.claimed:
@@ -226,8 +227,7 @@ def diagnose(
     current, steps, rankings = model, [], []
     try:
         for _ in range(max_steps):
-            ranking = rank(current, evaluation, effects, folds=folds, bootstrap=bootstrap, min_gain=min_gain,
-                           seed=seed, progress=bar)
+            ranking = rank(current, evaluation, effects, folds=folds, bootstrap=bootstrap, min_gain=min_gain, seed=seed, progress=bar)
             rankings.append(ranking)
             if not ranking or not ranking[0].claimed:
                 break
@@ -247,8 +247,9 @@ def diagnose(
     if learn and (final.where().significant_regions or final.where().significant_dimensions):
         # With progress on, training shows a bar over its epochs with the time left.
         options = {"progress": True, **(learn_options or {})} if progress else learn_options
-        learned, attempt = learned_step(current, evaluation, final, learn, options, folds=folds,
-                                        bootstrap=bootstrap, min_gain=min_gain, seed=seed)
+        learned, attempt = learned_step(
+            current, evaluation, final, learn, options, folds=folds, bootstrap=bootstrap, min_gain=min_gain, seed=seed
+        )
         if learned is not None:
             after = compare(learned, data, metric=metric)
             steps.append(Step(learned.learned.name, dict(learned.learned.params), final.error, after.error, attempt.gain))

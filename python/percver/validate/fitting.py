@@ -95,8 +95,7 @@ def _fit_slots(model, indices, evaluation, starts=(), widths=None, rounds=7):
     theta = min(points, key=cost)
     if all(effects[i].smooth for i in indices):
         span = np.where(np.isfinite(hi - lo), hi - lo, np.maximum(np.abs(theta), 1.0))
-        theta = least_squares(residual, theta, bounds=(lo, hi), loss="soft_l1", x_scale=span / 10, diff_step=1e-5,
-                              ftol=1e-6, xtol=1e-6).x
+        theta = least_squares(residual, theta, bounds=(lo, hi), loss="soft_l1", x_scale=span / 10, diff_step=1e-5, ftol=1e-6, xtol=1e-6).x
     else:
         widths = widths or {}
         first = np.array([widths.get(c, h - l) for c, l, h in zip(coordinates, lo, hi)])
@@ -378,7 +377,7 @@ def parameter_intervals(model, evaluation, *, level: float = 0.95, draws: int = 
     units, _ = folds_of(evaluation, 2, rng)
     order = np.argsort(units, kind="stable")
     starts = np.searchsorted(units[order], np.arange(units.max() + 2))
-    members = [order[starts[u]:starts[u + 1]] for u in range(units.max() + 1)]
+    members = [order[starts[u] : starts[u + 1]] for u in range(units.max() + 1)]
     names = [[n for n in e.bounds if isinstance(e.params.get(n), (float, int, np.floating))] for e in model.effects]
     values = [{n: [] for n in ns} for ns in names]
     for _ in range(draws):

@@ -100,8 +100,9 @@ def worst_examples(report, path=None, count=4):
         figure = _figure(7.0, 1.8 * len(worst))
         grid = figure.subplots(len(worst), 3, squeeze=False)
         for row, i in zip(grid, worst):
-            for axes, values, title in zip(row, (measured[i], predicted[i], measured[i] - predicted[i]),
-                                           ("measured", "predicted", "residual")):
+            for axes, values, title in zip(
+                row, (measured[i], predicted[i], measured[i] - predicted[i]), ("measured", "predicted", "residual")
+            ):
                 axes.imshow(values.reshape(model.shape), cmap="gray" if title != "residual" else "coolwarm")
                 axes.set_title(f"row {report.evaluation.rows[i]}: {title}", fontsize=8)
                 axes.axis("off")
@@ -192,19 +193,30 @@ def _report_parts(report, directory, prefix) -> list:
     for name, draw in plots.items():
         draw(report, directory / name)
     errors = {"rmse": report.rmse, "mae": report.mae, "max": report.max_error}
-    summary = [("model", report.model.describe()), ("rows", len(report.evaluation)), ("unit of the errors", report.unit),
-               (f"error ({report.metric}, the ranking's measure)", report.error)]
+    summary = [
+        ("model", report.model.describe()),
+        ("rows", len(report.evaluation)),
+        ("unit of the errors", report.unit),
+        (f"error ({report.metric}, the ranking's measure)", report.error),
+    ]
     summary += [(name, value) for name, value in errors.items() if name != report.metric]
     summary += list(report.downstream.items())
-    parts = [_table(("quantity", "value"), summary), "<h3>Where the error is</h3>",
-             f"<img src='{prefix}residual_map.png' alt='residual map'>",
-             _table(("share", "lift", "samples", "region", "significant"),
-                    [(f"{r.share:.1%}", r.lift, r.count, r.describe(), "yes" if r.significant else "")
-                     for r in where.regions]),
-             f"<img src='{prefix}dimensions.png' alt='error per dimension'>",
-             _table(("share", "rms (the dimension's units)", "dimension", "significant"),
-                    [(f"{d.share:.1%}", d.rmse, d.name, "yes" if d.significant else "") for d in where.dimensions[:12]]),
-             "<h3>Worst samples</h3>", f"<img src='{prefix}worst.png' alt='worst samples'>"]
+    parts = [
+        _table(("quantity", "value"), summary),
+        "<h3>Where the error is</h3>",
+        f"<img src='{prefix}residual_map.png' alt='residual map'>",
+        _table(
+            ("share", "lift", "samples", "region", "significant"),
+            [(f"{r.share:.1%}", r.lift, r.count, r.describe(), "yes" if r.significant else "") for r in where.regions],
+        ),
+        f"<img src='{prefix}dimensions.png' alt='error per dimension'>",
+        _table(
+            ("share", "rms (the dimension's units)", "dimension", "significant"),
+            [(f"{d.share:.1%}", d.rmse, d.name, "yes" if d.significant else "") for d in where.dimensions[:12]],
+        ),
+        "<h3>Worst samples</h3>",
+        f"<img src='{prefix}worst.png' alt='worst samples'>",
+    ]
     ranking = report.explained_ranking()
     if ranking is not None:
         parts += ["<h3>Candidate effects (held-out)</h3>", _ranking_table(ranking)]
@@ -214,8 +226,10 @@ def _report_parts(report, directory, prefix) -> list:
 def _ranking_table(ranking, added=None) -> str:
     return _table(
         ("effect", "gain", "95% interval", "claimed", "parameters", "physical cause"),
-        [(c.name, c.gain, f"[{c.ci[0]:.3f}, {c.ci[1]:.3f}]", verdict, c.params, c.cause)
-         for c, verdict in zip(ranking, ranking.verdicts(added))],
+        [
+            (c.name, c.gain, f"[{c.ci[0]:.3f}, {c.ci[1]:.3f}]", verdict, c.params, c.cause)
+            for c, verdict in zip(ranking, ranking.verdicts(added))
+        ],
     )
 
 
@@ -228,10 +242,14 @@ def _learned_parts(diagnosis, directory) -> list:
     attempt = diagnosis.learned
     if attempt is None:
         return []
-    rows = [("kind", f"learned_{attempt.kind}"), ("kept", "yes" if attempt.claimed else "no"),
-            ("held-out gain", f"{attempt.gain:.1%} [{attempt.ci[0]:.1%}, {attempt.ci[1]:.1%}]"),
-            ("held-out rows", attempt.held_out_rows), ("held-out error before", attempt.held_out_error_before),
-            ("held-out error after", attempt.held_out_error_after)]
+    rows = [
+        ("kind", f"learned_{attempt.kind}"),
+        ("kept", "yes" if attempt.claimed else "no"),
+        ("held-out gain", f"{attempt.gain:.1%} [{attempt.ci[0]:.1%}, {attempt.ci[1]:.1%}]"),
+        ("held-out rows", attempt.held_out_rows),
+        ("held-out error before", attempt.held_out_error_before),
+        ("held-out error after", attempt.held_out_error_after),
+    ]
     learned = getattr(diagnosis.final_model, "learned", None)
     if learned is not None:
         rows += [("files", ", ".join(path.name for path in learned.save(directory)))]
@@ -242,21 +260,29 @@ def write_diagnosis(diagnosis, directory) -> Path:
     directory = Path(directory)
     directory.mkdir(parents=True, exist_ok=True)
     error_fall(diagnosis, directory / "error_fall.png")
-    steps = [(i, s.effect, s.params, s.error_before, s.error_after, f"{s.explained_fraction:.1%}")
-             for i, s in enumerate(diagnosis.steps, 1)]
-    parts = ["<h2>Error fall</h2>", "<img src='error_fall.png' alt='error fall'>",
-             _table(("step", "effect", "parameters", "error before", "error after", "held-out gain"), steps)]
+    steps = [
+        (i, s.effect, s.params, s.error_before, s.error_after, f"{s.explained_fraction:.1%}") for i, s in enumerate(diagnosis.steps, 1)
+    ]
+    parts = [
+        "<h2>Error fall</h2>",
+        "<img src='error_fall.png' alt='error fall'>",
+        _table(("step", "effect", "parameters", "error before", "error after", "held-out gain"), steps),
+    ]
     parts += _learned_parts(diagnosis, directory)
     if diagnosis.unexplained:
         shown = diagnosis.unexplained[:UNEXPLAINED_ROWS]
-        parts += ["<h3>Still unexplained</h3>",
-                  _table(("kind", "where", "share"), [(u["kind"], u["where"], f"{u['share']:.1%}") for u in shown])]
+        parts += [
+            "<h3>Still unexplained</h3>",
+            _table(("kind", "where", "share"), [(u["kind"], u["where"], f"{u['share']:.1%}") for u in shown]),
+        ]
         if len(diagnosis.unexplained) > len(shown):
             parts.append(f"<p>... and {len(diagnosis.unexplained) - len(shown)} more (see the JSON output)</p>")
     if diagnosis.rankings:
-        parts += ["<h3>First ranking of candidate effects</h3>",
-                  "<p>added: in the final model; stand-in: helps alone, but another added effect explains the same error</p>",
-                  _ranking_table(diagnosis.rankings[0], diagnosis.effects)]
+        parts += [
+            "<h3>First ranking of candidate effects</h3>",
+            "<p>added: in the final model; stand-in: helps alone, but another added effect explains the same error</p>",
+            _ranking_table(diagnosis.rankings[0], diagnosis.effects),
+        ]
     parts += ["<h2>Baseline model</h2>"] + _report_parts(diagnosis.baseline, directory, "baseline_")
     parts += ["<h2>Final model</h2>"] + _report_parts(diagnosis.final, directory, "final_")
     return _page(directory, "percver model diagnosis", parts)

@@ -206,7 +206,7 @@ def unexplained_rows(report) -> np.ndarray:
 
 
 def choose_kind(report) -> str:
-    """"knockout" when the unexplained residual jumps (entries beyond JUMP noise sigmas whose
+    """ "knockout" when the unexplained residual jumps (entries beyond JUMP noise sigmas whose
     measured values a line through the predicted ones does not explain), else "generative"."""
     evaluation = report.evaluation
     weighted = np.where(report.explained, 0.0, report.residuals * evaluation.weights)
@@ -247,10 +247,19 @@ def _train_knockout(predicted, measured, weights, features, settings, common):
     knocked = np.where(np.isfinite(knocked), knocked, np.nanmean(knocked) if np.isfinite(knocked).any() else 0.0)
     # Thresholds that maximise the error the knock-outs remove, rather than their accuracy.
     gains = ((predicted - measured) ** 2 - (knocked - measured) ** 2) * weights**2
-    model = train_knockout(np.column_stack([predicted, features]), labels, settings["hidden"], knocked=knocked,
-                           epochs=settings["epochs"], batch=settings["batch"], lr=settings["lr"],
-                           positive_weight=settings["positive_weight"], threshold_gains=gains,
-                           name="learned_knockout", **common)
+    model = train_knockout(
+        np.column_stack([predicted, features]),
+        labels,
+        settings["hidden"],
+        knocked=knocked,
+        epochs=settings["epochs"],
+        batch=settings["batch"],
+        lr=settings["lr"],
+        positive_weight=settings["positive_weight"],
+        threshold_gains=gains,
+        name="learned_knockout",
+        **common,
+    )
     params = {"t_delta": curve.best, "labelled_share": float(labels.mean())}
     return model, params
 
@@ -258,9 +267,18 @@ def _train_knockout(predicted, measured, weights, features, settings, common):
 def _train_generative(predicted, measured, features, settings, common):
     from percver.noise.generative import train_generative
 
-    model = train_generative(predicted, features, measured, settings["hidden"], epochs=settings["epochs"],
-                             batch=settings["batch"], lr=settings["lr"], weight_decay=settings["weight_decay"],
-                             name="learned_generative", **common)
+    model = train_generative(
+        predicted,
+        features,
+        measured,
+        settings["hidden"],
+        epochs=settings["epochs"],
+        batch=settings["batch"],
+        lr=settings["lr"],
+        weight_decay=settings["weight_decay"],
+        name="learned_generative",
+        **common,
+    )
     return model, {"loss": "bce" if model.network.layers[-1].activation == "sigmoid" else "mse"}
 
 
@@ -281,20 +299,28 @@ def learn(model, evaluation, report, kind=True, options=None, *, folds=3, bootst
     features = _filled_features(model, train.states, names, fill)
     predicted = model.predict_inputs(train.inputs)
     if common.get("progress"):
-        print(f"learning a {kind} noise model on {len(train_rows)} rows x {predicted.shape[1]} dimensions, "
-              f"{settings['epochs']} epochs (the bar estimates the time left after the first epoch)", file=sys.stderr)
+        print(
+            f"learning a {kind} noise model on {len(train_rows)} rows x {predicted.shape[1]} dimensions, "
+            f"{settings['epochs']} epochs (the bar estimates the time left after the first epoch)",
+            file=sys.stderr,
+        )
     if kind == "knockout":
         trained, params = _train_knockout(predicted, train.measured, evaluation.weights, features, settings, common)
     else:
         trained, params = _train_generative(predicted, train.measured, features, settings, common)
-    params = {**params, "features": list(names), "hidden": list(settings["hidden"]), "epochs": settings["epochs"],
-              "train_rows": len(train_rows)}
+    params = {
+        **params,
+        "features": list(names),
+        "hidden": list(settings["hidden"]),
+        "epochs": settings["epochs"],
+        "train_rows": len(train_rows),
+    }
     learned = LearnedModel(model, LearnedNoise(kind, trained, names, fill, params))
     before, after = model_errors(model, test), model_errors(learned, test)
     test_units = np.unique(units[test_rows], return_inverse=True)[1].ravel()
     draws = rng.integers(0, test_units.max() + 1, size=(bootstrap, test_units.max() + 1))
     gain, ci = gain_interval(test_units, before, after, draws)
-    attempt = Attempt(kind, gain, ci, bool(ci[0] > min_gain), len(test_rows), float(np.sqrt(before.mean())),
-                      float(np.sqrt(after.mean())), params)
+    attempt = Attempt(
+        kind, gain, ci, bool(ci[0] > min_gain), len(test_rows), float(np.sqrt(before.mean())), float(np.sqrt(after.mean())), params
+    )
     return (learned if attempt.claimed else None), attempt
-

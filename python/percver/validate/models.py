@@ -103,9 +103,7 @@ class Model:
         if kinds is None:
             raise InputError(f"with_effect needs an effect from percver.validate.effects, got {type(effect).__name__}")
         if self.kind not in kinds:
-            raise InputError(
-                f"effect '{effect.name}' applies to {'/'.join(kinds)} models, not to a {self.kind} model"
-            )
+            raise InputError(f"effect '{effect.name}' applies to {'/'.join(kinds)} models, not to a {self.kind} model")
         index = self.insertion_index(effect)
         return self.with_effects(self.effects[:index] + (effect,) + self.effects[index:])
 
@@ -179,8 +177,7 @@ class SensorModel(Model):
         states = np.atleast_2d(np.asarray(states, dtype=float))
         if states.shape[1] != len(self.state_names):
             raise InputError(
-                f"predict expects states with {len(self.state_names)} columns {list(self.state_names)}, "
-                f"got shape {states.shape}"
+                f"predict expects states with {len(self.state_names)} columns {list(self.state_names)}, got shape {states.shape}"
             )
         return self.predict_inputs({"states": states})
 
@@ -380,8 +377,7 @@ class DynamicsModel(Model):
         count = len(self.control_names)
         if pairs.controls.shape[1] != count:
             raise MeasurementError(
-                f"the data{where} has {pairs.controls.shape[1]} control columns but the plant takes {count} "
-                f"{list(self.control_names)}"
+                f"the data{where} has {pairs.controls.shape[1]} control columns but the plant takes {count} {list(self.control_names)}"
             )
         if data.control_names != tuple(f"u{i}" for i in range(count)):
             missing = [n for n in self.control_names if n not in data.control_names]

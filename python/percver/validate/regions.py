@@ -99,5 +99,10 @@ def missing_pattern(model, predicted, measured):
     if best is None or best[0] < MISSING_Z or best[2] < MISSING_RATIO * best[3]:
         return None
     z, where, rate_in, rate_out, share = best
-    return {"kind": "missing", "where": f"lost echoes: {where} ({rate_in:.1%} lost there, {rate_out:.1%} elsewhere)",
-            "rate": rate_in, "rate_elsewhere": rate_out, "share": share}
+    return {
+        "kind": "missing",
+        "where": f"lost echoes: {where} ({rate_in:.1%} lost there, {rate_out:.1%} elsewhere)",
+        "rate": rate_in,
+        "rate_elsewhere": rate_out,
+        "share": share,
+    }

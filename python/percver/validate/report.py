@@ -197,9 +197,7 @@ class Report:
                     share=float(errors[members].sum() / total),
                     lift=float(lift),
                     rmse=float(np.sqrt(errors[members].mean())),
-                    significant=bool(
-                        t > SIGNIFICANCE and lift > LIFT and errors[members].mean() > EXCESS * self._noise.mean()
-                    ),
+                    significant=bool(t > SIGNIFICANCE and lift > LIFT and errors[members].mean() > EXCESS * self._noise.mean()),
                 )
             )
         start = self._run_start(errors, total)
@@ -220,8 +218,14 @@ class Report:
         if not inside.any() or not t > SIGNIFICANCE or not lift > LIFT:
             return None
         mean = errors[inside].mean()
-        return Region(bounds={"step_in_run": (0.0, 0.0)}, count=int(inside.sum()), share=float(errors[inside].sum() / total),
-                      lift=float(lift), rmse=float(np.sqrt(mean)), significant=bool(mean > EXCESS * self._noise.mean()))
+        return Region(
+            bounds={"step_in_run": (0.0, 0.0)},
+            count=int(inside.sum()),
+            share=float(errors[inside].sum() / total),
+            lift=float(lift),
+            rmse=float(np.sqrt(mean)),
+            significant=bool(mean > EXCESS * self._noise.mean()),
+        )
 
     def _dimensions(self) -> list:
         squared = (np.where(self.explained, 0.0, self.residuals) * self.evaluation.weights) ** 2
@@ -243,13 +247,20 @@ class Report:
         return dims
 
     # ---------------------------------------------------------------- explain
-    def explain(self, effects=None, *, folds: int = 3, bootstrap: int = 200, min_gain: float = 0.05, seed: int = 0,
-                progress=None) -> Ranking:
+    def explain(
+        self, effects=None, *, folds: int = 3, bootstrap: int = 200, min_gain: float = 0.05, seed: int = 0, progress=None
+    ) -> Ranking:
         """Candidate effects fitted and scored on held-out data, best first (see ``fitting.rank``)."""
         key = (None if effects is None else tuple(map(repr, effects)), folds, bootstrap, min_gain, seed)
         if key not in self._explain:
             self._explain[key] = rank(
-                self.model, self.evaluation, effects, folds=folds, bootstrap=bootstrap, min_gain=min_gain, seed=seed,
+                self.model,
+                self.evaluation,
+                effects,
+                folds=folds,
+                bootstrap=bootstrap,
+                min_gain=min_gain,
+                seed=seed,
                 progress=progress,
             )
         return self._explain[key]

@@ -110,8 +110,11 @@ class Basis:
             lines.append(f"fitted parameters as their {self.level:.0%} bootstrap confidence intervals")
         if self.residual is not None:
             bounds = ", ".join(f"{k}: +-{v:.3g}" for k, v in self.residual.items())
-            what = ("the largest residual measured" if self.residual_kind == "max"
-                    else f"the {self.residual_kind} of the measured residuals (statistical, not a worst-case bound)")
+            what = (
+                "the largest residual measured"
+                if self.residual_kind == "max"
+                else f"the {self.residual_kind} of the measured residuals (statistical, not a worst-case bound)"
+            )
             lines.append(f"residual as a bounded disturbance each step ({what}): {bounds}")
         lines.append(f"validated domain: {self.domain.describe()}")
         return "\n".join(lines + self.notes)
@@ -205,8 +208,10 @@ def dynamics_system(model, ranges: dict, residual: dict | None, residual_kind: s
             update.update({n: Expr.var(p) for n, p in zip(names, previous)})
         built = Discrete(update, inputs=system.inputs)
     if lags:
-        notes.append(f"the actuator delay keeps earlier controls as states {[n for names in lag_names for n in names]}: "
-                     "give their initial range (the controls' range) in init")
+        notes.append(
+            f"the actuator delay keeps earlier controls as states {[n for names in lag_names for n in names]}: "
+            "give their initial range (the controls' range) in init"
+        )
     built.validation = Basis(records, level, residual, residual_kind, domain, notes)
     return built
 
@@ -262,8 +267,10 @@ def lidar_component(model, ranges: dict, residual: dict | None, residual_kind: s
             reading = reading + uncertain(-residual[name], residual[name])
         rays.append(reading)
     if knockouts:
-        notes.append(f"{', '.join(knockouts)} enter as an adversarial knock-out: any ray may read the range limit "
-                     "at any step (simulations draw one choice per ray and run)")
+        notes.append(
+            f"{', '.join(knockouts)} enter as an adversarial knock-out: any ray may read the range limit "
+            "at any step (simulations draw one choice per ray and run)"
+        )
     out = SensorComponent(rays)
     out.inputs = tuple(model.state_names)
     out.validation = Basis(records, level, residual, residual_kind, domain, notes)
@@ -308,7 +315,9 @@ def validity(loop, results: list, validated=None) -> list:
             continue
         (step, name, (lo, hi), (a, b)), cell = min(exits, key=lambda e: e[0][0])
         cell_box = ", ".join(f"{n} in [{c[0]:.4g}, {c[1]:.4g}]" for n, c in cell.box.items())
-        result.validity = (f"the reach set leaves the validated domain at step {step}: {name} in [{lo:.4g}, {hi:.4g}] is not inside "
-                           f"[{a:.4g}, {b:.4g}], where the measurements end (cell {cell_box}); the verdict there rests on "
-                           "the model outside the data")
+        result.validity = (
+            f"the reach set leaves the validated domain at step {step}: {name} in [{lo:.4g}, {hi:.4g}] is not inside "
+            f"[{a:.4g}, {b:.4g}], where the measurements end (cell {cell_box}); the verdict there rests on "
+            "the model outside the data"
+        )
     return results

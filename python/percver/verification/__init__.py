@@ -18,4 +18,18 @@ from percver.verification.results import Cell, Counterexample, Result
 from percver.verification.solve import DEFAULTS, Part, verify, verify_parts
 from percver.verification.splitters import Adaptive, Bisection, Grid
 
-__all__ = ["Adaptive", "Bisection", "Cell", "Counterexample", "DEFAULTS", "DomainWarning", "Grid", "JournalError", "JournalWarning", "Part", "Result", "verify", "verify_parts"]
+__all__ = [
+    "Adaptive",
+    "Bisection",
+    "Cell",
+    "Counterexample",
+    "DEFAULTS",
+    "DomainWarning",
+    "Grid",
+    "JournalError",
+    "JournalWarning",
+    "Part",
+    "Result",
+    "verify",
+    "verify_parts",
+]

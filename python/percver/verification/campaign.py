@@ -35,8 +35,7 @@ class Campaign:
 
     chunk = 128  # cells falsified together at most: one simulation batch, bounded trajectories
 
-    def __init__(self, loop, prop, init: Box, splitter, cells, journal, bar, *, timeout, falsify: int, seed: int,
-                 lock: threading.RLock):
+    def __init__(self, loop, prop, init: Box, splitter, cells, journal, bar, *, timeout, falsify: int, seed: int, lock: threading.RLock):
         self.loop, self.prop, self.init, self.splitter, self.journal, self.bar = loop, prop, init, splitter, journal, bar
         self.grid, self.left = cells  # the splitter's initial cells (a lazy iterator) and their count
         self.timeout, self.falsify, self.seed = timeout, falsify, seed
@@ -71,7 +70,9 @@ class Campaign:
                     if cex is None:
                         self.ready.append(cell)
                     else:
-                        c = Cell(cell.to_dict(), "falsified", counterexample=cex, reason=f"simulation violates {cex.violated} at step {cex.step}")
+                        c = Cell(
+                            cell.to_dict(), "falsified", counterexample=cex, reason=f"simulation violates {cex.violated} at step {cex.step}"
+                        )
                         self.journal.write(c)
                         self._place(cell, c, None)
 
@@ -113,9 +114,20 @@ class Campaign:
             # The engine says every state violates, yet no simulation did: say unknown
             # rather than claim a counterexample we do not have.
             verdict = "unknown"
-        c = Cell(cell.to_dict(), verdict, outcome["seconds"], outcome["nn_seconds"], outcome["branches"],
-                 outcome["steps_done"], reason, cex, outcome["boxes"], outcome.get("peak_rss_mb"),
-                 None if outcome.get("split") is None else self.init.names[outcome["split"]], outcome["deepest_step"])
+        c = Cell(
+            cell.to_dict(),
+            verdict,
+            outcome["seconds"],
+            outcome["nn_seconds"],
+            outcome["branches"],
+            outcome["steps_done"],
+            reason,
+            cex,
+            outcome["boxes"],
+            outcome.get("peak_rss_mb"),
+            None if outcome.get("split") is None else self.init.names[outcome["split"]],
+            outcome["deepest_step"],
+        )
         self.cell_seconds[0] += c.seconds
         self.cell_seconds[1] += 1
         halves = self._again(cell, c)

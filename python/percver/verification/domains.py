@@ -70,8 +70,10 @@ def flag_exits(exits: list, strict: bool, results: Optional[list] = None) -> Non
         f"{' (the initial set)' if e['step'] == 0 else ''} leaves [{e['domain'][0]:g}, {e['domain'][1]:g}]"
         for e in exits
     )
-    message = (f"{where}: outside the input domain the network was trained on, so the result is about its "
-               "extrapolation there; narrow the initial set or give a network trained on this range")
+    message = (
+        f"{where}: outside the input domain the network was trained on, so the result is about its "
+        "extrapolation there; narrow the initial set or give a network trained on this range"
+    )
     if strict:
         error = NetworkDomainError(message)
         error.results = results

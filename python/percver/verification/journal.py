@@ -82,13 +82,17 @@ class Journal:
             if pid.isdigit() and not _alive(int(pid)):
                 self.lock.write_text(str(os.getpid()))
             else:
-                raise JournalError(f"journal {self.path} is in use by process {pid} (lock {self.lock}); wait for it or remove the lock if it is stale") from None
+                raise JournalError(
+                    f"journal {self.path} is in use by process {pid} (lock {self.lock}); wait for it or remove the lock if it is stale"
+                ) from None
         if self.path.exists() and self.path.stat().st_size:
             lines = self.path.read_bytes().split(b"\n")
             header = json.loads(lines[0])
             if header.get("fingerprint") != fingerprint:
                 self.close()
-                raise JournalError(f"journal {self.path} was written for a different problem (fingerprint {header.get('fingerprint')} != {fingerprint}); use another journal file")
+                raise JournalError(
+                    f"journal {self.path} was written for a different problem (fingerprint {header.get('fingerprint')} != {fingerprint}); use another journal file"
+                )
             for k, line in enumerate(lines[1:], start=2):
                 if not line.strip():
                     continue
@@ -98,8 +102,11 @@ class Journal:
                     if k == len(lines) or (k == len(lines) - 1 and not lines[-1]):
                         # Cut it off: the next append must start on a line of its own.
                         os.truncate(self.path, sum(len(x) + 1 for x in lines[: k - 1]))
-                        warnings.warn(f"journal {self.path}: line {k} was cut by an interrupted write; "
-                                      "it is dropped and its cell runs again", JournalWarning, stacklevel=3)
+                        warnings.warn(
+                            f"journal {self.path}: line {k} was cut by an interrupted write; it is dropped and its cell runs again",
+                            JournalWarning,
+                            stacklevel=3,
+                        )
                         continue
                     raise JournalError(f"journal {self.path}, line {k} is corrupt") from None
                 self.done[cell_key(cell.box)] = cell

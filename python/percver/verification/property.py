@@ -39,11 +39,15 @@ def requirements(value, what: str, loop: ClosedLoop, steps: int, avoid: bool) ->
     items = list(value) if isinstance(value, (list, tuple)) else [value]
     if avoid and len(items) > 1:
         if any(isinstance(i, Window) for i in items):
-            raise InputError("unsafe=[...] is one set (the intersection of its conditions); give a window to the whole set, "
-                             "unsafe=pv.during(pv.all_of(...), steps=...), or several with pv.any_of")
+            raise InputError(
+                "unsafe=[...] is one set (the intersection of its conditions); give a window to the whole set, "
+                "unsafe=pv.during(pv.all_of(...), steps=...), or several with pv.any_of"
+            )
         if sum(not isinstance(i, Condition) for i in items) > 1:
-            raise InputError("unsafe=[...] is one set, the intersection of its members; for several sets to avoid write "
-                             "unsafe=pv.any_of(set1, set2), for their intersection unsafe=pv.all_of(set1, set2)")
+            raise InputError(
+                "unsafe=[...] is one set, the intersection of its members; for several sets to avoid write "
+                "unsafe=pv.any_of(set1, set2), for their intersection unsafe=pv.all_of(set1, set2)"
+            )
         items = [all_of(items)]
     period = loop.plant.period if isinstance(loop.plant, Continuous) else None
     out = []

@@ -117,9 +117,16 @@ class Result:
         )
 
     def to_json(self, path: Optional[str] = None) -> str:
-        doc = {"states": self.states, "init": self.init, "seconds": self.seconds, "settings": self.settings,
-               "verdict": self.verdict, "coverage": self.coverage, "cells": [c.to_dict() for c in self.cells],
-               "domain_exits": self.domain_exits}
+        doc = {
+            "states": self.states,
+            "init": self.init,
+            "seconds": self.seconds,
+            "settings": self.settings,
+            "verdict": self.verdict,
+            "coverage": self.coverage,
+            "cells": [c.to_dict() for c in self.cells],
+            "domain_exits": self.domain_exits,
+        }
         text = json.dumps(doc)
         if path:
             Path(path).write_text(text)
@@ -129,8 +136,14 @@ class Result:
     def from_json(cls, text_or_path: str) -> "Result":
         text = Path(text_or_path).read_text() if os.path.exists(text_or_path) else text_or_path
         d = json.loads(text)
-        return cls(d["states"], {k: tuple(v) for k, v in d["init"].items()}, [Cell.from_dict(c) for c in d["cells"]], d["seconds"], d["settings"],
-                   d.get("domain_exits", []))
+        return cls(
+            d["states"],
+            {k: tuple(v) for k, v in d["init"].items()},
+            [Cell.from_dict(c) for c in d["cells"]],
+            d["seconds"],
+            d["settings"],
+            d.get("domain_exits", []),
+        )
 
     def plot(self, x: str, path: Optional[str] = None, loop: Optional[ClosedLoop] = None, samples: int = 20, seed: int = 0):
         """Reach tube of state ``x`` over the steps (one band per cell), over simulated runs."""

@@ -127,11 +127,31 @@ def verify(
     ``results`` attribute).
     """
     part = Part(init, split, order, max_splits, journal)
-    return verify_parts(loop, [part], steps=steps, goal=goal, safe=safe, unsafe=unsafe, within=within, reward=reward,
-                        refine=refine, min_width=min_width, splitter=splitter, method=method, rebox=rebox,
-                        state_symbols=state_symbols, workers=workers, executor=executor, batch=batch,
-                        timeout_per_cell=timeout_per_cell, falsify=falsify, progress=progress, seed=seed, strict=strict,
-                        validated=validated)[0]
+    return verify_parts(
+        loop,
+        [part],
+        steps=steps,
+        goal=goal,
+        safe=safe,
+        unsafe=unsafe,
+        within=within,
+        reward=reward,
+        refine=refine,
+        min_width=min_width,
+        splitter=splitter,
+        method=method,
+        rebox=rebox,
+        state_symbols=state_symbols,
+        workers=workers,
+        executor=executor,
+        batch=batch,
+        timeout_per_cell=timeout_per_cell,
+        falsify=falsify,
+        progress=progress,
+        seed=seed,
+        strict=strict,
+        validated=validated,
+    )[0]
 
 
 def verify_parts(
@@ -217,17 +237,31 @@ def verify_parts(
     try:
         with ExitStack() as journals:
             for p, box, (part_splitter, cells) in zip(parts, boxes, splitters):
-                settings = {"steps": steps, "method": method, "order": p.order, "max_splits": p.max_splits, "rebox": bool(rebox),
-                            "timeout_per_cell": timeout_per_cell, "within": within}
+                settings = {
+                    "steps": steps,
+                    "method": method,
+                    "order": p.order,
+                    "max_splits": p.max_splits,
+                    "rebox": bool(rebox),
+                    "timeout_per_cell": timeout_per_cell,
+                    "within": within,
+                }
                 if state_symbols:  # only when on, so that journals written before the option still resume
                     settings["state_symbols"] = True
                 fingerprint = fingerprint_of(loop, prop, settings)
-                options = {"order": p.order, "method": method, "timeout": timeout_per_cell, "max_splits": p.max_splits,
-                           "rebox": bool(rebox), "state_symbols": bool(state_symbols)}
+                options = {
+                    "order": p.order,
+                    "method": method,
+                    "timeout": timeout_per_cell,
+                    "max_splits": p.max_splits,
+                    "rebox": bool(rebox),
+                    "state_symbols": bool(state_symbols),
+                }
                 journal = Journal(p.journal, fingerprint)
                 journals.callback(journal.close)
-                campaign = Campaign(loop, prop, box, part_splitter, cells, journal, bar,
-                                    timeout=timeout_per_cell, falsify=falsify, seed=seed, lock=lock)
+                campaign = Campaign(
+                    loop, prop, box, part_splitter, cells, journal, bar, timeout=timeout_per_cell, falsify=falsify, seed=seed, lock=lock
+                )
                 jobs.append((campaign, settings, fingerprint, options))
             if progress:
                 bar.start(sum(campaign.left for campaign, *_ in jobs))
@@ -241,8 +275,10 @@ def verify_parts(
             runner.close()
         bar.close()
     seconds = time.time() - started
-    results = [Result(loop.states, box.to_dict(), campaign.cells, seconds, settings, domain_exits(checks, runs(campaign.cells, loop.states)))
-               for box, (campaign, settings, _, _) in zip(boxes, jobs)]
+    results = [
+        Result(loop.states, box.to_dict(), campaign.cells, seconds, settings, domain_exits(checks, runs(campaign.cells, loop.states)))
+        for box, (campaign, settings, _, _) in zip(boxes, jobs)
+    ]
     flagged = {(e["stage"], e["input"]) for e in initial_exits}
     flag_exits([e for r in results for e in r.domain_exits if (e["stage"], e["input"]) not in flagged], strict, results)
     from percver.validate.verifiable import validity

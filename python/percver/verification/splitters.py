@@ -30,8 +30,7 @@ def grid(box: Box, split: dict):
     unknown = set(split) - set(box.names)
     if unknown:
         raise InputError(f"split names {sorted(unknown)}, which are not states ({', '.join(box.names)})")
-    axes = [[c.bounds[j] for c in box.split({name: split[name]})] if name in split else [box.bounds[j]]
-            for j, name in enumerate(box.names)]
+    axes = [[c.bounds[j] for c in box.split({name: split[name]})] if name in split else [box.bounds[j]] for j, name in enumerate(box.names)]
     return (Box(box.names, bounds) for bounds in itertools.product(*axes)), int(np.prod([len(a) for a in axes]))
 
 
@@ -61,8 +60,10 @@ def _halves(box: Box, j: int) -> list:
 def above_min_width(cell: Box, init: Box, min_width: dict, default: float = 1 / 64) -> list:
     """Per dimension: whether halving the cell keeps it at least min_width (default ``default``
     of the initial set) wide."""
-    return [hi - lo > 2 * min_width.get(name, (ihi - ilo) * default) and ihi > ilo
-            for name, (lo, hi), (ilo, ihi) in zip(cell.names, cell.bounds, init.bounds)]
+    return [
+        hi - lo > 2 * min_width.get(name, (ihi - ilo) * default) and ihi > ilo
+        for name, (lo, hi), (ilo, ihi) in zip(cell.names, cell.bounds, init.bounds)
+    ]
 
 
 def splittable(cell: Box, init: Box, min_width: dict, default: float = 1 / 64) -> bool:

@@ -15,9 +15,7 @@ from percver.cases.f1tenth.dynamics import MAX_STEERING
 from percver.errors import InputError
 
 # Rows of ControllerOuputsOnRealData.npy.
-NAMES = tuple(
-    f"{algo}_L21_{size}x{size}_C{k}" for algo in ("DDPG", "TD3") for size in (64, 128) for k in (1, 2, 3)
-)
+NAMES = tuple(f"{algo}_L21_{size}x{size}_C{k}" for algo in ("DDPG", "TD3") for size in (64, 128) for k in (1, 2, 3))
 # The controller the paper verifies and uses for its control-based evaluation.
 VERIFIED = "TD3_L21_64x64_C2"
 

@@ -27,9 +27,7 @@ def data_dir(path=None) -> Path:
     if path is not None:
         folder = Path(path)
         if not (folder / _MARKER).is_dir():
-            raise MissingFileError(
-                f"'{folder}' has no '{_MARKER}/' folder: pass the F1/10 data folder (e.g. ../shared/data/f1tenth)"
-            )
+            raise MissingFileError(f"'{folder}' has no '{_MARKER}/' folder: pass the F1/10 data folder (e.g. ../shared/data/f1tenth)")
         return folder
     if os.environ.get(ENV):
         return data_dir(os.environ[ENV])
@@ -38,8 +36,10 @@ def data_dir(path=None) -> Path:
         for candidate in (Path(shared) / "f1tenth", Path(shared) / "data" / "f1tenth"):
             if (candidate / _MARKER).is_dir():
                 return candidate
-        raise MissingFileError(f"$PERCVER_SHARED is '{shared}', which has no f1tenth/{_MARKER}/ folder: point it to the "
-                               f"shared data folder (../shared/data beside the repository) or set ${ENV}")
+        raise MissingFileError(
+            f"$PERCVER_SHARED is '{shared}', which has no f1tenth/{_MARKER}/ folder: point it to the "
+            f"shared data folder (../shared/data beside the repository) or set ${ENV}"
+        )
     for start in (Path.cwd(), Path(__file__).resolve()):
         for folder in (start, *start.parents):
             for candidate in (folder / "shared" / "data" / "f1tenth", folder.parent / "shared" / "data" / "f1tenth"):

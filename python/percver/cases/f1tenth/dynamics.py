@@ -32,9 +32,7 @@ STEPS_PER_SECOND = 200
 def derivative(states, delta) -> np.ndarray:
     """The vector field at states (N x 4) under steering ``delta`` (N,) radians."""
     x, y, theta, v = np.asarray(states, dtype=float).T
-    return np.column_stack(
-        [v * np.cos(theta), v * np.sin(theta), v * np.tan(delta) / (L_F + L_R), -C_A * v + C_A * C_M * (THROTTLE - C_H)]
-    )
+    return np.column_stack([v * np.cos(theta), v * np.sin(theta), v * np.tan(delta) / (L_F + L_R), -C_A * v + C_A * C_M * (THROTTLE - C_H)])
 
 
 def integrate(states, delta, duration: float) -> np.ndarray:

@@ -33,9 +33,7 @@ class StartBox:
 
     def sample(self, n: int, rng) -> np.ndarray:
         """``n`` world states (x, y, theta, v = 0)."""
-        local = np.column_stack(
-            [rng.uniform(*self.y1, n), rng.uniform(*self.y2, n), np.radians(rng.uniform(*self.y4_deg, n))]
-        )
+        local = np.column_stack([rng.uniform(*self.y1, n), rng.uniform(*self.y2, n), np.radians(rng.uniform(*self.y4_deg, n))])
         return np.column_stack([world.from_local(local), np.zeros(n)])
 
 
@@ -71,8 +69,9 @@ class Runs:
         return out
 
 
-def drive(starts, controllers, sense, *, rate: float = 10.0, periods: int = PERIODS, track=None, seed=None,
-          steering_lag: float = 0.0) -> Runs:
+def drive(
+    starts, controllers, sense, *, rate: float = 10.0, periods: int = PERIODS, track=None, seed=None, steering_lag: float = 0.0
+) -> Runs:
     """Drive one run per row of ``starts`` (R x 4 world states) with ``controllers`` (R
     ``Controller`` objects, one per run; runs sharing a controller are evaluated together).
 
@@ -112,8 +111,13 @@ def drive(starts, controllers, sense, *, rate: float = 10.0, periods: int = PERI
                 rows = [position[m] for m in members if active[m]]
                 if rows:
                     steering[index[rows]] = controller(ranges[rows])
-        for key, value in (("run", index), ("time", np.full(index.size, tick / rate)), ("states", states[index]),
-                           ("scans", recorded), ("controls", steering[index])):
+        for key, value in (
+            ("run", index),
+            ("time", np.full(index.size, tick / rate)),
+            ("states", states[index]),
+            ("scans", recorded),
+            ("controls", steering[index]),
+        ):
             log[key].append(value)
         crashed = world.wall_distance(track, states[index]) < CRASH_MARGIN
         done = world.to_local(states[index])[:, 0] >= DONE_Y1

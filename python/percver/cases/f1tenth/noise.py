@@ -55,14 +55,18 @@ class ThresholdCurve(generic.ThresholdCurve):
 
     def summary(self) -> dict:
         k = int(np.argmin(self.errors))
-        pick = np.unique(np.clip(np.searchsorted(self.thresholds, [0.02, 0.05, 0.1, 0.25, 0.5, 1.0, 2.0, 4.0]), 0, len(self.thresholds) - 1))
+        pick = np.unique(
+            np.clip(np.searchsorted(self.thresholds, [0.02, 0.05, 0.1, 0.25, 0.5, 1.0, 2.0, 4.0]), 0, len(self.thresholds) - 1)
+        )
         return {
             "t_delta": self.best,
             "error_at_best_m": float(self.errors[k]),
             "knocked_share_at_best": float(self.knocked_share[k]),
             "error_without_noise_model_m": float(self.errors[-1]),
-            "curve": [{"t": float(self.thresholds[i]), "error_m": float(self.errors[i]),
-                       "knocked_share": float(self.knocked_share[i])} for i in pick],
+            "curve": [
+                {"t": float(self.thresholds[i]), "error_m": float(self.errors[i]), "knocked_share": float(self.knocked_share[i])}
+                for i in pick
+            ],
         }
 
 
@@ -127,25 +131,67 @@ class Denoiser(generic_denoiser.Denoiser):
 
 
 # ------------------------------------------------------------------------------------------ training
-def train_classifier(inputs, labels, hidden=SIZES["5x100"], *, epochs: int = 60, batch: int = 256, lr: float = 2e-3,
-                     positive_weight: float = POSITIVE_WEIGHT, seed: int = 0, threads: int | None = None,
-                     progress: bool = False, name: str | None = None) -> NoiseModel:
+def train_classifier(
+    inputs,
+    labels,
+    hidden=SIZES["5x100"],
+    *,
+    epochs: int = 60,
+    batch: int = 256,
+    lr: float = 2e-3,
+    positive_weight: float = POSITIVE_WEIGHT,
+    seed: int = 0,
+    threads: int | None = None,
+    progress: bool = False,
+    name: str | None = None,
+) -> NoiseModel:
     """Train c_n on ``inputs`` (N x 24) and ``labels`` (N x 21); thresholds fitted on the same data."""
     inputs, labels = np.asarray(inputs, dtype=float), np.asarray(labels, dtype=float)
     if inputs.ndim != 2 or inputs.shape[1] != 24 or labels.shape != (len(inputs), 21):
         raise InputError(f"classifier training needs inputs N x 24 and labels N x 21, got {inputs.shape} and {labels.shape}")
     size = f"{len(hidden)}x{hidden[0]}" if len(set(hidden)) == 1 else "x".join(map(str, hidden))
-    model = train_knockout(inputs, labels, hidden, knocked=KNOCKED, epochs=epochs, batch=batch, lr=lr,
-                           positive_weight=positive_weight, seed=seed, threads=threads, progress=progress,
-                           name=name or f"noiser{size}")
+    model = train_knockout(
+        inputs,
+        labels,
+        hidden,
+        knocked=KNOCKED,
+        epochs=epochs,
+        batch=batch,
+        lr=lr,
+        positive_weight=positive_weight,
+        seed=seed,
+        threads=threads,
+        progress=progress,
+        name=name or f"noiser{size}",
+    )
     return NoiseModel(model.network, model.thresholds, model.name)
 
 
-def train_denoiser(real_normalised, canonical_normalised, *, hidden: int = 100, epochs: int = 60, batch: int = 256,
-                   lr: float = 2e-3, weight_decay: float = 1e-5, seed: int = 0, threads: int | None = None,
-                   progress: bool = False) -> Denoiser:
+def train_denoiser(
+    real_normalised,
+    canonical_normalised,
+    *,
+    hidden: int = 100,
+    epochs: int = 60,
+    batch: int = 256,
+    lr: float = 2e-3,
+    weight_decay: float = 1e-5,
+    seed: int = 0,
+    threads: int | None = None,
+    progress: bool = False,
+) -> Denoiser:
     """Train h_d on pairs (real, canonical) of normalised 21-ray scans."""
-    model = generic_denoiser.train_denoiser(real_normalised, canonical_normalised, scale=DENOISER_SCALE, hidden=hidden,
-                                            epochs=epochs, batch=batch, lr=lr, weight_decay=weight_decay, seed=seed,
-                                            threads=threads, progress=progress)
+    model = generic_denoiser.train_denoiser(
+        real_normalised,
+        canonical_normalised,
+        scale=DENOISER_SCALE,
+        hidden=hidden,
+        epochs=epochs,
+        batch=batch,
+        lr=lr,
+        weight_decay=weight_decay,
+        seed=seed,
+        threads=threads,
+        progress=progress,
+    )
     return Denoiser(model.network)

@@ -97,8 +97,9 @@ def _systematic(weights, rng) -> np.ndarray:
     return np.stack([np.searchsorted(cumulative[i], positions[i]) for i in range(r)])
 
 
-def estimate_poses(scans, controls, trajectory, time, *, settings: FilterSettings | None = None, seed: int = 0,
-                   track=None, progress: bool = False) -> PoseEstimate:
+def estimate_poses(
+    scans, controls, trajectory, time, *, settings: FilterSettings | None = None, seed: int = 0, track=None, progress: bool = False
+) -> PoseEstimate:
     """Estimate (x, y, theta) for every raw scan (N x 1081) of the runs ``trajectory`` (N,),
     sorted by (run, ``time``), with the steering ``controls`` (N,) in effect after each scan."""
     settings = settings or FilterSettings()
@@ -148,8 +149,10 @@ def estimate_poses(scans, controls, trajectory, time, *, settings: FilterSetting
                 sel = step == value
                 moved[sel] = dynamics.integrate(flat[sel], steer[sel], float(value))
             root = np.sqrt(step)[:, None]
-            noise = rng.normal(size=moved.shape) * root * np.array(
-                [settings.position_noise, settings.position_noise, settings.heading_noise, settings.speed_noise]
+            noise = (
+                rng.normal(size=moved.shape)
+                * root
+                * np.array([settings.position_noise, settings.position_noise, settings.heading_noise, settings.speed_noise])
             )
             moved += noise
             moved[:, 3] = np.maximum(moved[:, 3], 0.0)

@@ -62,8 +62,13 @@ class TrainingSet:
         rows = self.rows_of(runs)
         renumber = {int(r): i for i, r in enumerate(runs)}
         return TrainingSet(
-            self.poses[rows], self.real[rows], np.array([renumber[int(r)] for r in self.run[rows]], dtype=int), self.time[rows],
-            [self.controllers[r] for r in runs], self.crashed[runs], dict(self.meta),
+            self.poses[rows],
+            self.real[rows],
+            np.array([renumber[int(r)] for r in self.run[rows]], dtype=int),
+            self.time[rows],
+            [self.controllers[r] for r in runs],
+            self.crashed[runs],
+            dict(self.meta),
             None if self._canonical is None else self._canonical[rows],
         )
 
@@ -84,8 +89,13 @@ class TrainingSet:
         meta = dict(self.meta)
         meta["runs"] = [{"id": i, "controller": c, "crashed": bool(k)} for i, (c, k) in enumerate(zip(self.controllers, self.crashed))]
         return Measurements(
-            self.poses, self.real, trajectory=self.run, time=self.time, state_names=("x", "y", "theta"),
-            measurement_names=world.controller_lidar(), meta=meta,
+            self.poses,
+            self.real,
+            trajectory=self.run,
+            time=self.time,
+            state_names=("x", "y", "theta"),
+            measurement_names=world.controller_lidar(),
+            meta=meta,
         )
 
     @classmethod
@@ -97,8 +107,15 @@ class TrainingSet:
                 "'trajectory', 'time' and meta['runs'] as written by percver cases f1tenth estimate"
             )
         meta = {k: v for k, v in data.meta.items() if k != "runs"}
-        return cls(data.state_matrix(("x", "y", "theta")), data.measurements, data.trajectory, data.time,
-                   [r["controller"] for r in runs], np.array([bool(r["crashed"]) for r in runs]), meta)
+        return cls(
+            data.state_matrix(("x", "y", "theta")),
+            data.measurements,
+            data.trajectory,
+            data.time,
+            [r["controller"] for r in runs],
+            np.array([bool(r["crashed"]) for r in runs]),
+            meta,
+        )
 
 
 def training_set(runs: loop.Runs, poses) -> TrainingSet:
@@ -107,8 +124,15 @@ def training_set(runs: loop.Runs, poses) -> TrainingSet:
     poses = getattr(poses, "poses", poses)
     if len(poses) != len(runs.run):
         raise InputError(f"{len(poses)} poses for {len(runs.run)} scans: estimate the poses of these runs")
-    return TrainingSet(np.asarray(poses)[:, :3], world.controller_view(runs.scans), np.asarray(runs.run), np.asarray(runs.time),
-                       list(runs.controllers), runs.crashed, dict(runs.meta))
+    return TrainingSet(
+        np.asarray(poses)[:, :3],
+        world.controller_view(runs.scans),
+        np.asarray(runs.run),
+        np.asarray(runs.time),
+        list(runs.controllers),
+        runs.crashed,
+        dict(runs.meta),
+    )
 
 
 # ------------------------------------------------------------------------------------------ metrics
@@ -134,8 +158,7 @@ def control_error(data: TrainingSet, scans, controllers: dict) -> dict:
     Table 2); ``mean_deg`` and ``max_deg`` are steering degrees."""
     difference = np.abs(control_outputs(data, data.real, controllers) - control_outputs(data, scans, controllers))
     degrees = difference * np.degrees(MAX_STEERING)
-    return {"sum": float(difference.sum()), "mean_deg": float(degrees.mean()), "max_deg": float(degrees.max()),
-            "scans": len(data)}
+    return {"sum": float(difference.sum()), "mean_deg": float(degrees.mean()), "max_deg": float(degrees.max()), "scans": len(data)}
 
 
 def _nonempty(data: TrainingSet, what: str) -> None:
@@ -169,8 +192,12 @@ def evaluate_denoiser(denoiser: noise.Denoiser, data: TrainingSet, controllers: 
         "model": denoiser.name,
         "mean_range_error_m": float(np.abs(denoised - data.canonical).mean()),
         "real_range_error_m": float(np.abs(data.real - data.canonical).mean()),
-        "control_error_vs_canonical_deg": float(np.degrees(MAX_STEERING) * np.abs(control_outputs(data, denoised, controllers) - on_canonical).mean()),
-        "real_control_error_vs_canonical_deg": float(np.degrees(MAX_STEERING) * np.abs(control_outputs(data, data.real, controllers) - on_canonical).mean()),
+        "control_error_vs_canonical_deg": float(
+            np.degrees(MAX_STEERING) * np.abs(control_outputs(data, denoised, controllers) - on_canonical).mean()
+        ),
+        "real_control_error_vs_canonical_deg": float(
+            np.degrees(MAX_STEERING) * np.abs(control_outputs(data, data.real, controllers) - on_canonical).mean()
+        ),
     }
 
 

@@ -55,7 +55,7 @@ def trajectories(data, simulated, path, names=None, *, sim_label: str = "simulat
         ax.set_aspect("equal")
         ax.set_title(name.replace("_L21", ""), fontsize=9)
         ax.tick_params(labelsize=7)
-    for ax in list(axes.flat)[len(names):]:
+    for ax in list(axes.flat)[len(names) :]:
         ax.axis("off")
     handles, labels = axes.flat[0].get_legend_handles_labels()
     fig.legend(handles, labels, loc="lower center", ncol=2, fontsize=8)
@@ -74,8 +74,11 @@ def control_outputs(data, run: int, model_scans, controllers: dict, path) -> Pat
     controller = controllers[data.controllers[run]]
     t = data.time[rows]
     fig, ax = plt.subplots(figsize=(6, 3))
-    for scans, label, style in ((data.canonical[rows], "canonical", ":"), (model_scans[rows], "noised", "-"),
-                                (data.real[rows], "real", "--")):
+    for scans, label, style in (
+        (data.canonical[rows], "canonical", ":"),
+        (model_scans[rows], "noised", "-"),
+        (data.real[rows], "real", "--"),
+    ):
         ax.plot(t, np.degrees(MAX_STEERING) * controller.raw(scans), style, label=label)
     ax.set_xlabel("time (s)")
     ax.set_ylabel("steering (deg)")

@@ -53,8 +53,7 @@ class Panel:
     def __post_init__(self):
         if self.material not in ("metal", "glass") or self.echo not in ("none", "max"):
             raise InputError(
-                f"panel material '{self.material}' / echo '{self.echo}': use material 'metal' or 'glass' "
-                "and echo 'none' or 'max'"
+                f"panel material '{self.material}' / echo '{self.echo}': use material 'metal' or 'glass' and echo 'none' or 'max'"
             )
         if not self.start < self.end:
             raise InputError(f"panel spans wall coordinates {self.start}..{self.end}: start must be below end")
@@ -116,8 +115,10 @@ class RealWorld:
                 fields["gloss_deg"] = tuple(fields["gloss_deg"])
             return cls(**fields)
         except TypeError as error:
-            raise InputError(f"not a measurement-simulator world description ({error}): "
-                             "it is the 'world' entry of the meta of runs written by percver cases f1tenth simulate") from None
+            raise InputError(
+                f"not a measurement-simulator world description ({error}): "
+                "it is the 'world' entry of the meta of runs written by percver cases f1tenth simulate"
+            ) from None
 
     def scan(self, states, rng, lidar=None) -> np.ndarray:
         """Raw scans (N x 1081, or the rays of ``lidar``) from poses (N x >=3)."""
@@ -185,9 +186,14 @@ def label_ceiling(real: RealWorld, poses, threshold: float, *, draws: int = 10, 
         share += np.abs(world.controller_view(real.scan(poses, rng)) - canonical) > threshold
     p = share / draws
     likelier = np.maximum(p, 1.0 - p)
-    return {"threshold": float(threshold), "draws": int(draws), "poses": len(poses),
-            "ceiling": float(np.prod(likelier, axis=1).mean()), "certain": float(np.mean(np.all(likelier == 1.0, axis=1))),
-            "ray_error": float(np.mean(1.0 - likelier))}
+    return {
+        "threshold": float(threshold),
+        "draws": int(draws),
+        "poses": len(poses),
+        "ceiling": float(np.prod(likelier, axis=1).mean()),
+        "certain": float(np.mean(np.all(likelier == 1.0, axis=1))),
+        "ray_error": float(np.mean(1.0 - likelier)),
+    }
 
 
 def paper_run_counts(data=None) -> dict:
@@ -226,8 +232,9 @@ def simulate(
         raw = real.scan(states, rng)
         return raw, world.controller_view(raw)
 
-    runs = loop.drive(starts, [loaded[name] for name in order], sense, rate=40.0, track=real.track, seed=seed + 1,
-                      steering_lag=real.steering_lag)
+    runs = loop.drive(
+        starts, [loaded[name] for name in order], sense, rate=40.0, track=real.track, seed=seed + 1, steering_lag=real.steering_lag
+    )
     runs.meta = {"world": real.describe(), "seed": seed, "start": asdict(start or loop.StartBox())}
     return runs
 
@@ -284,8 +291,13 @@ def reflected_rays(view, canonical, limit: float = world.CONTROLLER_RANGE) -> np
 
 
 def _output_summary(values) -> dict:
-    return {"mean": float(values.mean()), "std": float(values.std()), "saturated": float(np.mean(np.abs(values) > 0.9)),
-            "left": float(np.mean(values > 0.5)), "right": float(np.mean(values < -0.5))}
+    return {
+        "mean": float(values.mean()),
+        "std": float(values.std()),
+        "saturated": float(np.mean(np.abs(values) > 0.9)),
+        "left": float(np.mean(values > 0.5)),
+        "right": float(np.mean(values < -0.5)),
+    }
 
 
 def calibration(runs: loop.Runs, poses=None, stats=None, controllers: dict | None = None) -> dict:
@@ -327,9 +339,12 @@ def calibration(runs: loop.Runs, poses=None, stats=None, controllers: dict | Non
                 if name in controllers:
                     sim, real = controllers[name].raw(view), stats.outputs[row]
                     half = len(real) // 2
-                    outputs[name] = {"sim": _output_summary(sim), "real": _output_summary(real),
-                                     "wasserstein": float(wasserstein_distance(sim, real)),
-                                     "wasserstein_canonical": float(wasserstein_distance(controllers[name].raw(truth), real)),
-                                     "wasserstein_real_halves": float(wasserstein_distance(real[:half], real[half:]))}
+                    outputs[name] = {
+                        "sim": _output_summary(sim),
+                        "real": _output_summary(real),
+                        "wasserstein": float(wasserstein_distance(sim, real)),
+                        "wasserstein_canonical": float(wasserstein_distance(controllers[name].raw(truth), real)),
+                        "wasserstein_real_halves": float(wasserstein_distance(real[:half], real[half:])),
+                    }
             out["controller_outputs"] = outputs
     return out

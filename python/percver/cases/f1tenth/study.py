@@ -45,8 +45,10 @@ def run_simulate(out, *, runs_per_controller="paper", names=None, seed: int = 0,
         "path": str(path),
         "seconds": time.perf_counter() - began,
         "calibration": simulate.calibration(runs, stats=stats, controllers=controllers),
-        "safe_share": {name: {"simulated": share, "real": 100.0 * (1.0 - float(np.mean(stats.crashes[ctl.short_name(name)])))}
-                       for name, share in safe.items()},
+        "safe_share": {
+            name: {"simulated": share, "real": 100.0 * (1.0 - float(np.mean(stats.crashes[ctl.short_name(name)])))}
+            for name, share in safe.items()
+        },
     }
 
 
@@ -62,14 +64,23 @@ def run_estimate(runs_path, out, *, particles: int = 300, seed: int = 0, progres
     seconds = time.perf_counter() - began
     # The simulator's true states are used here only to report how good the filter is.
     settled = runs.time >= 1.0
-    errors = {"all": poses.errors(runs.states), "after_1s": particle_filter.PoseEstimate(
-        poses.poses[settled], poses.speed[settled], poses.spread[settled]).errors(runs.states[settled])}
+    errors = {
+        "all": poses.errors(runs.states),
+        "after_1s": particle_filter.PoseEstimate(poses.poses[settled], poses.speed[settled], poses.spread[settled]).errors(
+            runs.states[settled]
+        ),
+    }
     dataset = pipeline.training_set(runs, poses)
     dataset.meta["pose_error"] = errors
     path = dataset.to_measurements().save(out)
     calibration = simulate.calibration(runs, poses=poses.poses)
-    return {"path": str(path), "seconds": seconds, "scans": len(runs.run), "pose_error": errors,
-            "calibration_at_estimated_poses": calibration}
+    return {
+        "path": str(path),
+        "seconds": seconds,
+        "scans": len(runs.run),
+        "pose_error": errors,
+        "calibration_at_estimated_poses": calibration,
+    }
 
 
 def load_training(path) -> pipeline.TrainingSet:
@@ -81,10 +92,20 @@ def run_label(training_path, out, *, plot=None) -> dict:
     curve = noise.threshold_curve(dataset.real, dataset.canonical)
     labels = noise.label(dataset.real, dataset.canonical, curve.best)
     path = Path(out)
-    np.savez_compressed(path, labels=labels.astype(np.uint8), t_delta=curve.best, thresholds=curve.thresholds,
-                        errors=curve.errors, knocked_share=curve.knocked_share)
-    record = {"path": str(path), **curve.summary(), "labelled_share": float(labels.mean()),
-              "labelled_per_scan": float(labels.sum(axis=1).mean())}
+    np.savez_compressed(
+        path,
+        labels=labels.astype(np.uint8),
+        t_delta=curve.best,
+        thresholds=curve.thresholds,
+        errors=curve.errors,
+        knocked_share=curve.knocked_share,
+    )
+    record = {
+        "path": str(path),
+        **curve.summary(),
+        "labelled_share": float(labels.mean()),
+        "labelled_per_scan": float(labels.sum(axis=1).mean()),
+    }
     if "world" in dataset.meta:
         # Runs of the measurement simulator: how predictable its labels are at all (diagnostic).
         rows = np.random.default_rng(0).permutation(len(dataset))[:CEILING_POSES]
@@ -113,8 +134,20 @@ def load_labels(path, rows: int) -> tuple[np.ndarray, float]:
     return labels, t_delta
 
 
-def run_train(training_path, labels_path, out_dir, *, sizes=("5x100",), epochs: int = 60, denoiser_epochs: int = 60,
-              threads: int | None = 2, test_share: float = 0.2, seed: int = 0, data=None, progress: bool = False) -> dict:
+def run_train(
+    training_path,
+    labels_path,
+    out_dir,
+    *,
+    sizes=("5x100",),
+    epochs: int = 60,
+    denoiser_epochs: int = 60,
+    threads: int | None = 2,
+    test_share: float = 0.2,
+    seed: int = 0,
+    data=None,
+    progress: bool = False,
+) -> dict:
     dataset = load_training(training_path)
     labels, t_delta = load_labels(labels_path, len(dataset))
     unknown = [s for s in sizes if s not in noise.SIZES]
@@ -129,8 +162,16 @@ def run_train(training_path, labels_path, out_dir, *, sizes=("5x100",), epochs: 
     record = {"t_delta": t_delta, "train_scans": len(train), "test_scans": len(test), "classifiers": {}}
     for size in sizes:
         began = time.perf_counter()
-        model = noise.train_classifier(train.inputs(), train_labels, noise.SIZES[size], epochs=epochs, seed=seed,
-                                       threads=threads, progress=progress, name=f"noiser{size}")
+        model = noise.train_classifier(
+            train.inputs(),
+            train_labels,
+            noise.SIZES[size],
+            epochs=epochs,
+            seed=seed,
+            threads=threads,
+            progress=progress,
+            name=f"noiser{size}",
+        )
         seconds = time.perf_counter() - began
         model.save(out / f"noiser{size}.onnx", out / f"thresholds{size}.npy")
         record["classifiers"][size] = {
@@ -139,12 +180,15 @@ def run_train(training_path, labels_path, out_dir, *, sizes=("5x100",), epochs: 
             "test": pipeline.evaluate_noise_model(model, test, test_labels, controllers) if len(test) else None,
         }
     began = time.perf_counter()
-    denoiser = noise.train_denoiser(world.normalise(train.real), world.normalise(train.canonical), epochs=denoiser_epochs,
-                                    seed=seed, threads=threads, progress=progress)
+    denoiser = noise.train_denoiser(
+        world.normalise(train.real), world.normalise(train.canonical), epochs=denoiser_epochs, seed=seed, threads=threads, progress=progress
+    )
     denoiser.save(out / "denoiser.onnx")
-    record["denoiser"] = {"seconds": time.perf_counter() - began,
-                          "train": pipeline.evaluate_denoiser(denoiser, train, controllers),
-                          "test": pipeline.evaluate_denoiser(denoiser, test, controllers) if len(test) else None}
+    record["denoiser"] = {
+        "seconds": time.perf_counter() - began,
+        "train": pipeline.evaluate_denoiser(denoiser, train, controllers),
+        "test": pipeline.evaluate_denoiser(denoiser, test, controllers) if len(test) else None,
+    }
     (out / "training.json").write_text(json.dumps(record, indent=2))
     record["out"] = str(out)
     return record
@@ -170,8 +214,9 @@ def load_models(source, sizes=None, data=None) -> tuple[dict, noise.Denoiser | N
     return models, noise.Denoiser.load(denoiser) if denoiser.is_file() else None
 
 
-def run_evaluate(training_path, labels_path, models_source, out_dir, *, sizes=None, plot_size: str = "5x100",
-                 plots_wanted: bool = True, data=None) -> dict:
+def run_evaluate(
+    training_path, labels_path, models_source, out_dir, *, sizes=None, plot_size: str = "5x100", plots_wanted: bool = True, data=None
+) -> dict:
     dataset = load_training(training_path)
     labels, t_delta = load_labels(labels_path, len(dataset))
     models, denoiser = load_models(models_source, sizes, data)
@@ -180,8 +225,14 @@ def run_evaluate(training_path, labels_path, models_source, out_dir, *, sizes=No
     starts = pipeline.start_states(dataset)
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    record = {"models": str(models_source), "t_delta": t_delta, "scans": len(dataset), "runs": len(dataset.controllers),
-              "canonical_control_error": pipeline.control_error(dataset, dataset.canonical, controllers), "noise_models": {}}
+    record = {
+        "models": str(models_source),
+        "t_delta": t_delta,
+        "scans": len(dataset),
+        "runs": len(dataset.controllers),
+        "canonical_control_error": pipeline.control_error(dataset, dataset.canonical, controllers),
+        "noise_models": {},
+    }
     simulated = {}
     for size, model in models.items():
         metrics = pipeline.evaluate_noise_model(model, dataset, labels, controllers)
@@ -197,8 +248,9 @@ def run_evaluate(training_path, labels_path, models_source, out_dir, *, sizes=No
         record["denoiser"]["simulated_crashes_with_noise_model"] = int(with_denoiser.crashed.sum())
     if plots_wanted:
         size = plot_size if plot_size in simulated else next(iter(simulated))
-        figures = [plots.trajectories(dataset, simulated[size], out / f"trajectories_{size}.png",
-                                      sim_label=f"simulated, {size} noise model")]
+        figures = [
+            plots.trajectories(dataset, simulated[size], out / f"trajectories_{size}.png", sim_label=f"simulated, {size} noise model")
+        ]
         model = models[size]
         canonical = world.normalise(dataset.canonical)
         noised = world.denormalise(model.apply(canonical, world.pose_features(dataset.local)))

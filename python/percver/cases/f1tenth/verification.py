@@ -83,8 +83,9 @@ def stages(controller, noise_model=None, denoiser=None, forced=None) -> list:
 
     y1, y2, y4 = pv.variables("y1 y2 y4")
     scale = world.NORMALISATION_SCALE
-    chain = [pv.Stage(world.scan_exprs(y1, y2, y4), inputs=[y1, y2, y4], output="scan",
-                      scale=scale, offset=-world.NORMALISATION_OFFSET * scale)]
+    chain = [
+        pv.Stage(world.scan_exprs(y1, y2, y4), inputs=[y1, y2, y4], output="scan", scale=scale, offset=-world.NORMALISATION_OFFSET * scale)
+    ]
     reads = "scan"
     if noise_model is not None:
         pose = [0.1 * y1, 0.1 * (10.0 - y2), y4 / (1.5 * np.pi) + 1.0 / 3.0]
@@ -92,8 +93,10 @@ def stages(controller, noise_model=None, denoiser=None, forced=None) -> list:
         chain.append(pv.Stage(noise_model.network, inputs=["scan", "pose"], output="prob"))
         rays = range(noise_model.network.n_out)
         forced = forced or {}
-        knocked = [pv.where(pv.Expr.var(f"prob_{i}") >= float(noise_model.thresholds[i]), float(noise_model.knocked[i]),
-                            pv.Expr.var(f"scan_{i}")) for i in rays]
+        knocked = [
+            pv.where(pv.Expr.var(f"prob_{i}") >= float(noise_model.thresholds[i]), float(noise_model.knocked[i]), pv.Expr.var(f"scan_{i}"))
+            for i in rays
+        ]
         for i, knock in forced.items():
             knocked[i] = as_expr(float(noise_model.knocked[i])) if knock else pv.Expr.var(f"scan_{i}")
         chain.append(pv.Stage(knocked, inputs=["prob", "scan"], output="noised"))
@@ -176,9 +179,19 @@ def property_() -> dict:
     }
 
 
-def verify(y1=INIT["y1"], networks="paper", *, noise_model: bool = True, controller: str = ctl.VERIFIED,
-           cell: float = PAPER_CELL, steps: int = STEPS, mode: str = "engine", sample: int | None = None, data=None,
-           **verify_kwargs):
+def verify(
+    y1=INIT["y1"],
+    networks="paper",
+    *,
+    noise_model: bool = True,
+    controller: str = ctl.VERIFIED,
+    cell: float = PAPER_CELL,
+    steps: int = STEPS,
+    mode: str = "engine",
+    sample: int | None = None,
+    data=None,
+    **verify_kwargs,
+):
     """Verify the loop from y1 in ``y1`` (the other initial values and the property are the
     original model's), in cells of ``cell`` metres (the paper's 5e-5 by default); returns a
     ``pv.Result``. ``noise_model=False`` verifies the loop without classifier and denoiser.
@@ -223,10 +236,30 @@ def verify(y1=INIT["y1"], networks="paper", *, noise_model: bool = True, control
     raise InputError(f"unknown mode '{mode}': use 'stepwise' or 'engine'")
 
 
-def stepwise(loop, init, *, steps: int, split: dict, safe=None, goal=None, within: bool = True, order: int = 5,
-             method: str = "taylor", max_splits: int = 16, step_splits: int = 0, scale=None, growth: float = 3.0,
-             cases=None, workers=None, journal=None, falsify: int = 32, progress: bool = True, seed: int = 0,
-             chunk: int = 64, cells=None):
+def stepwise(
+    loop,
+    init,
+    *,
+    steps: int,
+    split: dict,
+    safe=None,
+    goal=None,
+    within: bool = True,
+    order: int = 5,
+    method: str = "taylor",
+    max_splits: int = 16,
+    step_splits: int = 0,
+    scale=None,
+    growth: float = 3.0,
+    cases=None,
+    workers=None,
+    journal=None,
+    falsify: int = 32,
+    progress: bool = True,
+    seed: int = 0,
+    chunk: int = 64,
+    cells=None,
+):
     """``pv.verify``'s cells run one control period at a time from boxes (see the module doc).
 
     All live boxes of all cells advance together, one ``verify_cells`` batch per step. A cell is
@@ -254,8 +287,17 @@ def stepwise(loop, init, *, steps: int, split: dict, safe=None, goal=None, withi
         raise InputError("stepwise verification needs a goal (the box of a part that reached it stops)")
     safe_r, _ = prop.rust()
     plain = loop.compile(safe=safe_r, goal=None, within=False, steps=1)
-    settings = {"steps": steps, "method": method, "order": order, "max_splits": max_splits, "within": within,
-                "mode": "stepwise", "step_splits": step_splits, "growth": growth, "cases": cases is not None}
+    settings = {
+        "steps": steps,
+        "method": method,
+        "order": order,
+        "max_splits": max_splits,
+        "within": within,
+        "mode": "stepwise",
+        "step_splits": step_splits,
+        "growth": growth,
+        "cases": cases is not None,
+    }
     journal_ = Journal(journal, fingerprint(loop, prop, settings))
     names, margin, op = loop.states, prop.goal.margin(), prop.goal.op
     weights = np.array([float((scale or {}).get(n, 1.0)) for n in names])
@@ -282,12 +324,18 @@ def stepwise(loop, init, *, steps: int, split: dict, safe=None, goal=None, withi
         for i, (problem, b) in enumerate(problems_boxes):
             groups.setdefault(id(problem), (problem, []))[1].append(i)
         for problem, index in groups.values():
+
             def collect(j, outcome, index=index):
                 outcomes[index[j]] = outcome
                 return True
 
-            _core.verify_cells(problem, [list(map(tuple, problems_boxes[i][1])) for i in index], collect,
-                               _core.CellSettings(order=order, method=method, max_splits=step_splits), workers=workers)
+            _core.verify_cells(
+                problem,
+                [list(map(tuple, problems_boxes[i][1])) for i in index],
+                collect,
+                _core.CellSettings(order=order, method=method, max_splits=step_splits),
+                workers=workers,
+            )
         return outcomes
 
     problems_of: dict = {}
@@ -322,22 +370,22 @@ def stepwise(loop, init, *, steps: int, split: dict, safe=None, goal=None, withi
     def finish(k, verdict, reason=None):
         rec = live.pop(k)
         boxes = [b.tolist() for b in rec["boxes"]]
-        done[k] = Cell(cells[k].to_dict(), verdict, rec["seconds"], rec["nn"], rec["splits"], len(boxes) - 1,
-                           reason, None, boxes)
+        done[k] = Cell(cells[k].to_dict(), verdict, rec["seconds"], rec["nn"], rec["splits"], len(boxes) - 1, reason, None, boxes)
         journal_.write(done[k])
         if bar is not None:
             bar.update(1)
 
     try:
         for at in range(0, len(fresh), chunk):
-            batch = fresh[at: at + chunk]
+            batch = fresh[at : at + chunk]
             found = falsify_cells(loop, prop, [cells[k] for k in batch], steps, falsify, seed) if falsify else [None] * len(batch)
             for k, cex in zip(batch, found):
                 if cex is None:
                     live[k] = {"seconds": 0.0, "nn": 0.0, "splits": 0, "boxes": [np.array(cells[k].bounds)]}
                     continue
-                done[k] = Cell(cells[k].to_dict(), "falsified", counterexample=cex,
-                                   reason=f"simulation violates {cex.violated} at step {cex.step}")
+                done[k] = Cell(
+                    cells[k].to_dict(), "falsified", counterexample=cex, reason=f"simulation violates {cex.violated} at step {cex.step}"
+                )
                 journal_.write(done[k])
                 if bar is not None:
                     bar.update(1)
@@ -369,7 +417,7 @@ def stepwise(loop, init, *, steps: int, split: dict, safe=None, goal=None, withi
                 retry = run([(problem, b) for (_, _, b, _), problems in zip(lost, split_cases) for problem in problems])
                 pos = 0
                 for (k, step, b, out), problems in zip(lost, split_cases):
-                    outs, pos = retry[pos: pos + len(problems)], pos + len(problems)
+                    outs, pos = retry[pos : pos + len(problems)], pos + len(problems)
                     if k not in live:
                         continue
                     rec = live[k]
@@ -420,10 +468,17 @@ def published(data=None) -> dict:
     if not rows:
         raise InputError(f"no per-interval rows in {folder} ({', '.join(PUBLISHED)})")
     a = np.array([(lo, hi, safe, t, nn, br, fp) for lo, hi, safe, t, nn, br, fp in rows], dtype=float)
-    return {"intervals": len(a), "safe": int(a[:, 2].sum()), "avg_seconds": float(a[:, 3].mean()),
-            "avg_nn_seconds": float(a[:, 4].mean()), "avg_branches": float(a[:, 5].mean()),
-            "branches_range": [int(a[:, 5].min()), int(a[:, 5].max())], "avg_flowpipes": float(a[:, 6].mean()),
-            "covered_width": float((a[:, 1] - a[:, 0]).sum()), "y1_range": [float(a[:, 0].min()), float(a[:, 1].max())]}
+    return {
+        "intervals": len(a),
+        "safe": int(a[:, 2].sum()),
+        "avg_seconds": float(a[:, 3].mean()),
+        "avg_nn_seconds": float(a[:, 4].mean()),
+        "avg_branches": float(a[:, 5].mean()),
+        "branches_range": [int(a[:, 5].min()), int(a[:, 5].max())],
+        "avg_flowpipes": float(a[:, 6].mean()),
+        "covered_width": float((a[:, 1] - a[:, 0]).sum()),
+        "y1_range": [float(a[:, 0].min()), float(a[:, 1].max())],
+    }
 
 
 def row(result) -> dict:
@@ -432,9 +487,15 @@ def row(result) -> dict:
     run = [c for c in result.cells if c.verdict != "falsified"]
     mean = lambda xs: float(np.mean(xs)) if xs else 0.0  # noqa: E731
     counts = {v: sum(c.verdict == v for c in result.cells) for v in ("verified", "unknown", "falsified")}
-    return {"intervals": len(result.cells), **counts, "avg_seconds": mean([c.seconds for c in run]),
-            "avg_nn_seconds": mean([c.nn_seconds for c in run]), "avg_branches": mean([c.branches for c in run]),
-            "coverage": float(result.coverage), "wall_seconds": float(result.seconds)}
+    return {
+        "intervals": len(result.cells),
+        **counts,
+        "avg_seconds": mean([c.seconds for c in run]),
+        "avg_nn_seconds": mean([c.nn_seconds for c in run]),
+        "avg_branches": mean([c.branches for c in run]),
+        "coverage": float(result.coverage),
+        "wall_seconds": float(result.seconds),
+    }
 
 
 def table(result, data=None) -> str:
@@ -444,15 +505,19 @@ def table(result, data=None) -> str:
         pub = published(data)
     except (InputError, OSError):
         pub = None
-    lines = [f"{'F1/10':<26} {'intervals':>9} {'avg s':>9} {'avg NN s':>9} {'avg br':>7} {'coverage':>9} {'wall s':>9}",
-             f"{'percver':<26} {ours['intervals']:>9} {ours['avg_seconds']:>9.2f} {ours['avg_nn_seconds']:>9.2f} "
-             f"{ours['avg_branches']:>7.2f} {100 * ours['coverage']:>8.2f}% {ours['wall_seconds']:>9.0f}",
-             f"{'paper (Table 1)':<26} {PAPER_ROW['intervals']:>9} {PAPER_ROW['avg_seconds']:>9.0f} {'':>9} "
-             f"{PAPER_ROW['avg_branches']:>7.2f} {'':>9} {'':>9}"]
+    lines = [
+        f"{'F1/10':<26} {'intervals':>9} {'avg s':>9} {'avg NN s':>9} {'avg br':>7} {'coverage':>9} {'wall s':>9}",
+        f"{'percver':<26} {ours['intervals']:>9} {ours['avg_seconds']:>9.2f} {ours['avg_nn_seconds']:>9.2f} "
+        f"{ours['avg_branches']:>7.2f} {100 * ours['coverage']:>8.2f}% {ours['wall_seconds']:>9.0f}",
+        f"{'paper (Table 1)':<26} {PAPER_ROW['intervals']:>9} {PAPER_ROW['avg_seconds']:>9.0f} {'':>9} "
+        f"{PAPER_ROW['avg_branches']:>7.2f} {'':>9} {'':>9}",
+    ]
     if pub is not None:
-        lines.append(f"{'published (cov.= % SAFE)':<26} {pub['intervals']:>9} {pub['avg_seconds']:>9.0f} "
-                     f"{pub['avg_nn_seconds']:>9.0f} {pub['avg_branches']:>7.2f} "
-                     f"{100 * pub['safe'] / pub['intervals']:>8.2f}% {'':>9}")
+        lines.append(
+            f"{'published (cov.= % SAFE)':<26} {pub['intervals']:>9} {pub['avg_seconds']:>9.0f} "
+            f"{pub['avg_nn_seconds']:>9.0f} {pub['avg_branches']:>7.2f} "
+            f"{100 * pub['safe'] / pub['intervals']:>8.2f}% {'':>9}"
+        )
     return "\n".join(lines)
 
 
@@ -469,8 +534,14 @@ def save(result, out, data=None) -> dict:
         pub = published(data)
     except (InputError, OSError):
         pub = None
-    record = {"row": row(result), "paper": PAPER_ROW, "published": pub, "settings": result.settings,
-              "unknown_steps": [[int(k), int(n)] for k, n in enumerate(lost) if n], "load_average": list(os.getloadavg()),
-              "out": str(folder.resolve())}
+    record = {
+        "row": row(result),
+        "paper": PAPER_ROW,
+        "published": pub,
+        "settings": result.settings,
+        "unknown_steps": [[int(k), int(n)] for k, n in enumerate(lost) if n],
+        "load_average": list(os.getloadavg()),
+        "out": str(folder.resolve()),
+    }
     (folder / "row.json").write_text(json.dumps(record, indent=1))
     return record

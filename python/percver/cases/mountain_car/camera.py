@@ -6,7 +6,6 @@ Images are 20 x 30 (row-major when flattened to the 600 inputs of the networks),
 the car bright on a dark background as in the authors' networks.
 """
 
-
 from __future__ import annotations
 
 import os
@@ -39,9 +38,7 @@ def _gymnasium():
     try:
         import gymnasium
     except ImportError:
-        raise MissingDependencyError(
-            "rendering Mountain Car images needs gymnasium and pygame: pip install 'percver[cases]'"
-        ) from None
+        raise MissingDependencyError("rendering Mountain Car images needs gymnasium and pygame: pip install 'percver[cases]'") from None
     return gymnasium
 
 

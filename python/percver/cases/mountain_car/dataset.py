@@ -118,8 +118,9 @@ class Dataset:
             raise
         except (OSError, ValueError, zipfile.BadZipFile):
             # numpy's own message suggests allow_pickle=True, which would run code from the file.
-            raise ParseError(f"{path}: the file is corrupt or not a Mountain Car data set (make one with "
-                             "`percver cases mountain-car data`)") from None
+            raise ParseError(
+                f"{path}: the file is corrupt or not a Mountain Car data set (make one with `percver cases mountain-car data`)"
+            ) from None
         return cls(**arrays, meta={**meta, "path": str(path)})
 
 
@@ -166,7 +167,7 @@ def generate(
         iterator = tqdm(iterator, desc="Mountain Car data set", unit="position")
     for i in iterator:
         p = np.full(per_position, positions[i])
-        image = cam.render(positions[i:i + 1])
+        image = cam.render(positions[i : i + 1])
         canonical[i] = image[0]
         contrasted[i] = contrast(np.repeat(image, per_position, axis=0), delta_c[i])
         blurred[i] = motion_blur(cam.render(p - delta_b[i]), image, cam.render(p + delta_b[i]))

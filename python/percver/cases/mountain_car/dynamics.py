@@ -123,7 +123,7 @@ def simulate(p0, controller: Callable, *, v0=0.0, steps: int = STEPS, on_step: C
     for k in range(steps):
         active = reached_at < 0
         if not active.any():
-            p[:, k + 1:], v[:, k + 1:] = p[:, k:k + 1], v[:, k:k + 1]
+            p[:, k + 1 :], v[:, k + 1 :] = p[:, k : k + 1], v[:, k : k + 1]
             break
         thrust = np.clip(np.asarray(controller(k, p[:, k], v[:, k], active), dtype=float).reshape(n), -1.0, 1.0)
         u[:, k] = np.where(active, thrust, 0.0)

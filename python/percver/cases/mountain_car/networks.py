@@ -56,8 +56,10 @@ def training_domain(role: str) -> list:
 
 # The authors' data (their networks, published logs, the F1/10 study's files) is research data under
 # its own licences: percver never ships it. The project keeps it read-only beside the repository.
-SHARED_HINT = ("the authors' data is not part of the percver package: it sits read-only beside the repository as "
-               "../shared/data; set PERCVER_SHARED=/path/to/shared/data, or pass shared=PATH (CLI: --shared PATH)")
+SHARED_HINT = (
+    "the authors' data is not part of the percver package: it sits read-only beside the repository as "
+    "../shared/data; set PERCVER_SHARED=/path/to/shared/data, or pass shared=PATH (CLI: --shared PATH)"
+)
 
 
 def default_shared() -> Path:
@@ -148,8 +150,7 @@ def _ours(folder: Path, roles=ROLES) -> dict:
     missing = [OUR_FILES[role] for role in roles if not (folder / OUR_FILES[role]).is_file()]
     if missing:
         raise MissingFileError(
-            f"{folder} lacks {missing}; train them with `percver cases mountain-car train --out {folder}` "
-            "(or pick another network set)"
+            f"{folder} lacks {missing}; train them with `percver cases mountain-car train --out {folder}` (or pick another network set)"
         )
     return {role: load_network(folder / OUR_FILES[role]) for role in roles}
 

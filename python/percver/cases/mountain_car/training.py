@@ -124,7 +124,9 @@ class MLP(nn.Module):
         mapped = (self.out_scale, self.out_offset) != (1.0, 0.0)
         return Network(
             [Layer(w, b, a) for (w, b), a in zip(weights, acts)],
-            scale=self.out_scale if mapped else None, offset=self.out_offset if mapped else None, name=name,
+            scale=self.out_scale if mapped else None,
+            offset=self.out_offset if mapped else None,
+            name=name,
         )
 
 
@@ -190,7 +192,7 @@ def _fit(model, loss_fn, x, y, x_test, y_test, spec: Spec, seed: int, desc: str,
         order = torch.randperm(len(x), generator=generator)
         total = 0.0
         for start in range(0, len(x), spec.batch):
-            batch = order[start:start + spec.batch]
+            batch = order[start : start + spec.batch]
             loss = loss_fn(model, x[batch], y[batch])
             optimizer.zero_grad()
             loss.backward()
@@ -441,6 +443,8 @@ def _record(out, fits, dataset, preset, seed, epochs_scale, composites, command,
         record["models"][role] = {**fit.record(), "run": len(record.get("runs", []))}
     record["runs"] = [*record.get("runs", []), run]
     if "controller" in fits:
-        record["models"]["controller"]["checks"] = [controller_check(load_network(out / OUR_FILES["controller"]), noise) for noise in (0.0, 0.05)]
+        record["models"]["controller"]["checks"] = [
+            controller_check(load_network(out / OUR_FILES["controller"]), noise) for noise in (0.0, 0.05)
+        ]
     path.write_text(json.dumps(record, indent=2) + "\n")
     return record

@@ -57,7 +57,10 @@ _STRONG, _COMPOSITE_STRONG = (1.4, math.inf), {**_COMPOSITE_HIGH, "dc": 0.2}
 LAYOUT = {
     "paper": {
         "canonical": [Band({"p": (-math.inf, WALL)}, {"p": 0.005}, 16), Band({"p": (WALL, math.inf)}, {"p": 0.001}, 64)],
-        "contrast": [Band({"p": (-math.inf, WALL)}, {"p": 0.005, "dc": 0.1}, 16), Band({"p": (WALL, math.inf)}, {"p": 0.001, "dc": 0.2}, 64)],
+        "contrast": [
+            Band({"p": (-math.inf, WALL)}, {"p": 0.005, "dc": 0.1}, 16),
+            Band({"p": (WALL, math.inf)}, {"p": 0.001, "dc": 0.2}, 64),
+        ],
         "blur": [Band({"p": (-math.inf, WALL)}, {"p": 0.005, "db": 0.05}, 16), Band({"p": (WALL, math.inf)}, {"p": 0.001, "db": 0.1}, 64)],
         "composite": [
             Band({"p": (-math.inf, -0.545), "dc": _LOW}, _COMPOSITE_LOW, 16, 6),
@@ -90,9 +93,12 @@ LAYOUT = {
     # the authors' bands (whole rows verified with them: blur in 324 s, composite in 51 min with 64
     # attempts refined, most at high contrast in p0 [-0.415, -0.41]; bench/README.md).
     "ours+paper": {
-        "contrast": [Band({"p": (-math.inf, -0.53), "dc": (-math.inf, 0.9)}, {"p": 0.001, "dc": 0.05}, 16),
-                     Band({"p": (-math.inf, -0.53), "dc": (0.9, math.inf)}, {"p": 0.005, "dc": 0.1}, 16),
-                     Band({"p": (-0.53, WALL)}, {"p": 0.005, "dc": 0.1}, 16), Band({"p": (WALL, math.inf)}, {"p": 0.001, "dc": 0.2}, 64)],
+        "contrast": [
+            Band({"p": (-math.inf, -0.53), "dc": (-math.inf, 0.9)}, {"p": 0.001, "dc": 0.05}, 16),
+            Band({"p": (-math.inf, -0.53), "dc": (0.9, math.inf)}, {"p": 0.005, "dc": 0.1}, 16),
+            Band({"p": (-0.53, WALL)}, {"p": 0.005, "dc": 0.1}, 16),
+            Band({"p": (WALL, math.inf)}, {"p": 0.001, "dc": 0.2}, 64),
+        ],
     },
     "ours": {
         "canonical": [Band({}, {"p": 0.001}, 16)],
@@ -143,9 +149,11 @@ def closed_loop(noise: str = "contrast", networks="paper", *, controller=None, s
     for name, network in (("dc", nets.contrast), ("db", nets.blur)):
         if name in noise_vars:
             stages.append(pv.Stage(network, inputs=[stages[-1].output, noise_vars[name]], output=f"image_{name}"))
-    stages += [pv.Stage(nets.estimator, inputs=[stages[-1].output], output="p_hat"),
-               pv.Stage(nets.controller, inputs=["p_hat", v], output="u"),
-               pv.Stage([step["p"], step["v"]], inputs=[p, v, u], output="next")]
+    stages += [
+        pv.Stage(nets.estimator, inputs=[stages[-1].output], output="p_hat"),
+        pv.Stage(nets.controller, inputs=["p_hat", v], output="u"),
+        pv.Stage([step["p"], step["v"]], inputs=[p, v, u], output="next"),
+    ]
     return pv.ClosedLoop(plant, stages)
 
 
@@ -154,8 +162,12 @@ def specification() -> dict:
     import percver as pv
 
     p, u, r = pv.variables("p u r")
-    return {"steps": dynamics.STEPS, "reward": {r: -dynamics.CONTROL_COST * u**2},
-            "goal": [p >= dynamics.GOAL, r > dynamics.REWARD_BOUND - dynamics.GOAL_REWARD], "within": True}
+    return {
+        "steps": dynamics.STEPS,
+        "reward": {r: -dynamics.CONTROL_COST * u**2},
+        "goal": [p >= dynamics.GOAL, r > dynamics.REWARD_BOUND - dynamics.GOAL_REWARD],
+        "within": True,
+    }
 
 
 def initial_set(noise: str = "contrast", p0=None, *, delta_c=None, delta_b=None) -> dict:
@@ -183,8 +195,9 @@ def _pair(value, what: str) -> tuple:
     return (lo, hi)
 
 
-def verify(noise: str = "contrast", p0=None, networks="paper", *, delta_c=None, delta_b=None, controller=None, shared=None,
-           **verify_kwargs):
+def verify(
+    noise: str = "contrast", p0=None, networks="paper", *, delta_c=None, delta_b=None, controller=None, shared=None, **verify_kwargs
+):
     """Verify one row of Table 1 (or a slice of it) and return the ``pv.Result``.
 
     ``p0``, ``delta_c``, ``delta_b`` default to the row's ranges (:data:`dynamics.ROWS`);
@@ -208,18 +221,28 @@ def verify(noise: str = "contrast", p0=None, networks="paper", *, delta_c=None, 
     options = {"refine": True, "min_width": MIN_WIDTH, "timeout_per_cell": 60.0, **verify_kwargs}
     bands = _grid(init, _layout(name, controller, noise), options)
     journal = options.pop("journal", None)
-    parts = [pv.Part(box, band.cells, band.order, band.max_splits, _band_journal(journal, k, len(bands)))
-             for k, (box, band) in enumerate(bands)]
+    parts = [
+        pv.Part(box, band.cells, band.order, band.max_splits, _band_journal(journal, k, len(bands))) for k, (box, band) in enumerate(bands)
+    ]
     results = pv.verify_parts(loop, parts, **specification(), **options)
     result = results[0]
     if len(results) > 1:  # the bands ran in one pool: each result's seconds is the whole call's
-        result = pv.Result(result.states, {**result.init, **{k: init[k] for k in result.init if k in init}}, [c for r in results for c in r.cells],
-                           result.seconds, result.settings)
-    result.settings["case"] = {"case": "mountain_car", "noise": noise, "networks": name,
-                               **({} if controller is None else {"controller": str(controller)}), "init": init,
-                               "bands": [{"box": box, "split": band.cells, "max_splits": band.max_splits, "order": band.order}
-                                         for box, band in bands],
-                               "min_width": options["min_width"]}
+        result = pv.Result(
+            result.states,
+            {**result.init, **{k: init[k] for k in result.init if k in init}},
+            [c for r in results for c in r.cells],
+            result.seconds,
+            result.settings,
+        )
+    result.settings["case"] = {
+        "case": "mountain_car",
+        "noise": noise,
+        "networks": name,
+        **({} if controller is None else {"controller": str(controller)}),
+        "init": init,
+        "bands": [{"box": box, "split": band.cells, "max_splits": band.max_splits, "order": band.order} for box, band in bands],
+        "min_width": options["min_width"],
+    }
     return result
 
 
@@ -284,9 +307,12 @@ def cause(reason: str) -> str:
     blew = re.search(r"the enclosure of '(\w+)' blew up", reason)
     if blew:
         return f"'{blew.group(1)}' blew up"
-    for words, name in (("holds on part of the set only", "goal met by part of the set only"),
-                        ("goal '", "goal undecided"), ("could not be decided", "a safe condition undecided"),
-                        ("timeout", "timeout")):
+    for words, name in (
+        ("holds on part of the set only", "goal met by part of the set only"),
+        ("goal '", "goal undecided"),
+        ("could not be decided", "a safe condition undecided"),
+        ("timeout", "timeout"),
+    ):
         if words in reason:
             return name
     return "other"
@@ -323,11 +349,15 @@ def table_row(result) -> dict:
     return {
         "intervals": len(result.cells),
         **{v: sum(c.verdict == v for c in result.cells) for v in ("verified", "unknown", "falsified")},
-        "avg_seconds": mean(seconds), "median_seconds": float(np.median(seconds)) if seconds else 0.0,
+        "avg_seconds": mean(seconds),
+        "median_seconds": float(np.median(seconds)) if seconds else 0.0,
         "max_seconds": max(seconds, default=0.0),
-        "avg_nn_seconds": mean([c.nn_seconds for c in run]), "avg_branches": mean([c.branches for c in run]),
-        "coverage": result.coverage, "wall_seconds": result.seconds,
-        "engine_seconds": float(sum(seconds)), "engine_seconds_per_paper_interval": float(sum(seconds)) * per_interval,
+        "avg_nn_seconds": mean([c.nn_seconds for c in run]),
+        "avg_branches": mean([c.branches for c in run]),
+        "coverage": result.coverage,
+        "wall_seconds": result.seconds,
+        "engine_seconds": float(sum(seconds)),
+        "engine_seconds_per_paper_interval": float(sum(seconds)) * per_interval,
         "wall_seconds_per_paper_interval": result.seconds * per_interval,
     }
 
@@ -351,8 +381,18 @@ def read_published(name: str, *, shared=None) -> dict:
     from percver.cases.mountain_car.networks import SHARED_HINT, default_shared
 
     base = Path(shared) if shared is not None else default_shared()
-    path = next((f for f in (base / name, base / "mountain_car" / "published_results" / name,
-                             base / "data" / "mountain_car" / "published_results" / name) if f.is_file()), None)
+    path = next(
+        (
+            f
+            for f in (
+                base / name,
+                base / "mountain_car" / "published_results" / name,
+                base / "data" / "mountain_car" / "published_results" / name,
+            )
+            if f.is_file()
+        ),
+        None,
+    )
     if path is None:
         raise MissingFileError(f"the authors' log {name} is not under {base} (mountain_car/published_results): {SHARED_HINT}")
     rows = []
@@ -363,28 +403,40 @@ def read_published(name: str, *, shared=None) -> dict:
     finished = np.array([[float(x) for x in r[:4] + r[5:8]] for r in rows if r[4] != "NONE"]).reshape(-1, 7)
     times = finished[:, 4]
     return {
-        "file": path.name, "intervals": len(rows), "safe": sum(r[4] == "SAFE" for r in rows),
+        "file": path.name,
+        "intervals": len(rows),
+        "safe": sum(r[4] == "SAFE" for r in rows),
         "unfinished": sum(r[4] == "NONE" for r in rows),
         "p0": (float(finished[:, 0].min()), float(finished[:, 1].max())),
         "noise": (float(finished[:, 2].min()), float(finished[:, 3].max())),
-        "avg_seconds": float(times.mean()), "median_seconds": float(np.median(times)),
-        "min_seconds": float(times.min()), "max_seconds": float(times.max()),
-        "avg_nn_seconds": float(finished[:, 5].mean()), "avg_branches": float(finished[:, 6].mean()),
+        "avg_seconds": float(times.mean()),
+        "median_seconds": float(np.median(times)),
+        "min_seconds": float(times.min()),
+        "max_seconds": float(times.max()),
+        "avg_nn_seconds": float(finished[:, 5].mean()),
+        "avg_branches": float(finished[:, 6].mean()),
     }
 
 
 def format_row(noise: str, row: dict, paper: dict | None = None) -> str:
     """The row as text, the paper's numbers beneath when given. ``cpu s/0.00025``: engine seconds per
     0.00025 of p0 (the paper's interval, over the whole noise range), comparable with its avg time."""
-    head = (f"{'':10} {'intervals':>9} {'verified':>8} {'unknown':>7} {'falsified':>9} {'avg s':>9} {'avg NN s':>9} "
-            f"{'avg br':>6} {'coverage':>8} {'wall s':>8} {'cpu s/0.00025':>13}")
-    lines = [head, f"{'percver':10} {row['intervals']:>9} {row['verified']:>8} {row['unknown']:>7} {row['falsified']:>9} "
-                   f"{row['avg_seconds']:>9.2f} {row['avg_nn_seconds']:>9.2f} {row['avg_branches']:>6.2f} "
-                   f"{100 * row['coverage']:>7.2f}% {row['wall_seconds']:>8.1f} {row['engine_seconds_per_paper_interval']:>13.2f}"]
+    head = (
+        f"{'':10} {'intervals':>9} {'verified':>8} {'unknown':>7} {'falsified':>9} {'avg s':>9} {'avg NN s':>9} "
+        f"{'avg br':>6} {'coverage':>8} {'wall s':>8} {'cpu s/0.00025':>13}"
+    )
+    lines = [
+        head,
+        f"{'percver':10} {row['intervals']:>9} {row['verified']:>8} {row['unknown']:>7} {row['falsified']:>9} "
+        f"{row['avg_seconds']:>9.2f} {row['avg_nn_seconds']:>9.2f} {row['avg_branches']:>6.2f} "
+        f"{100 * row['coverage']:>7.2f}% {row['wall_seconds']:>8.1f} {row['engine_seconds_per_paper_interval']:>13.2f}",
+    ]
     table = (paper or {}).get("table")
     if table:
-        lines.append(f"{'paper':10} {table['intervals']:>9} {'':>8} {'':>7} {'':>9} {table['avg_seconds']:>9.0f} "
-                     f"{table['avg_nn_seconds']:>9.0f} {table['avg_branches']:>6.2f} {'100.00%':>8} {'':>8} {table['avg_seconds']:>13.0f}")
+        lines.append(
+            f"{'paper':10} {table['intervals']:>9} {'':>8} {'':>7} {'':>9} {table['avg_seconds']:>9.0f} "
+            f"{table['avg_nn_seconds']:>9.0f} {table['avg_branches']:>6.2f} {'100.00%':>8} {'':>8} {table['avg_seconds']:>13.0f}"
+        )
     return f"Mountain Car, {noise}\n" + "\n".join(lines)
 
 
@@ -447,8 +499,17 @@ def plot_coverage(result, path) -> Path:
         for verdict in ("verified", "unknown", "falsified"):  # problems drawn last, on top
             for cell in (c for c in result.cells if c.verdict == verdict):
                 (x0, x1), (y0, y1) = cell.box["p"], cell.box[name] if name else (0.0, 1.0)
-                ax.add_patch(Rectangle((x0, y0), x1 - x0, y1 - y0, facecolor=colours[verdict], edgecolor="k", linewidth=0.2,
-                                       alpha=0.8 if verdict != "verified" else 0.5))
+                ax.add_patch(
+                    Rectangle(
+                        (x0, y0),
+                        x1 - x0,
+                        y1 - y0,
+                        facecolor=colours[verdict],
+                        edgecolor="k",
+                        linewidth=0.2,
+                        alpha=0.8 if verdict != "verified" else 0.5,
+                    )
+                )
         ax.set_xlim(*result.init["p"])
         ax.set_ylim(*(result.init[name] if name else (0.0, 1.0)))
         ax.set_xlabel("p0")
@@ -467,10 +528,12 @@ def proven(result) -> str:
     ranges, verdict and coverage; the figures' headline."""
     init = result.init
     noise = ", ".join(f"{what} {n} in [{init[n][0]:g}, {init[n][1]:g}]" for n, what in (("dc", "contrast"), ("db", "blur")) if n in init)
-    claim = (f"from p0 in [{init['p'][0]:g}, {init['p'][1]:g}], v0 = 0" + (f", {noise}" if noise else "")
-             + f": every run reaches p >= {dynamics.GOAL:g} within {dynamics.STEPS} steps with reward > {dynamics.REWARD_BOUND:g}")
-    counts = ", ".join(f"{n} {v}" for v in ("verified", "unknown", "falsified")
-                       if (n := sum(c.verdict == v for c in result.cells)))
+    claim = (
+        f"from p0 in [{init['p'][0]:g}, {init['p'][1]:g}], v0 = 0"
+        + (f", {noise}" if noise else "")
+        + f": every run reaches p >= {dynamics.GOAL:g} within {dynamics.STEPS} steps with reward > {dynamics.REWARD_BOUND:g}"
+    )
+    counts = ", ".join(f"{n} {v}" for v in ("verified", "unknown", "falsified") if (n := sum(c.verdict == v for c in result.cells)))
     return f"{claim}\n{result.verdict.upper()}: {100 * result.coverage:.1f}% of the initial set ({counts} of {len(result.cells)} cells)"
 
 
@@ -502,8 +565,17 @@ def plot_tube(result, path, loop, samples: int = 40, seed: int = 0) -> Path:
         for cell in result.cells:
             if cell.boxes:
                 b = np.asarray(cell.boxes)[:, j]
-                ax.fill_between(np.arange(len(b)), b[:, 0], b[:, 1], step="mid", facecolor=colours[cell.verdict],
-                                edgecolor=colours[cell.verdict], alpha=0.3, linewidth=0.6, zorder=2)
+                ax.fill_between(
+                    np.arange(len(b)),
+                    b[:, 0],
+                    b[:, 1],
+                    step="mid",
+                    facecolor=colours[cell.verdict],
+                    edgecolor=colours[cell.verdict],
+                    alpha=0.3,
+                    linewidth=0.6,
+                    zorder=2,
+                )
         ax.set_xlabel("step")
         ax.grid(alpha=0.3)
     for ax in (tube, zoom):
@@ -517,13 +589,16 @@ def plot_tube(result, path, loop, samples: int = 40, seed: int = 0) -> Path:
     zoom.set_title("arrival at the goal (zoom)", fontsize=9)
     tube.set_title("reach tube of p: every run from the initial set stays inside", fontsize=9)
     reward.set_ylabel("reward sum r (-0.1 u² per step)")
-    reward.set_title(f"reward: r must stay above {bound:g} until arrival (reward = r + {dynamics.GOAL_REWARD:g} > "
-                     f"{dynamics.REWARD_BOUND:g})", fontsize=9)
+    reward.set_title(
+        f"reward: r must stay above {bound:g} until arrival (reward = r + {dynamics.GOAL_REWARD:g} > {dynamics.REWARD_BOUND:g})", fontsize=9
+    )
     present = [v for v in colours if any(c.verdict == v and c.boxes for c in result.cells)]
     handles = [Patch(facecolor=colours[v], edgecolor=colours[v], alpha=0.4, label=f"reach tube ({v} cells)") for v in present]
-    handles += [plt.Line2D([], [], color="0.25", linewidth=0.8, label=f"{samples} simulated runs (until arrival)"),
-                plt.Line2D([], [], color="tab:blue", linestyle="--", label=f"goal p = {dynamics.GOAL:g}"),
-                plt.Line2D([], [], color="tab:red", linestyle="--", label=f"reward bound r = {bound:g}")]
+    handles += [
+        plt.Line2D([], [], color="0.25", linewidth=0.8, label=f"{samples} simulated runs (until arrival)"),
+        plt.Line2D([], [], color="tab:blue", linestyle="--", label=f"goal p = {dynamics.GOAL:g}"),
+        plt.Line2D([], [], color="tab:red", linestyle="--", label=f"reward bound r = {bound:g}"),
+    ]
     tube.legend(handles=handles, loc="lower right", fontsize=8, framealpha=0.9)
     fig.suptitle(proven(result), fontsize=10)
     fig.tight_layout()
@@ -545,10 +620,16 @@ def save(result, out, loop=None, *, shared=None, samples: int = 40) -> dict:
     out.mkdir(parents=True, exist_ok=True)
     if loop is None:
         loop = closed_loop(case["noise"], case["networks"], controller=case.get("controller"), shared=shared)
-    record = {"noise": case["noise"], "networks": case["networks"], **{k: case[k] for k in ("controller",) if k in case},
-              "init": case["init"], "row": table_row(result),
-              "paper": published(case["noise"], shared=shared), "reasons": reasons(result),
-              "files": {"result": str(out / "result.json"), "coverage": str(out / "coverage.png"), "tube": str(out / "tube.png")}}
+    record = {
+        "noise": case["noise"],
+        "networks": case["networks"],
+        **{k: case[k] for k in ("controller",) if k in case},
+        "init": case["init"],
+        "row": table_row(result),
+        "paper": published(case["noise"], shared=shared),
+        "reasons": reasons(result),
+        "files": {"result": str(out / "result.json"), "coverage": str(out / "coverage.png"), "tube": str(out / "tube.png")},
+    }
     result.to_json(str(out / "result.json"))
     plot_coverage(result, out / "coverage.png")
     plot_tube(result, out / "tube.png", loop, samples=samples)

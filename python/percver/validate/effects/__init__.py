@@ -67,11 +67,7 @@ def candidates(model, evaluation, effects=None) -> list:
         if wrong:
             raise InputError(f"effects {wrong} do not apply to a {model.kind} model")
     present = {(e.name, e.params.get("state")) for e in model.effects}
-    return [
-        e
-        for e in pool
-        if (e.repeatable or (e.name, e.params.get("state")) not in present) and e.applicable(model, evaluation)
-    ]
+    return [e for e in pool if (e.repeatable or (e.name, e.params.get("state")) not in present) and e.applicable(model, evaluation)]
 
 
 __all__ = [

@@ -37,9 +37,7 @@ class Effect:
     def __init__(self, **params):
         unknown = sorted(set(params) - set(self.defaults))
         if unknown:
-            raise InputError(
-                f"effect '{self.name}' has no parameter {unknown}; its parameters are {list(self.defaults)}"
-            )
+            raise InputError(f"effect '{self.name}' has no parameter {unknown}; its parameters are {list(self.defaults)}")
         self.params = {**self.defaults, **params}
 
     def replace(self, **params) -> "Effect":
