@@ -54,4 +54,11 @@ from percver import noise, sensors, validate
 from percver.measurements import Measurements
 from percver.validate import compare, diagnose
 
-from percver import cases
+
+def __getattr__(name: str):
+    # The case studies are built from the library, not part of it: ``pv.cases`` loads on first use.
+    if name == "cases":
+        import importlib
+
+        return importlib.import_module("percver.cases")
+    raise AttributeError(f"module 'percver' has no attribute {name!r}")
