@@ -89,6 +89,8 @@ OPTIONS = {
         "or a table with kind and their keywords (instead of [split], refine, min_width)",
     ),
     "strict": ("verify", bool, "false", "an initial or reach set leaving a network's input domain is an error (else a warning)"),
+    "validated": ("verify", dict, "{p = [-1.2, 0.6], v = [-0.07, 0.07]}",
+                  "where the model was validated, per state: the result says whether the reach sets stay inside (a diagnosed plant carries its own)"),
     "journal": ("verify", str, '"run.jsonl"', "append finished cells here, skip them on a rerun (--journal overrides)"),
     "progress": ("verify", bool, "true", "the progress bar (--no-progress turns it off)"),
 }
@@ -336,6 +338,14 @@ class Config:
         kwargs.update(self.section("verify"))
         if "splitter" in kwargs:
             kwargs["splitter"] = self._splitter(kwargs["splitter"])
+        if "validated" in kwargs:
+            from percver.validate.verifiable import Domain
+
+            bounds = kwargs["validated"]
+            bad = [k for k, v in bounds.items() if not (isinstance(v, list) and len(v) == 2 and all(map(_number, v)))]
+            if bad:
+                raise self.error("[verify] validated", f"expected {bad[0]} = [lo, hi]")
+            kwargs["validated"] = Domain({k: (float(v[0]), float(v[1])) for k, v in bounds.items()})
         if "journal" in kwargs:
             kwargs["journal"] = str(self.written("[verify] journal", kwargs["journal"]))
         return kwargs
