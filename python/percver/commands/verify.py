@@ -89,8 +89,12 @@ OPTIONS = {
         "or a table with kind and their keywords (instead of [split], refine, min_width)",
     ),
     "strict": ("verify", bool, "false", "an initial or reach set leaving a network's input domain is an error (else a warning)"),
-    "validated": ("verify", dict, "{p = [-1.2, 0.6], v = [-0.07, 0.07]}",
-                  "where the model was validated, per state: the result says whether the reach sets stay inside (a diagnosed plant carries its own)"),
+    "validated": (
+        "verify",
+        dict,
+        "{p = [-1.2, 0.6], v = [-0.07, 0.07]}",
+        "where the model was validated, per state: the result says whether the reach sets stay inside (a diagnosed plant carries its own)",
+    ),
     "journal": ("verify", str, '"run.jsonl"', "append finished cells here, skip them on a rerun (--journal overrides)"),
     "progress": ("verify", bool, "true", "the progress bar (--no-progress turns it off)"),
 }
