@@ -86,6 +86,11 @@ def verify(
     ``unsafe`` one set to avoid). :func:`~percver.during` limits a safe or unsafe set to a window
     of steps or times (docs/verify.md, "Properties").
 
+    The cells come from a splitter (:mod:`percver.verification.splitters`): ``splitter=pv.Grid(...)``,
+    ``pv.Bisection(...)`` or ``pv.Adaptive(...)``; ``split=`` alone is a grid, ``refine=True`` a
+    bisection down to ``min_width``, and with none of them the adaptive default starts from the
+    whole set and halves what stays unknown while halving helps (docs/verify.md, "Cells").
+
     Cells run on this machine's cores (``workers`` threads, one cell each at a time) or, with
     ``executor=``, on a ``dask.distributed.Client``, a scheduler address ``"tcp://host:8786"`` or
     any ``concurrent.futures.Executor`` (``workers`` then caps the batches in flight; ``batch``

@@ -167,31 +167,8 @@ def train_classifier(
     return NoiseModel(model.network, model.thresholds, model.name)
 
 
-def train_denoiser(
-    real_normalised,
-    canonical_normalised,
-    *,
-    hidden: int = 100,
-    epochs: int = 60,
-    batch: int = 256,
-    lr: float = 2e-3,
-    weight_decay: float = 1e-5,
-    seed: int = 0,
-    threads: int | None = None,
-    progress: bool = False,
-) -> Denoiser:
-    """Train h_d on pairs (real, canonical) of normalised 21-ray scans."""
-    model = generic_denoiser.train_denoiser(
-        real_normalised,
-        canonical_normalised,
-        scale=DENOISER_SCALE,
-        hidden=hidden,
-        epochs=epochs,
-        batch=batch,
-        lr=lr,
-        weight_decay=weight_decay,
-        seed=seed,
-        threads=threads,
-        progress=progress,
-    )
+def train_denoiser(real_normalised, canonical_normalised, **training) -> Denoiser:
+    """Train h_d on pairs (real, canonical) of normalised 21-ray scans; ``training`` as
+    :func:`percver.noise.train_denoiser` takes it (hidden, epochs, batch, lr, seed, ...)."""
+    model = generic_denoiser.train_denoiser(real_normalised, canonical_normalised, scale=DENOISER_SCALE, **training)
     return Denoiser(model.network)
