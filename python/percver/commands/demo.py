@@ -16,8 +16,8 @@ from pathlib import Path
 
 from percver.commands import EXIT, unknown_lines
 
-# A slice the shipped networks verify in 34 s with 2 threads on this project's 2-core machine at
-# low load (60 cells, measured for issue 29; 3-4 min when the machine's load average is ~15).
+# A slice the shipped networks verify in 11.5 s wall with 2 threads on this project's 2-core
+# machine when idle (60 cells; 3-4 min when the machine's load average is ~15).
 P0 = (-0.5, -0.498)
 DELTA_C = (0.5, 2.0)
 PLOT_HINT = 'the figure needs matplotlib: pip install "percver[plot]"'
