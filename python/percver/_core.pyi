@@ -49,8 +49,9 @@ class Expr:
     @staticmethod
     def constant(value: float) -> Expr: ...
     @staticmethod
-    def uncertain(lo: float, hi: float) -> Expr:
-        """A constant known only to lie in [lo, hi]."""
+    def uncertain(lo: float, hi: float, held: bool = False) -> Expr:
+        """A quantity known only to lie in [lo, hi]: new at every evaluation, or with ``held`` a
+        constant of the system, the same over a run."""
     @staticmethod
     def parse(text: str) -> Expr: ...
     @staticmethod

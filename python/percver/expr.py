@@ -129,9 +129,72 @@ def clip(x: ExprLike, lo: ExprLike, hi: ExprLike) -> Expr:
     return minimum(maximum(x, lo), hi)
 
 
-def uncertain(lo: float, hi: float) -> Expr:
-    """A constant known only to lie in [lo, hi] (an uncertain parameter)."""
-    return Expr.uncertain(float(lo), float(hi))
+PER = ("step", "run")
+
+
+def uncertain(lo: float, hi: float, per: str = "step") -> Expr:
+    """A quantity known only to lie in [lo, hi].
+
+    ``per="step"`` (the default) is a disturbance: it may take a new value each step (each
+    evaluation), so a proof covers every sequence of values in the range. ``per="run"`` is a
+    constant of the system that is not known exactly (a fitted friction, a mass): one value
+    for a whole run, which ``verify`` carries as an extra Taylor-model variable with zero dynamics,
+    so its reach sets keep the dependency on it and are tighter. Simulations and
+    counterexamples draw one value per run for both unless given one per step
+    (:meth:`ClosedLoop.simulate`).
+    """
+    if per not in PER:
+        raise InputError(f"uncertain(..., per={per!r}): use per='step' (a disturbance, new each step) or per='run' (a constant of the system)")
+    return Expr.uncertain(float(lo), float(hi), per == "run")
+
+
+def substitute(expr: Expr, variables: Mapping[str, ExprLike] = (), parameters: Mapping[int, ExprLike] = ()) -> Expr:
+    """``expr`` with the variables named in ``variables`` and the uncertain parameters whose ids
+    are in ``parameters`` replaced by expressions.
+
+    Works on the DAG's node list (the pickling form), so shared nodes stay shared and every other
+    uncertain parameter keeps its identity (the same parameter wherever it appears).
+    """
+    variables, parameters = dict(variables), dict(parameters)
+    nodes = expr.__reduce__()[1][0]
+
+    def replacement(kind, name):
+        if kind == 2:
+            return variables.get(name)
+        return parameters.get(int(name)) if kind == 1 else None
+
+    out, roots = [], {}
+    for kind, _, _, _, name in nodes:
+        value = replacement(kind, name)
+        if value is None or (kind, name) in roots:
+            continue
+        sub = as_expr(value).__reduce__()[1][0]
+        offset = len(out)
+        out += [(k, s, v, [a + offset for a in args], n) for k, s, v, args, n in sub]
+        roots[(kind, name)] = len(out) - 1
+    if not roots:
+        return expr
+    index = []
+    for kind, sub, x, args, name in nodes:
+        if (kind, name) in roots:
+            index.append(roots[(kind, name)])
+            continue
+        out.append((kind, sub, x, [index[a] for a in args], name))
+        index.append(len(out) - 1)
+    if index[-1] != len(out) - 1:  # the whole expression was one replaced leaf
+        return as_expr(replacement(nodes[-1][0], nodes[-1][4]))
+    return Expr._from_nodes(out)
+
+
+def held_parameters(e: Union[ExprLike, Sequence[ExprLike]]) -> list:
+    """The uncertain parameters held over a run (``uncertain(..., per="run")``) that ``e`` reads, as
+    ``(id, lo, hi)``, each once."""
+    found = {}
+    for x in _exprs(e)[0]:
+        for kind, held, values, _, name in x.__reduce__()[1][0]:
+            if kind == 1 and held:
+                found.setdefault(int(name), (int(name), values[0], values[1]))
+    return list(found.values())
 
 
 def _exprs(e: Union[ExprLike, Sequence[ExprLike]]) -> tuple[list[Expr], bool]:

@@ -428,6 +428,8 @@ class ClosedLoop:
         self.plant = plant
         self.states = list(plant.states)
         self.accumulators: list = []  # states added by with_accumulators (they start at 0)
+        # States added by with_held_parameters: name -> (id, lo, hi) of the parameter (they start on its range).
+        self.held: dict = {}
         # Signal name -> indices in the environment (state first, then stage outputs).
         self.signals: dict = {s: [i] for i, s in enumerate(self.states)}
         self.env_names = list(self.states)
@@ -559,7 +561,76 @@ class ClosedLoop:
             new_plant = Continuous(rhs, inputs, period=plant.period, step=plant.step, remainder=plant.remainder)
         loop = ClosedLoop(new_plant, stages)
         loop.accumulators = self.accumulators + list(added)
+        loop.held = dict(self.held)
         return loop
+
+    def held_parameters(self) -> list:
+        """The uncertain parameters held over a run (``pv.uncertain(..., per="run")``) that the
+        plant or a stage reads, as ``(id, lo, hi)``, each once."""
+        from percver.expr import held_parameters
+
+        return held_parameters(self._expressions())
+
+    def with_held_parameters(self) -> "ClosedLoop":
+        """This loop with every parameter held over a run as a state of its own, ``param_k`` (k in
+        the order of :meth:`held_parameters`), whose update is itself: the engine then carries it as
+        one more Taylor-model variable, so the reach sets keep their dependency on it instead of
+        taking a new value from its range at every step. ``held`` maps the new states to
+        ``(id, lo, hi)``; :meth:`initial_box` starts them on their ranges."""
+        from percver.expr import substitute
+
+        found = self.held_parameters()
+        if not found:
+            return self
+        if isinstance(self.plant, Hybrid):
+            raise InputError(
+                "parameters held over a run (pv.uncertain(..., per='run')) are not supported with a hybrid plant; "
+                "use per='step' (sound, looser) or add the parameter as a state of every mode"
+            )
+        taken, names, k = set(self.signals), [], 0
+        for _ in found:
+            while f"param_{k}" in taken:
+                k += 1
+            names.append(f"param_{k}")
+            k += 1
+        held = dict(zip(names, found))
+        as_vars = {pid: Expr.var(n) for n, (pid, _, _) in held.items()}
+
+        def plain(exprs):
+            return [substitute(e, parameters=as_vars) for e in exprs]
+
+        stages = []
+        for stage in self.stages:
+            if stage is self._constants:
+                continue
+            if stage.is_network:
+                stages.append(stage)
+                continue
+            exprs = plain(stage.component)
+            reads = [n for n in names if any(n in e.variables() for e in exprs)]
+            stages.append(Stage(exprs, inputs=list(stage.inputs) + reads, output=stage.output, name=stage.name, domain=stage.domain))
+        plant = self.plant
+        if isinstance(plant, Discrete):
+            update = dict(zip(plant.states, plain(plant.update)))
+            update.update({n: Expr.var(n) for n in names})
+            plant = Discrete(update, inputs=plant.inputs)
+        else:
+            rhs = dict(zip(plant.states, plain(plant.rhs)))
+            rhs.update({n: as_expr(0.0) for n in names})
+            plant = Continuous(rhs, plant.inputs, period=plant.period, step=plant.step, remainder=plant.remainder)
+        loop = ClosedLoop(plant, stages)
+        loop.accumulators = list(self.accumulators)
+        loop.held = {**self.held, **held}
+        return loop
+
+    def _expressions(self) -> list:
+        """Every expression of the plant and of the expression stages."""
+        plant = self.plant
+        exprs = list(plant.rhs if isinstance(plant, Continuous) else plant.expressions() if isinstance(plant, Hybrid) else plant.update)
+        for stage in self.stages:
+            if not stage.is_network:
+                exprs += list(stage.component)
+        return exprs
 
     def _signals_of(self, e: Expr) -> list:
         """The signals (in environment order) whose values ``e`` reads."""
@@ -572,7 +643,11 @@ class ClosedLoop:
         if isinstance(init, Box):
             init = init.to_dict()
         if isinstance(init, Mapping):
-            init = {**{a: (0.0, 0.0) for a in self.accumulators}, **{name_of(k): v for k, v in init.items()}}
+            init = {
+                **{a: (0.0, 0.0) for a in self.accumulators},
+                **{n: (lo, hi) for n, (_, lo, hi) in self.held.items()},
+                **{name_of(k): v for k, v in init.items()},
+            }
         box = Box.coerce(init, self.states)
         for stage in self.stages:
             for name, (lo, hi) in stage.domain.items():
@@ -596,13 +671,8 @@ class ClosedLoop:
 
     def parameters(self) -> list:
         """The uncertain parameters (``pv.uncertain``) the loop reads, as ``(id, lo, hi)``, each once."""
-        plant = self.plant
-        exprs = list(plant.rhs if isinstance(plant, Continuous) else plant.expressions() if isinstance(plant, Hybrid) else plant.update)
-        for stage in self.stages:
-            if not stage.is_network:
-                exprs += list(stage.component)
         found: dict = {}
-        for e in exprs:
+        for e in self._expressions():
             for pid, lo, hi in e.parameters():
                 found.setdefault(pid, (pid, lo, hi))
         return list(found.values())
@@ -628,12 +698,19 @@ class ClosedLoop:
 
     def simulate(self, x0: np.ndarray, steps: int, parameters: Optional[dict] = None) -> np.ndarray:
         """Trajectories (N x (steps + 1) x n) from the rows of ``x0``, each run with its own
-        values of the uncertain parameters (``{id: values}``, held for the whole run)."""
+        values of the uncertain parameters: ``{id: values}`` with one value per run (held for the
+        whole run), or an N x steps array (a new value each step: a disturbance's sequence)."""
         x = np.atleast_2d(np.asarray(x0, dtype=float))
+        drawn = {k: np.asarray(v, dtype=float) for k, v in (parameters or {}).items()}
+        for k, v in drawn.items():
+            if v.ndim == 2 and v.shape != (len(x), steps):
+                raise InputError(
+                    f"parameter {k}: per-step values must be an array of runs x steps ({len(x)} x {steps}), got shape {v.shape}"
+                )
         out = np.empty((len(x), steps + 1, len(self.states)))
         out[:, 0] = x
         for t in range(steps):
-            x = self.step_float(x, parameters)
+            x = self.step_float(x, {k: v[:, t] if v.ndim == 2 else v for k, v in drawn.items()} if drawn else None)
             out[:, t + 1] = x
         return out
 

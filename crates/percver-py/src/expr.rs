@@ -60,11 +60,13 @@ impl PyExpr {
     fn constant(value: f64) -> PyResult<Self> {
         Ok(PyExpr(Expr::constant(finite(value, "constant")?)))
     }
-    /// A constant known only to lie in [lo, hi].
+    /// A quantity known only to lie in [lo, hi]: new at every evaluation, or with `held` a
+    /// constant of the system, the same over a run.
     #[staticmethod]
-    fn uncertain(lo: f64, hi: f64) -> PyResult<Self> {
+    #[pyo3(signature = (lo, hi, held=false))]
+    fn uncertain(lo: f64, hi: f64, held: bool) -> PyResult<Self> {
         let (lo, hi) = (finite(lo, "uncertain lower bound")?, finite(hi, "uncertain upper bound")?);
-        Ok(PyExpr(Expr::uncertain(Interval::new(lo, hi).py_err()?)))
+        Ok(PyExpr(Expr::uncertain(Interval::new(lo, hi).py_err()?, held)))
     }
     #[staticmethod]
     fn parse(text: &str) -> PyResult<Self> {
@@ -190,7 +192,7 @@ fn flatten(root: &Expr) -> Vec<FlatNode> {
         }
         let node = match &*e.0 {
             Node::Const(c) => (0, 0, vec![*c], vec![], String::new()),
-            Node::Uncertain { range, id } => (1, 0, vec![range.lo(), range.hi()], vec![], id.to_string()),
+            Node::Uncertain { range, id, held } => (1, u8::from(*held), vec![range.lo(), range.hi()], vec![], id.to_string()),
             Node::Var(n) => (2, 0, vec![], vec![], n.clone()),
             Node::Neg(a) => (3, 0, vec![], vec![go(a, memo, out)], String::new()),
             Node::Binary(op, a, b) => (4, position(&BINOPS, op), vec![], vec![go(a, memo, out), go(b, memo, out)], String::new()),
@@ -219,7 +221,7 @@ fn unflatten(nodes: &[FlatNode]) -> PyResult<Expr> {
         let num = |k: usize| x.get(k).copied().ok_or_else(bad);
         let e = match kind {
             0 => Expr::constant(num(0)?),
-            1 => Expr::parameter(Interval::new(num(0)?, num(1)?).py_err()?, name.parse().map_err(|_| bad())?),
+            1 => Expr::parameter(Interval::new(num(0)?, num(1)?).py_err()?, name.parse().map_err(|_| bad())?, *sub == 1),
             2 => Expr::var(name),
             3 => arg(0)?.neg(),
             4 => Expr::binary(*BINOPS.get(*sub as usize).ok_or_else(bad)?, &arg(0)?, &arg(1)?),

@@ -70,10 +70,15 @@ pub enum Node {
     Const(f64),
     /// A constant known only to an interval (uncertain parameter), as in Flow*'s `[a, b]`. `id`
     /// is its identity: two parameters with the same range are different quantities, and a
-    /// simulation draws each one's value by id ([`FloatBatch::parameters`]).
+    /// simulation draws each one's value by id ([`FloatBatch::parameters`]). `held` marks a
+    /// constant of the system (a fitted parameter), the same value over a whole run; otherwise it
+    /// is a disturbance that may take a new value each time it is evaluated (each step). The set
+    /// algebras here enclose both as an interval at every evaluation (sound for either); a caller
+    /// that keeps a held parameter over a run makes it a state (percver's `verify` does).
     Uncertain {
         range: Interval,
         id: u64,
+        held: bool,
     },
     Var(String),
     Neg(Expr),
@@ -116,13 +121,14 @@ impl Expr {
     pub fn constant(c: f64) -> Expr {
         Expr::new(Node::Const(c))
     }
-    /// A new uncertain parameter: a quantity of its own, whatever its range.
-    pub fn uncertain(iv: Interval) -> Expr {
-        Expr::parameter(iv, next_parameter_id())
+    /// A new uncertain quantity of its own, whatever its range: a disturbance (new each step),
+    /// or with `held` a constant of the system, the same over a run.
+    pub fn uncertain(iv: Interval, held: bool) -> Expr {
+        Expr::parameter(iv, next_parameter_id(), held)
     }
     /// The parameter `id` (a pickled or parsed expression's own parameter, kept by identity).
-    pub fn parameter(range: Interval, id: u64) -> Expr {
-        Expr::new(Node::Uncertain { range, id })
+    pub fn parameter(range: Interval, id: u64, held: bool) -> Expr {
+        Expr::new(Node::Uncertain { range, id, held })
     }
     pub fn var(name: &str) -> Expr {
         Expr::new(Node::Var(name.to_string()))
@@ -184,7 +190,7 @@ impl Expr {
     pub fn parameters(&self) -> Vec<(u64, Interval)> {
         let mut out: Vec<(u64, Interval)> = Vec::new();
         for e in self.nodes() {
-            if let Node::Uncertain { range, id } = &*e.0 {
+            if let Node::Uncertain { range, id, .. } = &*e.0 {
                 if !out.iter().any(|(k, _)| k == id) {
                     out.push((*id, *range));
                 }
@@ -247,10 +253,10 @@ impl Expr {
             let mut go = |e: &Expr| go(e, memo, params);
             match &*e.0 {
                 Node::Const(c) => (0u8, c.to_bits()).hash(&mut s),
-                Node::Uncertain { range, id } => {
+                Node::Uncertain { range, id, held } => {
                     let fresh = params.len();
                     let ordinal = *params.entry(*id).or_insert(fresh);
-                    (1u8, range.lo().to_bits(), range.hi().to_bits(), ordinal).hash(&mut s)
+                    (1u8, range.lo().to_bits(), range.hi().to_bits(), ordinal, *held).hash(&mut s)
                 }
                 Node::Var(n) => (2u8, n).hash(&mut s),
                 Node::Neg(a) => (3u8, go(a)).hash(&mut s),
@@ -369,7 +375,7 @@ impl Program {
         }
         let op = match &*e.0 {
             Node::Const(c) => Op::Const(*c),
-            Node::Uncertain { range, id } => Op::Uncertain { range: *range, id: *id },
+            Node::Uncertain { range, id, .. } => Op::Uncertain { range: *range, id: *id },
             Node::Var(n) => match positions.get(n.as_str()) {
                 Some(&i) => Op::Input(i),
                 None => {
@@ -987,7 +993,7 @@ mod tests {
         let sx = Expr::func(Func::Sin, &Expr::binary(BinOp::Mul, &k, &x));
         let sy = Expr::func(Func::Sin, &Expr::binary(BinOp::Mul, &k, &y));
         let range = Interval::new(-1.0, 1.0).unwrap();
-        let (a, b) = (Expr::uncertain(range), Expr::uncertain(range));
+        let (a, b) = (Expr::uncertain(range, false), Expr::uncertain(range, false));
         let input = [TaylorModel::affine(&ctx, 0.5, 0, 0.5), TaylorModel::affine(&ctx, 0.5, 1, 0.5)];
         for (p, q) in [(sx, sy), (a.clone(), b)] {
             let e =
@@ -1010,7 +1016,7 @@ mod tests {
     #[test]
     fn parameters_keep_their_identity() {
         let range = Interval::new(-1.0, 1.0).unwrap();
-        let (a, b) = (Expr::uncertain(range), Expr::uncertain(range));
+        let (a, b) = (Expr::uncertain(range, false), Expr::uncertain(range, false));
         let sum = Expr::binary(BinOp::Add, &a, &b);
         let ids: Vec<u64> = sum.parameters().iter().map(|p| p.0).collect();
         assert_eq!(ids.len(), 2);

@@ -185,7 +185,7 @@ impl Parser<'_> {
                 let hi = self.signed_number()?;
                 self.expect(']')?;
                 let iv = Interval::new(lo, hi).map_err(|e| err(self.src, self.column(), &e.to_string()))?;
-                Ok(Expr::uncertain(iv))
+                Ok(Expr::uncertain(iv, false))
             }
             Some(Token::Ident(name)) => {
                 self.pos += 1;

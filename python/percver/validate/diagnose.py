@@ -100,18 +100,23 @@ class Diagnosis:
             self._intervals[key] = parameter_intervals(self.final_model, self.final.evaluation, level=level, draws=draws, seed=seed)
         return self._intervals[key]
 
-    def system(self, uncertainty=None, residual=None, *, draws: int = 100, seed: int = 0):
+    def system(self, uncertainty=None, residual=None, *, per: str = "run", draws: int = 100, seed: int = 0):
         """The diagnosed model for verification (see ``percver.validate.verifiable``).
 
         ``uncertainty="ci95"`` (or "ci99", or a level such as 0.9) turns every fitted parameter
         into a ``pv.uncertain`` range, its bootstrap confidence interval, so that a proof holds
-        for every parameter the data allows; None keeps the fitted values. ``residual="max"``
+        for every parameter the data allows; None keeps the fitted values. The ranges are held
+        over a run (``per="run"``: a friction is a constant of the car, and ``verify`` keeps the
+        dependency on it), or with ``per="step"`` re-drawn each step (a parameter that drifts:
+        looser, and it covers more). ``residual="max"``
         adds the largest measured residual of each state (ray) as a bounded disturbance every
         step, ``residual=0.999`` that quantile (a statistical bound, not a worst case). The
         result's ``validation`` records all of it with the validated domain.
         """
         from percver.validate import verifiable
 
+        if per not in ("run", "step"):
+            raise InputError(f"per={per!r}: use 'run' (parameters held over a run) or 'step' (re-drawn each step)")
         level = _level(uncertainty)
         ranges = {} if level is None else self.intervals(level, draws=draws, seed=seed)
         bounds, kind = (None, None) if residual is None else verifiable.residual_bounds(self.final, residual)
@@ -122,9 +127,9 @@ class Diagnosis:
                 "expression: build the model from final_model without it, or use the network of diagnosis.learned"
             )
         if model.kind == "dynamics":
-            return verifiable.dynamics_system(model, ranges, bounds, kind, level, self.domain)
+            return verifiable.dynamics_system(model, ranges, bounds, kind, level, self.domain, per)
         if model.kind == "lidar":
-            return verifiable.lidar_component(model, ranges, bounds, kind, level, self.domain)
+            return verifiable.lidar_component(model, ranges, bounds, kind, level, self.domain, per)
         raise verifiable.NoSetSemanticsError(
             f"a diagnosed {model.kind} model ({type(model).__name__}) has no expression form: its prediction is a "
             "Python function (a renderer, a simulator). Verify such a sensor through a network that stands for it "

@@ -7,9 +7,9 @@ delay adds the earlier controls as states. A canonical LiDAR becomes the list of
 expressions a ``pv.Stage`` takes, with the mounting, the range map and the limit in them.
 
 Fitted parameters enter as numbers, or as ``pv.uncertain`` ranges (their bootstrap confidence
-intervals), and the unexplained residual as a bounded term per state or ray: a
-``pv.uncertain`` read each step, which the reach sets treat as an interval every step (any
-disturbance sequence within the bound), while simulations hold one drawn value per run.
+intervals) held over a run (``per="run"``: constants of the system, which ``verify`` carries as
+Taylor-model variables), and the unexplained residual as a bounded term per state or ray: a
+``pv.uncertain`` re-drawn each step (``per="step"``: any disturbance sequence within the bound).
 What went in is recorded on the result's ``validation`` (a :class:`Basis`), with the region
 the data covers (:class:`Domain`), which ``verify`` checks the reach sets against.
 """
@@ -21,42 +21,12 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from percver.errors import InputError
+from percver.expr import substitute
 
 
 class NoSetSemanticsError(InputError):
     """A model or effect has no expression form that verification can use; the message names
     it and what to do instead."""
-
-
-def substitute(expr, mapping: dict):
-    """``expr`` with the variables named in ``mapping`` replaced by expressions.
-
-    Works on the DAG's node list (the pickling form), so shared nodes stay shared and an
-    uncertain parameter keeps its identity (the same parameter wherever it appears).
-    """
-    from percver.expr import Expr, as_expr
-
-    nodes = expr.__reduce__()[1][0]
-    out, roots = [], {}
-    for name, replacement in mapping.items():
-        if not any(kind == 2 and node_name == name for kind, _, _, _, node_name in nodes):
-            continue
-        sub = as_expr(replacement).__reduce__()[1][0]
-        offset = len(out)
-        out += [(k, s, x, [a + offset for a in args], n) for k, s, x, args, n in sub]
-        roots[name] = len(out) - 1
-    if not roots:
-        return expr
-    index = []
-    for kind, sub, x, args, name in nodes:
-        if kind == 2 and name in roots:
-            index.append(roots[name])
-            continue
-        out.append((kind, sub, x, [index[a] for a in args], name))
-        index.append(len(out) - 1)
-    if index[-1] != len(out) - 1:  # the whole expression was one substituted variable
-        return as_expr(mapping[nodes[-1][4]])
-    return Expr._from_nodes(out)
 
 
 @dataclass
@@ -92,7 +62,8 @@ class Basis:
     those ranges, the residual bound per state or ray and how it was taken, the validated
     ``domain`` and notes (knock-outs, lag states). ``residual_kind`` is "max" (the largest
     residual seen: still only what the data showed) or "quantile q" (a statistical bound: a
-    fraction 1 - q of the measured residuals exceeded it, so it is not a worst case)."""
+    fraction 1 - q of the measured residuals exceeded it, so it is not a worst case). ``per`` is
+    how the parameter ranges enter: "run" (held over a run) or "step" (re-drawn each step)."""
 
     effects: list
     level: float | None
@@ -100,6 +71,7 @@ class Basis:
     residual_kind: str | None
     domain: Domain
     notes: list = field(default_factory=list)
+    per: str = "run"
 
     def describe(self) -> str:
         lines = []
@@ -107,7 +79,8 @@ class Basis:
             params = ", ".join(f"{k}={_show(v)}" for k, v in e["params"].items())
             lines.append(f"effect {e['effect']}({params})")
         if self.level is not None:
-            lines.append(f"fitted parameters as their {self.level:.0%} bootstrap confidence intervals")
+            held = "held over a run" if self.per == "run" else "re-drawn each step"
+            lines.append(f"fitted parameters as their {self.level:.0%} bootstrap confidence intervals, {held}")
         if self.residual is not None:
             bounds = ", ".join(f"{k}: +-{v:.3g}" for k, v in self.residual.items())
             what = (
@@ -129,10 +102,10 @@ def _show(value):
     return f"{value:.5g}" if isinstance(value, float) else str(value)
 
 
-def effect_parameters(effect, ranges: dict):
-    """The effect's parameters for the expression form: a ``pv.uncertain`` where ``ranges``
-    gives a proper interval (widened to hold the fitted value), else the fitted value; and the
-    record of them for the :class:`Basis`."""
+def effect_parameters(effect, ranges: dict, per: str = "run"):
+    """The effect's parameters for the expression form: a ``pv.uncertain(..., per=per)`` where
+    ``ranges`` gives a proper interval (widened to hold the fitted value), else the fitted value;
+    and the record of them for the :class:`Basis`."""
     from percver.expr import uncertain
 
     exprs, record = {}, {}
@@ -140,26 +113,27 @@ def effect_parameters(effect, ranges: dict):
         pair = ranges.get(name)
         if pair is not None and name not in getattr(effect, "fixed", ()) and pair[1] > pair[0]:
             lo, hi = min(pair[0], value), max(pair[1], value)
-            exprs[name], record[name] = uncertain(lo, hi), [lo, hi]
+            exprs[name], record[name] = uncertain(lo, hi, per=per), [lo, hi]
         else:
             exprs[name], record[name] = value, value
     return exprs, record
 
 
-def _deterministic(model, ranges):
+def _deterministic(model, ranges, per):
     effects, records = [], []
     for i, effect in enumerate(model.effects):
-        exprs, record = effect_parameters(effect, ranges.get(i, {}))
+        exprs, record = effect_parameters(effect, ranges.get(i, {}), per)
         effects.append((effect, exprs))
         records.append({"effect": effect.name, "params": record})
     return effects, records
 
 
-def dynamics_system(model, ranges: dict, residual: dict | None, residual_kind: str | None, level, domain: Domain):
+def dynamics_system(model, ranges: dict, residual: dict | None, residual_kind: str | None, level, domain: Domain, per: str = "run"):
     """The ``pv.Discrete``/``pv.Continuous`` plant of a dynamics model with its effects written in.
 
-    ``ranges`` maps an effect's index to ``{parameter: (lo, hi)}``; ``residual`` maps a state to
-    the bound of its bounded disturbance (discrete plants only)."""
+    ``ranges`` maps an effect's index to ``{parameter: (lo, hi)}`` (uncertain ranges ``per`` run
+    or step); ``residual`` maps a state to the bound of its bounded disturbance (discrete plants
+    only)."""
     from percver.expr import Expr, uncertain
     from percver.systems import Continuous, Discrete
     from percver.validate.models import SystemPlant
@@ -170,7 +144,7 @@ def dynamics_system(model, ranges: dict, residual: dict | None, residual_kind: s
             f"the plant {model.plant!r} is a Python function, which verification cannot enclose: give pv.diagnose "
             "the plant as pv.Discrete({...}) or pv.Continuous({...}) (its update as expressions of pv.variables)"
         )
-    effects, records = _deterministic(model, ranges)
+    effects, records = _deterministic(model, ranges, per)
     notes = []
     if isinstance(system, Continuous):
         refused = [e.name for e, _ in effects if hasattr(e, "slow_expr") or e.lags() > 0]
@@ -201,7 +175,7 @@ def dynamics_system(model, ranges: dict, residual: dict | None, residual_kind: s
         for s, e in zip(system.states, system.update):
             e = substitute(e, mapping)
             if residual is not None and residual.get(s, 0.0) > 0:
-                e = e + uncertain(-residual[s], residual[s])
+                e = e + uncertain(-residual[s], residual[s], per="step")
             update[s] = e
         for k, names in enumerate(lag_names):
             previous = system.inputs if k == 0 else lag_names[k - 1]
@@ -212,7 +186,7 @@ def dynamics_system(model, ranges: dict, residual: dict | None, residual_kind: s
             f"the actuator delay keeps earlier controls as states {[n for names in lag_names for n in names]}: "
             "give their initial range (the controls' range) in init"
         )
-    built.validation = Basis(records, level, residual, residual_kind, domain, notes)
+    built.validation = Basis(records, level, residual, residual_kind, domain, notes, per)
     return built
 
 
@@ -224,7 +198,7 @@ class SensorComponent(list):
     validation: Basis | None = None
 
 
-def lidar_component(model, ranges: dict, residual: dict | None, residual_kind: str | None, level, domain: Domain):
+def lidar_component(model, ranges: dict, residual: dict | None, residual_kind: str | None, level, domain: Domain, per: str = "run"):
     """The ray expressions of a diagnosed LiDAR model over ``x, y, theta``.
 
     Ranges are ``min(a r + b, limit)`` where ``a r + b`` is the effects' range map and ``r`` the
@@ -234,7 +208,7 @@ def lidar_component(model, ranges: dict, residual: dict | None, residual_kind: s
     from percver.expr import Expr, minimum, uncertain, where
     from percver.sensors.lidar import Lidar
 
-    effects, records = _deterministic(model, ranges)
+    effects, records = _deterministic(model, ranges, per)
     x, y, theta = (Expr.var(n) for n in model.state_names)
     a, b = Expr.constant(1.0), Expr.constant(0.0)
     limit = model.lidar.max_range
@@ -262,9 +236,9 @@ def lidar_component(model, ranges: dict, residual: dict | None, residual_kind: s
     for name, r in zip(model.measurement_names, cast):
         reading = minimum(a * r + b, limit)
         if knockouts:
-            reading = where(uncertain(0.0, 1.0) > 0.5, limit, reading)
+            reading = where(uncertain(0.0, 1.0, per="step") > 0.5, limit, reading)
         if residual is not None and residual.get(name, 0.0) > 0:
-            reading = reading + uncertain(-residual[name], residual[name])
+            reading = reading + uncertain(-residual[name], residual[name], per="step")
         rays.append(reading)
     if knockouts:
         notes.append(
@@ -273,7 +247,7 @@ def lidar_component(model, ranges: dict, residual: dict | None, residual_kind: s
         )
     out = SensorComponent(rays)
     out.inputs = tuple(model.state_names)
-    out.validation = Basis(records, level, residual, residual_kind, domain, notes)
+    out.validation = Basis(records, level, residual, residual_kind, domain, notes, per)
     return out
 
 

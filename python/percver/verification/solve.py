@@ -220,6 +220,7 @@ def verify_parts(
             raise InputError(f"max_splits must be a non-negative integer, got {p.max_splits!r}")
     if reward is not None:
         loop = loop.with_accumulators(reward)  # sums as extra states: see ClosedLoop.with_accumulators
+    loop = loop.with_held_parameters()  # parameters held over a run as states: see ClosedLoop.with_held_parameters
     boxes = [loop.initial_box(p.init) for p in parts]
     splitters = []  # each part's splitter and its initial cells, checked before any journal is opened
     for p, box in zip(parts, boxes):
@@ -284,11 +285,27 @@ def verify_parts(
         Result(loop.states, box.to_dict(), campaign.cells, seconds, settings, domain_exits(checks, runs(campaign.cells, loop.states)))
         for box, (campaign, settings, _, _) in zip(boxes, jobs)
     ]
+    for result in results:
+        _record_held(loop, result)
     flagged = {(e["stage"], e["input"]) for e in initial_exits}
     flag_exits([e for r in results for e in r.domain_exits if (e["stage"], e["input"]) not in flagged], strict, results)
     from percver.validate.verifiable import validity
 
     return validity(loop, results, validated)
+
+
+def _record_held(loop: ClosedLoop, result) -> None:
+    """Adds each counterexample's values of the parameters held over a run (states of the loop
+    verified, see ``ClosedLoop.with_held_parameters``) to its ``parameters``, so that it replays
+    on the loop as given: ``loop.simulate(x0, steps, parameters=cex.parameter_values())``."""
+    for cell in result.cells:
+        cex = cell.counterexample
+        if cex is None:
+            continue
+        known = {p["id"] for p in cex.parameters}
+        for name, (pid, lo, hi) in loop.held.items():
+            if pid not in known:
+                cex.parameters.append({"id": pid, "range": [lo, hi], "value": float(cex.initial[name])})
 
 
 def _splitter_of(part: Part, splitter, refine: bool, min_width: Optional[dict]):
