@@ -119,9 +119,7 @@ def test_learned_model_is_written_as_onnx(tmp_path):
     assert "learned_knockout.onnx" in page.read_text()
     network = pv.load_network(tmp_path / "learned_knockout.onnx")
     learned = diagnosis.final_model.learned
-    x = np.column_stack(
-        [diagnosis.final_model.base.predict(data.states[:40]), learned.features(diagnosis.final_model.base, data.states[:40])]
-    )
+    x = np.column_stack([diagnosis.final_model.base.predict(data.states[:40]), data.states[:40]])
     np.testing.assert_allclose(network(x), learned.network(x), atol=1e-12)
     session = onnxruntime.InferenceSession(str(tmp_path / "learned_knockout.onnx"), providers=["CPUExecutionProvider"])
     np.testing.assert_allclose(session.run(None, {session.get_inputs()[0].name: x})[0], network(x), atol=1e-12)

@@ -352,6 +352,11 @@ class Stage:
             if self.scale is not None or self.offset is not None:
                 self.component = _with_output_map(self.component, self._output_map(self.component.n_out))
         else:
+            if hasattr(self.component, "stages"):
+                raise InputError(
+                    f"stage '{self.name}': a {type(self.component).__name__} is a chain of stages (expressions, then a "
+                    f"network): put *component.stages(output='{self.output}') among the loop's stages instead of one pv.Stage"
+                )
             if self.constants:
                 raise InputError(
                     f"stage '{self.name}': constant inputs {list(self.constants.values())} feed networks; "

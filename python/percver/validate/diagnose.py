@@ -100,7 +100,7 @@ class Diagnosis:
             self._intervals[key] = parameter_intervals(self.final_model, self.final.evaluation, level=level, draws=draws, seed=seed)
         return self._intervals[key]
 
-    def system(self, uncertainty=None, residual=None, *, per: str = "run", draws: int = 100, seed: int = 0):
+    def system(self, uncertainty=None, residual=None, *, per: str = "run", onnx=None, draws: int = 100, seed: int = 0):
         """The diagnosed model for verification (see ``percver.validate.verifiable``).
 
         ``uncertainty="ci95"`` (or "ci99", or a level such as 0.9) turns every fitted parameter
@@ -112,6 +112,10 @@ class Diagnosis:
         adds the largest measured residual of each state (ray) as a bounded disturbance every
         step, ``residual=0.999`` that quantile (a statistical bound, not a worst case). The
         result's ``validation`` records all of it with the validated domain.
+
+        A diagnosis that ends with a learned noise model of a sensor gives a ``LearnedSensor``:
+        ``*model.stages(output="scan")`` are the loop's stages for the sensor, its network the
+        paper's g_n; ``onnx=DIR`` writes the network there as ONNX and the stage reads the file.
         """
         from percver.validate import verifiable
 
@@ -121,20 +125,24 @@ class Diagnosis:
         ranges = {} if level is None else self.intervals(level, draws=draws, seed=seed)
         bounds, kind = (None, None) if residual is None else verifiable.residual_bounds(self.final, residual)
         model = self.final_model
-        if self.learned is not None and self.learned.claimed:
-            raise verifiable.NoSetSemanticsError(
-                "the diagnosis ends with a learned noise model, which enters a loop as a network stage, not as an "
-                "expression: build the model from final_model without it, or use the network of diagnosis.learned"
-            )
-        if model.kind == "dynamics":
+        learned = model.learned if self.learned is not None and self.learned.claimed else None
+        base = model.base if learned is not None else model
+        if base.kind == "dynamics":
+            if learned is not None:
+                raise verifiable.NoSetSemanticsError(
+                    "the diagnosis ends with a learned noise model of the dynamics, which has no plant form yet: "
+                    "diagnose with learn=False, or bound what is left with system(residual='max')"
+                )
             return verifiable.dynamics_system(model, ranges, bounds, kind, level, self.domain, per)
-        if model.kind == "lidar":
-            return verifiable.lidar_component(model, ranges, bounds, kind, level, self.domain, per)
-        raise verifiable.NoSetSemanticsError(
-            f"a diagnosed {model.kind} model ({type(model).__name__}) has no expression form: its prediction is a "
-            "Python function (a renderer, a simulator). Verify such a sensor through a network that stands for it "
-            "(e.g. a generator trained on its images, pv.load_network) with the diagnosed effects applied to its training data"
-        )
+        # The residual of a learned model is added after its network.
+        canonical_bounds = None if learned is not None else bounds
+        if base.kind == "lidar":
+            component = verifiable.lidar_component(base, ranges, canonical_bounds, kind, level, self.domain, per)
+        else:
+            component = verifiable.expression_component(base, canonical_bounds, kind, level, self.domain, per)
+        if learned is None:
+            return component
+        return verifiable.learned_sensor(component, learned, bounds, kind, base.measurement_names, onnx)
 
     def table(self) -> str:
         lines = [f"baseline {self.baseline.metric}: {self.baseline_error:.4g}"]

@@ -5,7 +5,9 @@ trained on it, after the paper: a knock-out classifier when the residual is disc
 outside the noise, measured values unrelated to the predicted ones: an echo swallowed, an
 obstacle the model does not know), a generative model when it is benign (the measurement a
 smooth distortion of the prediction: lighting, a lens). Either one takes the current model's
-prediction and the model's state features. It is trained with torch on a training split and
+prediction and the states (not derived features such as progress along a track: the states are
+what a verification loop has, so the network enters it as a stage as it is, see
+``percver.validate.verifiable.LearnedSensor``). It is trained with torch on a training split and
 judged with numpy on the held-out rest (whole trajectories when the data has them), like the
 library's effects: it is kept only when it removes a significant share of the held-out error.
 """
@@ -43,15 +45,13 @@ COMMON = ("seed", "threads", "progress")
 class LearnedNoise:
     """A trained knock-out or generative model applied after a model's prediction.
 
-    Its inputs are the prediction and the model's ``features`` of the states (in
-    ``feature_names`` order; NaN features, such as progress outside the track, read ``fill``).
+    Its inputs are the prediction and the states (``feature_names``, the model's state names).
     """
 
-    def __init__(self, kind: str, model, feature_names, fill, params: dict):
+    def __init__(self, kind: str, model, feature_names, params: dict):
         self.kind = kind
         self.model = model
         self.feature_names = tuple(feature_names)
-        self.fill = np.asarray(fill, dtype=float)
         self.params = params
 
     @property
@@ -62,23 +62,21 @@ class LearnedNoise:
     def network(self):
         return self.model.network
 
-    def features(self, base, states) -> np.ndarray:
-        return _filled_features(base, states, self.feature_names, self.fill)
-
-    def apply(self, predicted, states, base) -> np.ndarray:
-        features = self.features(base, states)
+    def apply(self, predicted, states) -> np.ndarray:
+        features = np.asarray(states, dtype=float)
         if self.kind == "knockout":
             return self.model.apply(predicted, features)
         return self.model(predicted, features)
 
     def save(self, directory) -> list:
-        """``learned_KIND.onnx`` (read by ``percver.load_network``) and, for a knock-out model, its
-        thresholds and knocked values in ``learned_knockout.npz``, with the feature names."""
+        """``learned_KIND.onnx`` (read by ``percver.load_network``, with the training domain in its
+        metadata) and, for a knock-out model, its thresholds and knocked values in
+        ``learned_knockout.npz``, with the feature names."""
         directory = Path(directory)
         directory.mkdir(parents=True, exist_ok=True)
         network, parameters = directory / f"{self.name}.onnx", directory / f"{self.name}.npz"
         self.network.to_onnx(network)
-        arrays = {"features": np.array(self.feature_names), "fill": self.fill}
+        arrays = {"features": np.array(self.feature_names)}
         if self.kind == "knockout":
             arrays.update(thresholds=self.model.thresholds, knocked=self.model.knocked)
         np.savez(parameters, **arrays)
@@ -114,7 +112,7 @@ class LearnedModel(Model):
         return self.base.evaluate(data)
 
     def predict_inputs(self, inputs):
-        return self.learned.apply(self.base.predict_inputs(inputs), inputs["states"], self.base)
+        return self.learned.apply(self.base.predict_inputs(inputs), inputs["states"])
 
     # The base class's own entry points, run on this model so that they reach predict_inputs above.
     def predict(self, *args, **kwargs):
@@ -168,25 +166,6 @@ def check_learn(learn, options=None) -> None:
     from percver.noise.training import require_torch
 
     require_torch("diagnose(learn=True)")
-
-
-def _feature_matrix(model, states, names) -> np.ndarray:
-    features = model.features(states)
-    return np.column_stack([np.asarray(features[name], dtype=float) for name in names])
-
-
-def _filled_features(model, states, names, fill) -> np.ndarray:
-    table = _feature_matrix(model, states, names)
-    return np.where(np.isfinite(table), table, fill)
-
-
-def _numeric_features(model, states) -> tuple:
-    """Names of the model's features that are numbers somewhere (a feature that is NaN everywhere
-    carries nothing), and their medians to fill NaN entries with."""
-    features = model.features(states)
-    names = [n for n, v in features.items() if np.issubdtype(np.asarray(v).dtype, np.number) and np.isfinite(v).any()]
-    table = _feature_matrix(model, states, names)
-    return names, np.nanmedian(table, axis=0)
 
 
 def unexplained_rows(report) -> np.ndarray:
@@ -295,8 +274,7 @@ def learn(model, evaluation, report, kind=True, options=None, *, folds=3, bootst
     units, split = folds_of(evaluation, folds, rng)
     train_rows, test_rows = split[0]
     train, test = evaluation.subset(train_rows), evaluation.subset(test_rows)
-    names, fill = _numeric_features(model, train.states)
-    features = _filled_features(model, train.states, names, fill)
+    names, features = model.state_names, train.states
     predicted = model.predict_inputs(train.inputs)
     if common.get("progress"):
         print(
@@ -315,7 +293,7 @@ def learn(model, evaluation, report, kind=True, options=None, *, folds=3, bootst
         "epochs": settings["epochs"],
         "train_rows": len(train_rows),
     }
-    learned = LearnedModel(model, LearnedNoise(kind, trained, names, fill, params))
+    learned = LearnedModel(model, LearnedNoise(kind, trained, names, params))
     before, after = model_errors(model, test), model_errors(learned, test)
     test_units = np.unique(units[test_rows], return_inverse=True)[1].ravel()
     draws = rng.integers(0, test_units.max() + 1, size=(bootstrap, test_units.max() + 1))

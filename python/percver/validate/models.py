@@ -443,6 +443,7 @@ def _expression_function(model):
         return evaluate(list(exprs), dict(zip(function.state_names, np.asarray(states, dtype=float).T)))
 
     function.state_names = tuple(names)
+    function.exprs = list(exprs)  # the expression form verification uses
     return function
 
 

@@ -233,13 +233,12 @@ def lidar_component(model, ranges: dict, residual: dict | None, residual_kind: s
         raise NoSetSemanticsError(f"the fitted range bias {b_lo:g} m exceeds the range limit {limit_hi:g} m: no echo is possible")
     cast = Lidar(model.lidar.angles_deg, cap).exprs(model.track, x, y, theta)
     rays = []
-    for name, r in zip(model.measurement_names, cast):
+    for r in cast:
         reading = minimum(a * r + b, limit)
         if knockouts:
             reading = where(uncertain(0.0, 1.0, per="step") > 0.5, limit, reading)
-        if residual is not None and residual.get(name, 0.0) > 0:
-            reading = reading + uncertain(-residual[name], residual[name], per="step")
         rays.append(reading)
+    rays = _with_residual(rays, model.measurement_names, residual)
     if knockouts:
         notes.append(
             f"{', '.join(knockouts)} enter as an adversarial knock-out: any ray may read the range limit "
@@ -249,6 +248,116 @@ def lidar_component(model, ranges: dict, residual: dict | None, residual_kind: s
     out.inputs = tuple(model.state_names)
     out.validation = Basis(records, level, residual, residual_kind, domain, notes, per)
     return out
+
+
+def _with_residual(exprs, names, residual: dict | None) -> list:
+    """Each expression plus its measurement's residual bound, a disturbance re-drawn each step."""
+    from percver.expr import uncertain
+
+    bound = residual or {}
+    return [e + uncertain(-bound[n], bound[n], per="step") if bound.get(n, 0.0) > 0 else e for e, n in zip(exprs, names)]
+
+
+def expression_component(model, residual: dict | None, residual_kind: str | None, level, domain: Domain, per: str = "run"):
+    """A sensor given to ``diagnose`` as expressions of the states (``FunctionSensor`` over them):
+    the expressions themselves, with the residual bound."""
+    exprs = getattr(getattr(model, "function", None), "exprs", None)
+    if exprs is None:
+        raise NoSetSemanticsError(
+            f"a diagnosed {model.kind} model ({type(model).__name__}) has no expression form: its prediction is a "
+            "Python function (a renderer, a simulator). Verify such a sensor through a network that stands for it "
+            "(e.g. a generator trained on its images, pv.load_network) with the diagnosed effects applied to its training data"
+        )
+    if model.effects:
+        raise NoSetSemanticsError(
+            f"effects {[e.name for e in model.effects]} of a sensor given as expressions have no set form: leave them out "
+            "and bound the residual instead (diagnosis.system(residual='max') or a quantile)"
+        )
+    out = SensorComponent(_with_residual(exprs, model.measurement_names, residual))
+    out.inputs = tuple(model.state_names)
+    out.validation = Basis([], level, residual, residual_kind, domain, [], per)
+    return out
+
+
+def _signals(name: str, width: int) -> list:
+    """The scalar signals of a stage output of ``width`` values (``ClosedLoop`` names them so)."""
+    from percver.expr import Expr
+
+    return [Expr.var(name)] if width == 1 else [Expr.var(f"{name}_{i}") for i in range(width)]
+
+
+class LearnedSensor:
+    """A diagnosed sensor whose last step is a learned noise model (the paper's g_n): the
+    canonical expressions, then the network, as a chain of ``pv.Stage`` s (``stages(output)``).
+
+    A generative model (benign noise) is one network stage, (canonical measurement, states) ->
+    measurement. A knock-out model (adversarial noise) is the classifier c_n, (canonical,
+    states) -> one probability per dimension, then per dimension ``where(probability >
+    threshold, knocked value, canonical)``: where the sets cannot decide, both readings. The
+    residual bound, if any, is added last. ``network`` is the learned network (read back from
+    the ONNX file when ``Diagnosis.system(onnx=DIR)`` wrote one); its training domain
+    (``network.domain``) is checked by ``verify`` on the states it reads."""
+
+    def __init__(self, canonical: SensorComponent, learned, network, residual: dict | None, measurement_names, validation: Basis):
+        self.canonical = canonical
+        self.learned = learned
+        self.network = network
+        self.residual = residual
+        self.measurement_names = tuple(measurement_names)
+        self.inputs = canonical.inputs
+        self.validation = validation
+
+    def stages(self, output: str) -> list:
+        """The chain as ``pv.Stage`` s reading the states ``inputs``, the last one writing ``output``
+        (the others ``output_canonical``, ``output_knockout`` or ``output_generated``); put them
+        before the stages that read the measurement."""
+        from percver.expr import where
+        from percver.systems import Stage
+
+        names, width = list(self.inputs), len(self.canonical)
+        canonical = f"{output}_canonical"
+        chain = [Stage(list(self.canonical), inputs=names, output=canonical)]
+        if self.learned.kind == "knockout":
+            model = self.learned.model
+            chain.append(Stage(self.network, inputs=[canonical, *names], output=f"{output}_knockout"))
+            noised = [
+                where(p > float(t), float(k), c)
+                for p, t, k, c in zip(_signals(f"{output}_knockout", width), model.thresholds, model.knocked, _signals(canonical, width))
+            ]
+            chain.append(Stage(_with_residual(noised, self.measurement_names, self.residual), inputs=[f"{output}_knockout", canonical], output=output))
+        elif self.residual:
+            chain.append(Stage(self.network, inputs=[canonical, *names], output=f"{output}_generated"))
+            generated = _with_residual(_signals(f"{output}_generated", width), self.measurement_names, self.residual)
+            chain.append(Stage(generated, inputs=[f"{output}_generated"], output=output))
+        else:
+            chain.append(Stage(self.network, inputs=[canonical, *names], output=output))
+        return chain
+
+    def __repr__(self) -> str:
+        return f"LearnedSensor({self.learned.name}: {len(self.canonical)} measurements over {list(self.inputs)})"
+
+
+def learned_sensor(
+    canonical: SensorComponent, learned, residual: dict | None, residual_kind: str | None, measurement_names, onnx=None
+) -> LearnedSensor:
+    """The :class:`LearnedSensor` of a canonical component and a learned noise model; with ``onnx``
+    (a directory) the network is written there (``learned_KIND.onnx``, with its training domain)
+    and the stage reads it back, so that what is verified is the file."""
+    from percver.networks import load_network
+
+    network = learned.network
+    notes = list(canonical.validation.notes)
+    if onnx is not None:
+        path = learned.save(onnx)[0]
+        network = load_network(path)
+        notes.append(f"{learned.name} is the network of {path}")
+    domain = ", ".join(f"{n} in [{lo:.4g}, {hi:.4g}]" for n, (lo, hi) in zip(canonical.inputs, (network.domain or ())[len(canonical) :]))
+    notes.append(f"{learned.name} enters as a network stage, trained on {domain} (verify reports reach sets leaving it)")
+    basis = canonical.validation
+    validation = Basis(
+        basis.effects + [{"effect": learned.name, "params": {}}], basis.level, residual, residual_kind, basis.domain, notes, basis.per
+    )
+    return LearnedSensor(canonical, learned, network, residual, measurement_names, validation)
 
 
 def residual_bounds(report, how):
