@@ -42,7 +42,9 @@ def _diagnosis(kind):
 
 def _loop(sensor):
     """x' = x + 0.1 u with u = -0.5 y: the controller drives the measured x to 0."""
-    return pv.ClosedLoop(pv.Discrete({x: x + 0.1 * u}, inputs=[u]), stages=[*sensor.stages(output="y"), pv.Stage(-0.5 * y, inputs=[y], output="u")])
+    return pv.ClosedLoop(
+        pv.Discrete({x: x + 0.1 * u}, inputs=[u]), stages=[*sensor.stages(output="y"), pv.Stage(-0.5 * y, inputs=[y], output="u")]
+    )
 
 
 def _onnx_runs(path, sensor, x0, residual=None, seed=0):

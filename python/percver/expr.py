@@ -144,7 +144,9 @@ def uncertain(lo: float, hi: float, per: str = "step") -> Expr:
     (:meth:`ClosedLoop.simulate`).
     """
     if per not in PER:
-        raise InputError(f"uncertain(..., per={per!r}): use per='step' (a disturbance, new each step) or per='run' (a constant of the system)")
+        raise InputError(
+            f"uncertain(..., per={per!r}): use per='step' (a disturbance, new each step) or per='run' (a constant of the system)"
+        )
     return Expr.uncertain(float(lo), float(hi), per == "run")
 
 

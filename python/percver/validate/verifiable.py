@@ -324,7 +324,11 @@ class LearnedSensor:
                 where(p > float(t), float(k), c)
                 for p, t, k, c in zip(_signals(f"{output}_knockout", width), model.thresholds, model.knocked, _signals(canonical, width))
             ]
-            chain.append(Stage(_with_residual(noised, self.measurement_names, self.residual), inputs=[f"{output}_knockout", canonical], output=output))
+            chain.append(
+                Stage(
+                    _with_residual(noised, self.measurement_names, self.residual), inputs=[f"{output}_knockout", canonical], output=output
+                )
+            )
         elif self.residual:
             chain.append(Stage(self.network, inputs=[canonical, *names], output=f"{output}_generated"))
             generated = _with_residual(_signals(f"{output}_generated", width), self.measurement_names, self.residual)
