@@ -1,6 +1,7 @@
 """The workflow of examples/measure_diagnose_verify.py end to end on small data: the textbook
 model verified, the hidden effects named, the diagnosed model falsified with a counterexample
-that replays on the data generator, a start set verified inside the validated domain; and the
+that replays on the data generator, a start set verified inside the validated domain, and from the
+valley floor verified with the parameters held over a run, unknown with them re-drawn; and the
 negative control (no hidden effect: nothing claimed, the same verdict as the textbook)."""
 
 import sys
@@ -15,7 +16,7 @@ import measure_diagnose_verify as example  # noqa: E402
 
 
 def test_measure_diagnose_verify():
-    textbook, diagnosis, falsified, fixed = example.main(quick=True)
+    textbook, diagnosis, falsified, fixed, (held, redrawn) = example.main(quick=True)
     assert textbook.verdict == "verified"
     assert sorted(diagnosis.effects) == ["actuator_gain", "coulomb_friction"]
     assert falsified.verdict == "falsified"
@@ -28,6 +29,8 @@ def test_measure_diagnose_verify():
     np.testing.assert_allclose(run[0], np.asarray(cex.trajectory)[: len(run[0])], atol=1e-12)
     assert run[0, :, 0].max() < 0.45
     assert fixed.verdict == "verified" and fixed.validity.startswith("verified inside the validated domain")
+    # From the valley floor: verified with the parameters held over a run, not when they are re-drawn every step.
+    assert held.verdict == "verified" and redrawn.verdict == "unknown"
 
 
 def test_no_hidden_effect_claims_nothing_and_verifies_like_the_textbook():

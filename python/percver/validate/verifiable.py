@@ -377,13 +377,18 @@ def residual_bounds(report, how):
     return dict(zip(report.model.measurement_names, (float(v) for v in values))), kind
 
 
-def validity(loop, results: list, validated=None) -> list:
-    """Sets each result's ``validity``: whether every reach box of every cell stays inside the
-    validated domain (``validated``, else the plant's ``validation`` from a diagnosis), or the
-    first step and state where one leaves it. Results without a domain are returned as they are."""
+def validated_domain(loop, validated=None):
+    """The domain ``verify`` checks: ``validated``, else the plant's from a diagnosis (None without one)."""
     if validated is None:
         basis = getattr(loop.plant, "validation", None)
         validated = None if basis is None else basis.domain
+    return validated
+
+
+def validity(results: list, validated=None) -> list:
+    """Sets each result's ``validity``: whether every reach box of every cell stays inside the
+    validated domain (see :func:`validated_domain`), or the first step and state where one leaves
+    it. Results without a domain are returned as they are."""
     if validated is None:
         return results
     if not isinstance(validated, Domain):

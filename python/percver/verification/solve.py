@@ -218,6 +218,9 @@ def verify_parts(
     for p in parts:
         if not (isinstance(p.max_splits, int) and p.max_splits >= 0):
             raise InputError(f"max_splits must be a non-negative integer, got {p.max_splits!r}")
+    from percver.validate.verifiable import validated_domain, validity
+
+    validated = validated_domain(loop, validated)  # of the loop as given: the plants below are rebuilt
     if reward is not None:
         loop = loop.with_accumulators(reward)  # sums as extra states: see ClosedLoop.with_accumulators
     loop = loop.with_held_parameters()  # parameters held over a run as states: see ClosedLoop.with_held_parameters
@@ -289,23 +292,24 @@ def verify_parts(
         _record_held(loop, result)
     flagged = {(e["stage"], e["input"]) for e in initial_exits}
     flag_exits([e for r in results for e in r.domain_exits if (e["stage"], e["input"]) not in flagged], strict, results)
-    from percver.validate.verifiable import validity
-
-    return validity(loop, results, validated)
+    return validity(results, validated)
 
 
 def _record_held(loop: ClosedLoop, result) -> None:
-    """Adds each counterexample's values of the parameters held over a run (states of the loop
-    verified, see ``ClosedLoop.with_held_parameters``) to its ``parameters``, so that it replays
-    on the loop as given: ``loop.simulate(x0, steps, parameters=cex.parameter_values())``."""
+    """Makes each counterexample a run of the loop as given: the parameters held over a run
+    (states of the loop verified, see ``ClosedLoop.with_held_parameters``) leave its initial state
+    and trajectory for its ``parameters``, so that ``loop.simulate(x0, steps,
+    parameters=cex.parameter_values())`` replays it."""
+    if not loop.held:
+        return
+    keep = [i for i, name in enumerate(loop.states) if name not in loop.held]
     for cell in result.cells:
         cex = cell.counterexample
-        if cex is None:
+        if cex is None or not set(loop.held) <= set(cex.initial):
             continue
-        known = {p["id"] for p in cex.parameters}
-        for name, (pid, lo, hi) in loop.held.items():
-            if pid not in known:
-                cex.parameters.append({"id": pid, "range": [lo, hi], "value": float(cex.initial[name])})
+        cex.parameters += [{"id": pid, "range": [lo, hi], "value": float(cex.initial[name])} for name, (pid, lo, hi) in loop.held.items()]
+        cex.initial = {name: value for name, value in cex.initial.items() if name not in loop.held}
+        cex.trajectory = [[row[i] for i in keep] for row in cex.trajectory]
 
 
 def _splitter_of(part: Part, splitter, refine: bool, min_width: Optional[dict]):
