@@ -50,14 +50,21 @@ def register(sub) -> None:
         "--verify",
         metavar="CONFIG.toml",
         help="then verify the diagnosed model: the config of 'percver verify' whose [plant] python = "
-        '"FILE.py:NAME" names a function taking the diagnosed plant (or sensor expressions) and '
-        "returning the pv.ClosedLoop; exit status as 'percver verify' (0 verified, 3 unknown, 4 falsified)",
+        '"FILE.py:NAME" names a function taking the diagnosed plant (or sensor expressions, or a '
+        "LearnedSensor whose stages() go into the loop) and returning the pv.ClosedLoop; exit status as 'percver verify' (0 verified, 3 unknown, 4 falsified)",
     )
     parser.add_argument(
         "--uncertainty",
         default="ci95",
         help="with --verify: fitted parameters as their bootstrap confidence intervals (ci95, ci99, "
         "a level such as 0.9) or 'none' for the fitted values (default: %(default)s)",
+    )
+    parser.add_argument(
+        "--per",
+        choices=("run", "step"),
+        default="run",
+        help="with --verify: the parameter intervals held over a run (constants of the system) or re-drawn "
+        "every step (parameters that drift; looser) (default: %(default)s)",
     )
     parser.add_argument(
         "--residual",
@@ -149,7 +156,8 @@ def verify_diagnosed(diagnosis, args) -> int:
         raise config.error("[plant] python", f"{path} defines no function '{name}' of the diagnosed model")
     uncertainty = None if args.uncertainty == "none" else _number_or_text(args.uncertainty)
     residual = None if args.residual is None else _number_or_text(args.residual)
-    model = diagnosis.system(uncertainty=uncertainty, residual=residual, seed=args.seed)
+    # A learned noise model is verified as the ONNX file written into --out.
+    model = diagnosis.system(uncertainty=uncertainty, residual=residual, per=args.per, onnx=args.out, seed=args.seed)
     loop = function(model)
     if not isinstance(loop, ClosedLoop):
         raise config.error("[plant] python", f"{name}(model) returned a {type(loop).__name__}, not a pv.ClosedLoop")

@@ -130,8 +130,9 @@ class Diagnosis:
         if base.kind == "dynamics":
             if learned is not None:
                 raise verifiable.NoSetSemanticsError(
-                    "the diagnosis ends with a learned noise model of the dynamics, which has no plant form yet: "
-                    "diagnose with learn=False, or bound what is left with system(residual='max')"
+                    "the diagnosis ends with a learned noise model of the dynamics: learned models enter a loop as "
+                    "sensor stages (the paper's g_n), not as plants. Diagnose the plant with learn=False and bound "
+                    "what is left with system(residual='max')"
                 )
             return verifiable.dynamics_system(model, ranges, bounds, kind, level, self.domain, per)
         # The residual of a learned model is added after its network.
