@@ -115,6 +115,9 @@ def test_learned_generative_enters_as_a_network_stage_with_the_residual_after_it
     assert [s.output for s in loop.stages] == ["y_canonical", "y_generated", "y", "u"]
     result = pv.verify(loop, init={"x": (-0.5, 0.6)}, steps=STEPS, safe=[x <= 0.7, x >= -0.7], split={"x": 0.05}, progress=False)
     assert result.verdict == "verified"
+    assert result.validity == (
+        f"verified inside the validated domain ({diagnosis.domain.describe()}); the residual bound is the largest residual measured"
+    )
     # The residual is a disturbance re-drawn each step: runs drawing it anew stay inside too.
     assert _inside(result, tmp_path / "learned_generative.onnx", sensor, residual=bound) == 22 * 25
 
@@ -125,5 +128,7 @@ def test_leaving_the_training_domain_is_reported_and_a_stage_of_the_chain_is_ref
     with pytest.warns(DomainWarning, match="y_knockout.*x in"):
         result = pv.verify(loop, init={"x": (1.02, 1.05)}, steps=3, safe=x <= 2.0, progress=False)
     assert result.domain_exits and result.domain_exits[0]["input"] == "x" and result.domain_exits[0]["step"] == 0
+    # The sensor's validated domain (where the measurements are) is checked too.
+    assert result.validity.startswith("the reach set leaves the validated domain at step 0: x in [1.02, 1.05]")
     with pytest.raises(InputError, match=r"chain of stages.*stages\(output='y'\)"):
         pv.Stage(sensor, inputs=[x], output="y")

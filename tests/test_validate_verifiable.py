@@ -166,6 +166,12 @@ def test_residual_enters_as_a_bounded_disturbance_and_says_which():
     assert hi - lo == pytest.approx(2 * largest[1], rel=1e-6)
     quantile = diagnosis.system(residual=0.9).validation
     assert quantile.residual["v"] < basis.residual["v"] and "statistical" in quantile.describe()
+    # The verification result says it too.
+    loop = pv.ClosedLoop(diagnosis.system(residual=0.9), stages=[pv.Stage(pv.where(v >= 0, 1.0, -1.0), inputs=[p, v], output="u")])
+    result = pv.verify(loop, init={"p": (-0.50, -0.49), "v": (0, 0)}, steps=3, safe=p >= -2.0, progress=False)
+    assert result.validity.endswith(
+        "the residual bound is the quantile 0.9 of the measured residuals, a statistical bound, not a worst case"
+    )
     with pytest.raises(InputError, match="quantile"):
         diagnosis.system(residual="huge")
     with pytest.raises(InputError, match="ci95"):
@@ -239,7 +245,7 @@ def test_diagnosed_lidar_is_a_stage_whose_rays_equal_the_float_model(stack):
     assert rays.inputs == ("x", "y", "theta") and len(rays) == 21
     x, y, theta = pv.variables("x y theta")
     stage = pv.Stage(rays, inputs=[x, y, theta], output="scan")
-    assert stage.width == 21
+    assert stage.width == 21 and stage.validation is rays.validation  # verify checks the sensor's validated domain
     values = pv.evaluate(list(rays), {"x": poses[:, 0], "y": poses[:, 1], "theta": poses[:, 2]})
     np.testing.assert_allclose(values, model.predict(poses), atol=1e-9)
     # Sound on sets: small pose boxes enclose the float scans of sampled poses.

@@ -348,6 +348,8 @@ class Stage:
         if not isinstance(self.output, str) or not self.output:
             raise InputError("a stage's output must be a signal name, e.g. output='u'")
         self.name = self.name or self.output
+        # A diagnosed sensor's Basis (its validated domain and residual bound), which verify reports on.
+        self.validation = getattr(self.component, "validation", None)
         if isinstance(self.component, Network):
             if self.scale is not None or self.offset is not None:
                 self.component = _with_output_map(self.component, self._output_map(self.component.n_out))

@@ -316,7 +316,8 @@ class LearnedSensor:
 
         names, width = list(self.inputs), len(self.canonical)
         canonical = f"{output}_canonical"
-        chain = [Stage(list(self.canonical), inputs=names, output=canonical)]
+        chain = [Stage(self.canonical, inputs=names, output=canonical)]
+        chain[0].validation = self.validation  # the whole chain's: its domain and residual bound
         if self.learned.kind == "knockout":
             model = self.learned.model
             chain.append(Stage(self.network, inputs=[canonical, *names], output=f"{output}_knockout"))
@@ -377,18 +378,30 @@ def residual_bounds(report, how):
     return dict(zip(report.model.measurement_names, (float(v) for v in values))), kind
 
 
-def validated_domain(loop, validated=None):
-    """The domain ``verify`` checks: ``validated``, else the plant's from a diagnosis (None without one)."""
-    if validated is None:
-        basis = getattr(loop.plant, "validation", None)
-        validated = None if basis is None else basis.domain
-    return validated
+def validated_domain(loop, validated=None) -> tuple:
+    """What ``verify`` checks the reach sets against: ``validated``, else the domains of the
+    diagnosed plant and sensor stages of ``loop`` (each state within all of them; None without
+    any), and what the result must add about their residual bounds."""
+    bases = [b for b in [getattr(loop.plant, "validation", None)] + [getattr(s, "validation", None) for s in loop.stages] if b is not None]
+    if validated is None and bases:
+        bounds = {}
+        for basis in bases:
+            for name, (lo, hi) in basis.domain.bounds.items():
+                a, b = bounds.get(name, (lo, hi))
+                bounds[name] = (max(a, lo), min(b, hi))
+        validated = Domain(bounds)
+    caveats = [
+        f"the residual bound is {'the largest residual measured' if b.residual_kind == 'max' else 'the ' + b.residual_kind + ' of the measured residuals, a statistical bound, not a worst case'}"
+        for b in bases
+        if b.residual_kind is not None
+    ]
+    return validated, sorted(set(caveats))
 
 
-def validity(results: list, validated=None) -> list:
+def validity(results: list, validated=None, caveats=()) -> list:
     """Sets each result's ``validity``: whether every reach box of every cell stays inside the
     validated domain (see :func:`validated_domain`), or the first step and state where one leaves
-    it. Results without a domain are returned as they are."""
+    it, then the ``caveats``. Results without a domain are returned as they are."""
     if validated is None:
         return results
     if not isinstance(validated, Domain):
@@ -412,4 +425,6 @@ def validity(results: list, validated=None) -> list:
             f"[{a:.4g}, {b:.4g}], where the measurements end (cell {cell_box}); the verdict there rests on "
             "the model outside the data"
         )
+    for result in results:
+        result.validity = "; ".join([result.validity, *caveats])
     return results

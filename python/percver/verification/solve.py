@@ -220,7 +220,7 @@ def verify_parts(
             raise InputError(f"max_splits must be a non-negative integer, got {p.max_splits!r}")
     from percver.validate.verifiable import validated_domain, validity
 
-    validated = validated_domain(loop, validated)  # of the loop as given: the plants below are rebuilt
+    validated, caveats = validated_domain(loop, validated)  # of the loop as given: the plants below are rebuilt
     if reward is not None:
         loop = loop.with_accumulators(reward)  # sums as extra states: see ClosedLoop.with_accumulators
     loop = loop.with_held_parameters()  # parameters held over a run as states: see ClosedLoop.with_held_parameters
@@ -292,7 +292,7 @@ def verify_parts(
         _record_held(loop, result)
     flagged = {(e["stage"], e["input"]) for e in initial_exits}
     flag_exits([e for r in results for e in r.domain_exits if (e["stage"], e["input"]) not in flagged], strict, results)
-    return validity(results, validated)
+    return validity(results, validated, caveats)
 
 
 def _record_held(loop: ClosedLoop, result) -> None:
