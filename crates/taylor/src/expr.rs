@@ -256,7 +256,11 @@ impl Expr {
                 Node::Uncertain { range, id, held } => {
                     let fresh = params.len();
                     let ordinal = *params.entry(*id).or_insert(fresh);
-                    (1u8, range.lo().to_bits(), range.hi().to_bits(), ordinal, *held).hash(&mut s)
+                    (1u8, range.lo().to_bits(), range.hi().to_bits(), ordinal).hash(&mut s);
+                    // A held parameter makes another problem; a disturbance hashes as it always did.
+                    if *held {
+                        held.hash(&mut s);
+                    }
                 }
                 Node::Var(n) => (2u8, n).hash(&mut s),
                 Node::Neg(a) => (3u8, go(a)).hash(&mut s),
