@@ -76,6 +76,7 @@ def scan(
     ghost=None,
     dropout=0.0,
     dropout_far=None,
+    dropout_grazing=None,
     noise=0.01,
     max_range=5.0,
 ):
@@ -85,6 +86,8 @@ def scan(
     (y = 20) where rays beyond the threshold incidence return nothing. ``ghost`` = (cx, cy, r):
     a round obstacle the canonical model does not know. ``dropout_far`` = (near, far, rate): echoes
     are lost with a probability rising linearly from 0 at ``near`` metres to ``rate`` at ``far``.
+    ``dropout_grazing`` = (threshold_deg, rate): echoes hitting a wall beyond the threshold
+    incidence are lost with probability ``rate``.
     """
     rng = np.random.default_rng(seed)
     x, y, th = states[:, 0:1], states[:, 1:2], states[:, 2:3]
@@ -111,6 +114,10 @@ def scan(
     if dropout_far is not None:
         near, far, rate = dropout_far
         lost |= echo & (rng.random(r.shape) < rate * np.clip((r - near) / (far - near), 0.0, 1.0))
+    if dropout_grazing is not None:
+        threshold, rate = dropout_grazing
+        grazing = np.degrees(np.arccos(np.clip(np.nan_to_num(cos_inc, nan=1.0), 0, 1))) > threshold
+        lost |= echo & grazing & (rng.random(r.shape) < rate)
     r = np.where(lost, max_range, r)
     return np.clip(r, 0.0, max_range)
 

@@ -86,3 +86,11 @@ def test_effect_causes_read_as_plain_text():
     from percver.validate.effects import library
 
     assert all("``" not in cls.cause() for cls in library())
+
+
+def test_dropout_at_grazing_incidence_is_unexplained_by_its_angle():
+    diagnosis = pv.diagnose(pv.sensors.lidar.canonical(), _scans(dropout_grazing=(60.0, 0.6)))
+    assert "dropout" not in diagnosis.effects
+    missing = [u for u in diagnosis.unexplained if u["kind"] == "missing"]
+    assert len(missing) == 1 and "incidence >=" in missing[0]["where"], missing
+    assert missing[0]["rate"] > 5 * missing[0]["rate_elsewhere"]

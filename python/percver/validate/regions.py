@@ -65,11 +65,12 @@ MISSING_RATIO = 2.0
 MISSING_Z = 4.0
 
 
-def missing_pattern(model, predicted, measured):
+def missing_pattern(model, predicted, measured, states=None):
     """Where lost echoes (rays predicted to echo that read the range limit) are not uniform: the
-    set of entries, by predicted range (above or below a cut) or by ray, whose loss rate stands
-    out most from the rest; None when losses look uniform, are too few, or the model has no
-    range limit. A dict with ``where``, ``rate``, ``rate_elsewhere``, ``share`` (of the losses)."""
+    set of entries, by predicted range or (given the ``states`` of the rows) angle of incidence on
+    the wall (above or below a cut), or by ray, whose loss rate stands out most from the rest; None
+    when losses look uniform, are too few, or the model has no range limit. A dict with ``where``,
+    ``rate``, ``rate_elsewhere``, ``share`` (of the losses)."""
     if not hasattr(model, "range_limit"):
         return None
     limit = model.range_limit()
@@ -81,9 +82,19 @@ def missing_pattern(model, predicted, measured):
     rate = k / n
     ranges, lost_flat = predicted[echoing], lost[echoing]
     rays = np.broadcast_to(np.arange(predicted.shape[1]), predicted.shape)[echoing]
+    measures = [("predicted range", "m", ranges)]
+    if states is not None and hasattr(model, "hits"):
+        with np.errstate(invalid="ignore"):
+            incidence = np.degrees(np.arccos(np.clip(model.hits(states).cos_incidence, 0.0, 1.0)))
+        measures.append(("incidence", "deg", incidence[echoing]))
     candidates = []
-    for cut in np.unique(np.quantile(ranges, np.linspace(0.1, 0.9, 9))):
-        candidates += [(f"predicted range >= {cut:.3g} m", ranges >= cut), (f"predicted range <= {cut:.3g} m", ranges <= cut)]
+    for label, unit, values in measures:
+        known = np.isfinite(values)
+        for cut in np.unique(np.quantile(values[known], np.linspace(0.1, 0.9, 9))):
+            candidates += [
+                (f"{label} >= {cut:.3g} {unit}", known & (values >= cut)),
+                (f"{label} <= {cut:.3g} {unit}", known & (values <= cut)),
+            ]
     names = getattr(model, "measurement_names", None)
     candidates += [(f"ray {names[j] if names else j}", rays == j) for j in range(predicted.shape[1])]
     best = None
