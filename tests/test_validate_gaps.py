@@ -94,3 +94,18 @@ def test_dropout_at_grazing_incidence_is_unexplained_by_its_angle():
     missing = [u for u in diagnosis.unexplained if u["kind"] == "missing"]
     assert len(missing) == 1 and "incidence >=" in missing[0]["where"], missing
     assert missing[0]["rate"] > 5 * missing[0]["rate_elsewhere"]
+
+
+def test_dropout_rising_with_time_in_the_run_is_unexplained_by_time():
+    """A sensor that loses more echoes the longer it runs (dust on the window): runs of 40 scans."""
+    model = pv.sensors.lidar.canonical()
+    time = np.tile(np.arange(40.0), len(POSES) // 40)
+    scans = hidden_world.scan(POSES, seed=2)
+    rng = np.random.default_rng(4)
+    echo = scans < model.range_limit()
+    scans = np.where(echo & (rng.random(scans.shape) < 0.4 * time[:, None] / 39), model.range_limit(), scans)
+    data = pv.Measurements(POSES, scans, trajectory=np.repeat(np.arange(len(POSES) // 40), 40), time=time, state_names=["x", "y", "theta"])
+    diagnosis = pv.diagnose(model, data)
+    assert "dropout" not in diagnosis.effects
+    missing = [u for u in diagnosis.unexplained if u["kind"] == "missing"]
+    assert len(missing) == 1 and "time in run >=" in missing[0]["where"], missing

@@ -55,7 +55,7 @@ class Diagnosis:
             {"kind": "region", "where": r.describe(), "bounds": r.bounds, "share": r.share, "lift": r.lift}
             for r in where.significant_regions
         ] + [{"kind": "dimension", "where": d.name, "share": d.share} for d in where.significant_dimensions]
-        missing = missing_pattern(final.model, final.predicted, final.evaluation.measured, final.evaluation.states)
+        missing = missing_pattern(final.model, final.predicted, final.evaluation.measured, final.evaluation)
         if missing is not None:
             self.unexplained.append(missing)
 

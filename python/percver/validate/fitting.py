@@ -170,7 +170,7 @@ def _crowded(model, evaluation) -> bool:
     """Whether the entries a random effect explains concentrate in a region of state space, or
     (lost echoes) in a range of the measurement or on some rays."""
     predicted = model.predict_inputs(evaluation.inputs)
-    if missing_pattern(model, predicted, evaluation.measured, evaluation.states) is not None:
+    if missing_pattern(model, predicted, evaluation.measured, evaluation) is not None:
         return True
     events = model.accounted(predicted, evaluation.measured).sum(axis=1).astype(float)
     _, table, known = feature_table(model, evaluation)

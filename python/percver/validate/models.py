@@ -210,6 +210,7 @@ class SensorModel(Model):
             measured=data.measurements,
             weights=np.ones(count),
             groups=data.groups,
+            row_features={} if data.time is None else {"time_in_run": _time_in_run(data)},
         )
 
 
@@ -419,6 +420,15 @@ class DynamicsModel(Model):
             history = effect.actuate(history)
             states = effect.pre_step(states, self)
         return np.asarray(self.plant.step(states, history[:, 0, :]), dtype=float).reshape(states.shape)
+
+
+def _time_in_run(data) -> np.ndarray:
+    """Each row's time since the first row of its trajectory (of the data without trajectories)."""
+    groups = data.trajectory if data.trajectory is not None else np.zeros(len(data), dtype=np.int64)
+    _, first = np.unique(groups, return_inverse=True)
+    start = np.full(first.max() + 1, np.inf)
+    np.minimum.at(start, first, data.time)
+    return data.time - start[first]
 
 
 def _step_in_run(pairs) -> np.ndarray:

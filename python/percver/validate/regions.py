@@ -65,12 +65,12 @@ MISSING_RATIO = 2.0
 MISSING_Z = 4.0
 
 
-def missing_pattern(model, predicted, measured, states=None):
+def missing_pattern(model, predicted, measured, evaluation=None):
     """Where lost echoes (rays predicted to echo that read the range limit) are not uniform: the
-    set of entries, by predicted range or (given the ``states`` of the rows) angle of incidence on
-    the wall (above or below a cut), or by ray, whose loss rate stands out most from the rest; None
-    when losses look uniform, are too few, or the model has no range limit. A dict with ``where``,
-    ``rate``, ``rate_elsewhere``, ``share`` (of the losses)."""
+    set of entries, by predicted range or, given the rows' ``evaluation``, angle of incidence on
+    the wall or time in the run (above or below a cut), or by ray, whose loss rate stands out
+    most from the rest; None when losses look uniform, are too few, or the model has no range
+    limit. A dict with ``where``, ``rate``, ``rate_elsewhere``, ``share`` (of the losses)."""
     if not hasattr(model, "range_limit"):
         return None
     limit = model.range_limit()
@@ -82,11 +82,14 @@ def missing_pattern(model, predicted, measured, states=None):
     rate = k / n
     ranges, lost_flat = predicted[echoing], lost[echoing]
     rays = np.broadcast_to(np.arange(predicted.shape[1]), predicted.shape)[echoing]
-    measures = [("predicted range", "m", ranges)]
-    if states is not None and hasattr(model, "hits"):
+    measures = [("predicted range", " m", ranges)]
+    if evaluation is not None and hasattr(model, "hits"):
         with np.errstate(invalid="ignore"):
-            incidence = np.degrees(np.arccos(np.clip(model.hits(states).cos_incidence, 0.0, 1.0)))
-        measures.append(("incidence", "deg", incidence[echoing]))
+            incidence = np.degrees(np.arccos(np.clip(model.hits(evaluation.states).cos_incidence, 0.0, 1.0)))
+        measures.append(("incidence", " deg", incidence[echoing]))
+    if evaluation is not None and "time_in_run" in evaluation.row_features:
+        time = np.broadcast_to(np.asarray(evaluation.row_features["time_in_run"], dtype=float)[:, None], predicted.shape)
+        measures.append(("time in run", "", time[echoing]))
     candidates = []
     for label, unit, values in measures:
         known = np.isfinite(values)
