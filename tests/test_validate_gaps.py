@@ -109,3 +109,16 @@ def test_dropout_rising_with_time_in_the_run_is_unexplained_by_time():
     assert "dropout" not in diagnosis.effects
     missing = [u for u in diagnosis.unexplained if u["kind"] == "missing"]
     assert len(missing) == 1 and "time in run >=" in missing[0]["where"], missing
+
+
+def test_first_ranking_marks_added_effects_and_stand_ins(tmp_path):
+    diagnosis = pv.diagnose(pv.sensors.lidar.canonical(), _scans(scale=1.02))
+    assert diagnosis.effects == ["range_scale"]
+    ranking = diagnosis.rankings[0]
+    verdicts = dict(zip((c.name for c in ranking), ranking.verdicts(diagnosis.effects)))
+    assert verdicts["range_scale"] == "added"
+    # A range bias also shortens the long rays' error alone: claimed on the baseline, but a stand-in.
+    assert verdicts["range_bias"] == "stand-in" and ranking[[c.name for c in ranking].index("range_bias")].claimed
+    assert set(verdicts.values()) <= {"added", "stand-in", "no"}
+    page = diagnosis.to_html(tmp_path).read_text()
+    assert "<td>stand-in</td>" in page and "<td>yes</td>" not in page.split("First ranking")[1].split("Baseline model")[0]
