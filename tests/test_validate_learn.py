@@ -138,3 +138,15 @@ def test_bad_learn_arguments_are_refused_before_any_work():
         pv.diagnose(pv.sensors.lidar.canonical(), data, learn=True, learn_options={"layers": 3})
     with pytest.raises(InputError, match="'positive_weight'"):
         pv.diagnose(pv.sensors.lidar.canonical(), data, learn="generative", learn_options={"positive_weight": 2})
+
+
+def test_learned_lidar_is_a_chain_of_stages_that_computes_the_model():
+    diagnosis, data, _ = _learned((("ghost", GHOST),))
+    sensor = diagnosis.system()
+    x, y, theta = pv.variables("x y theta")
+    loop = pv.ClosedLoop(pv.Discrete({x: x, y: y, theta: theta}), stages=sensor.stages(output="scan"))
+    assert [s.output for s in loop.stages] == ["scan_canonical", "scan_knockout", "scan"]
+    env = data.states[:300]
+    for k in range(len(loop.stages)):
+        env = np.column_stack([env, loop.stage_float(k, env)])
+    np.testing.assert_allclose(env[:, loop.signals["scan"]], diagnosis.final_model.predict(data.states[:300]), atol=1e-9)

@@ -116,7 +116,8 @@ def test_learned_generative_enters_as_a_network_stage_with_the_residual_after_it
     result = pv.verify(loop, init={"x": (-0.5, 0.6)}, steps=STEPS, safe=[x <= 0.7, x >= -0.7], split={"x": 0.05}, progress=False)
     assert result.verdict == "verified"
     assert result.validity == (
-        f"verified inside the validated domain ({diagnosis.domain.describe()}); the residual bound is the largest residual measured"
+        f"verified inside the validated domain ({diagnosis.domain.describe()}), in the region the measurements cover; "
+        "the residual bound is the largest residual measured"
     )
     # The residual is a disturbance re-drawn each step: runs drawing it anew stay inside too.
     assert _inside(result, tmp_path / "learned_generative.onnx", sensor, residual=bound) == 22 * 25

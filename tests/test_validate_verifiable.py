@@ -200,6 +200,23 @@ def test_verify_reports_where_reach_sets_leave_the_validated_domain():
     assert pv.verify(plain, init={"p": (-0.50, -0.49), "v": (0, 0)}, steps=3, safe=p >= -2.0, progress=False).validity is None
 
 
+def test_verify_reports_where_reach_sets_meet_a_hole_in_the_data():
+    rng = np.random.default_rng(8)
+    values = np.column_stack([rng.uniform(-1.2, 0.5, 20000), rng.uniform(-0.07, 0.07, 20000)])
+    hole = (values[:, 0] > -0.6) & (values[:, 0] < -0.35) & (np.abs(values[:, 1]) < 0.01)
+    loop = pv.ClosedLoop(_textbook(), stages=[pv.Stage(pv.where(v >= 0, 1.0, -1.0), inputs=[p, v], output="u")])
+    init = {"p": (-0.50, -0.49), "v": (0, 0)}
+    covered = pv.verify(loop, init=init, steps=3, safe=p >= -2.0, progress=False, validated=Domain.of(["p", "v"], values))
+    assert covered.validity.endswith(", in the region the measurements cover")
+    holed = pv.verify(loop, init=init, steps=3, safe=p >= -2.0, progress=False, validated=Domain.of(["p", "v"], values[~hole]))
+    assert holed.validity.startswith("verified inside the validated domain")
+    assert "but at step 0 it reaches a part of it without measurements (p in [-0.5, -0.49], v in [0, 0])" in holed.validity
+    # The grid: about 20 measurements per cell (31 x 31 here); a box in occupied cells only is covered.
+    (names, edges, occupied), *_ = Domain.of(["p", "v"], values).grids
+    assert names == ("p", "v") and len(edges[0]) == 32 and occupied.all()
+    assert Domain.of(["p", "v"], values[~hole]).first_uncovered(["p", "v"], [[(-1.0, -0.9), (0.03, 0.04)]]) is None
+
+
 def test_refusals_name_the_model_and_the_fix():
     data = _mountain_car_data(0.0004, 0.9, runs=3, steps=20)
     python_plant = pv.diagnose(FunctionPlant(hidden_world.mountain_car_step, ["p", "v"], ["u"]), data, effects=[], max_steps=0)

@@ -29,16 +29,49 @@ class NoSetSemanticsError(InputError):
     it and what to do instead."""
 
 
+# The grid of the region the data covers: measurements per cell on average, most cells per variable.
+PER_CELL = 20
+GRID_BINS = 64
+
+
 @dataclass
 class Domain:
-    """Where the model was validated: per variable, the range the measurements cover."""
+    """Where the model was validated: per variable, the range the measurements cover, and the
+    region they cover: ``grids``, each ``(names, edges, occupied)``, a grid over those variables'
+    ranges whose cells hold measurements where ``occupied`` is True (None: not known)."""
 
     bounds: dict
+    grids: list = field(default_factory=list)
 
     @classmethod
     def of(cls, names, values) -> "Domain":
+        """The ranges of ``values`` (rows x variables) and a grid marking the cells with a
+        measurement, with about ``PER_CELL`` measurements per cell on average (2 to ``GRID_BINS``
+        cells per variable): finer, and sampling gaps would pass for holes in the data."""
         values = np.asarray(values, dtype=float).reshape(len(values), -1)
-        return cls({n: (float(values[:, j].min()), float(values[:, j].max())) for j, n in enumerate(names)})
+        bounds = {n: (float(values[:, j].min()), float(values[:, j].max())) for j, n in enumerate(names)}
+        bins = int(min(GRID_BINS, max(2, np.floor((len(values) / PER_CELL) ** (1 / values.shape[1]) + 1e-9))))
+        edges = [np.linspace(lo, hi, bins + 1) if hi > lo else np.array([lo - 0.5, hi + 0.5]) for lo, hi in bounds.values()]
+        occupied = np.histogramdd(values, bins=edges)[0] > 0
+        return cls(bounds, [(tuple(names), edges, occupied)])
+
+    def first_uncovered(self, names, boxes):
+        """The first (step, box as {name: (lo, hi)}) where a reach box meets a grid cell without
+        measurements, over the variables of each grid; None when every box lies in occupied cells."""
+        column = {n: j for j, n in enumerate(names)}
+        for step, box in enumerate(boxes):
+            for grid_names, edges, occupied in self.grids:
+                if not all(n in column for n in grid_names):
+                    continue
+                ranges = []
+                for n, e in zip(grid_names, edges):
+                    lo, hi = box[column[n]]
+                    first = int(np.clip(np.searchsorted(e, lo, side="right") - 1, 0, len(e) - 2))
+                    last = int(np.clip(np.searchsorted(e, hi, side="left") - 1, 0, len(e) - 2))
+                    ranges.append(np.arange(first, max(first, last) + 1))
+                if not occupied[np.ix_(*ranges)].all():
+                    return step, {n: (float(box[column[n]][0]), float(box[column[n]][1])) for n in grid_names}
+        return None
 
     def first_exit(self, names, boxes):
         """The first (step, state, (lo, hi) of the reach box, (lo, hi) validated) where a reach box
@@ -389,7 +422,7 @@ def validated_domain(loop, validated=None) -> tuple:
             for name, (lo, hi) in basis.domain.bounds.items():
                 a, b = bounds.get(name, (lo, hi))
                 bounds[name] = (max(a, lo), min(b, hi))
-        validated = Domain(bounds)
+        validated = Domain(bounds, [grid for basis in bases for grid in basis.domain.grids])
     caveats = [
         f"the residual bound is {'the largest residual measured' if b.residual_kind == 'max' else 'the ' + b.residual_kind + ' of the measured residuals, a statistical bound, not a worst case'}"
         for b in bases
@@ -411,12 +444,20 @@ def validity(results: list, validated=None, caveats=()) -> list:
         if not exits:
             cex = result.counterexample
             if cex is not None:
-                run = np.asarray(cex.trajectory)[: cex.step + 1]
-                hit = validated.first_exit(result.states, [[(x, x) for x in row] for row in run])
+                run = [[(x, x) for x in row] for row in np.asarray(cex.trajectory)[: cex.step + 1]]
+                hit = validated.first_exit(result.states, run)
                 where = "inside" if hit is None else f"outside (at step {hit[0]}, {hit[1]} = {hit[2][0]:.4g})"
                 result.validity = f"the counterexample runs {where} the validated domain ({validated.describe()})"
+                gap = None if hit is not None else validated.first_uncovered(result.states, run)
             else:
                 result.validity = f"{result.verdict} inside the validated domain ({validated.describe()})"
+                gaps = [g for cell in result.cells if (g := validated.first_uncovered(result.states, cell.boxes)) is not None]
+                gap = min(gaps, key=lambda g: g[0]) if gaps else None
+            if gap is not None:
+                box = ", ".join(f"{n} in [{lo:.4g}, {hi:.4g}]" for n, (lo, hi) in gap[1].items())
+                result.validity += f", but at step {gap[0]} it reaches a part of it without measurements ({box})"
+            elif validated.grids:
+                result.validity += ", in the region the measurements cover"
             continue
         (step, name, (lo, hi), (a, b)), cell = min(exits, key=lambda e: e[0][0])
         cell_box = ", ".join(f"{n} in [{c[0]:.4g}, {c[1]:.4g}]" for n, c in cell.box.items())
