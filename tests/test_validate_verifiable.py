@@ -287,6 +287,12 @@ def test_lidar_dropout_is_an_adversarial_knockout_and_noise_is_refused():
     # Simulated with the parameters at their midpoints, no ray is knocked out.
     values = pv.evaluate(list(rays), {"x": poses[:, 0], "y": poses[:, 1], "theta": poses[:, 2]})
     np.testing.assert_allclose(values, model.predict(poses), atol=1e-9)
+    # A specular panel is a knock-out too: the same ray may read the limit.
+    specular, _ = _lidar_diagnosis([effects.get("specular_reflection", start=25.0, end=30.0, threshold_deg=40.0)], poses)
+    assert "specular_reflection" in str(specular.model.validation) and "knock-out" in str(specular.model.validation)
+    assert pv.bounds(specular.model[0], dict(zip(["x", "y", "theta"], [(c, c) for c in pose[0]])), method="interval")[1] == pytest.approx(
+        model.range_limit()
+    )
     noisy, _ = _lidar_diagnosis([effects.get("gaussian_noise", sigma=0.01)], poses)
     with pytest.raises(NoSetSemanticsError, match="gaussian_noise.*residual"):
         noisy.model
