@@ -136,3 +136,14 @@ def test_training_without_torch_says_what_to_install(monkeypatch):
         noise.train_knockout(np.column_stack([canonical, features]), real > 4.9, knocked=LIMIT)
     with pytest.raises(MissingDependencyError, match="learn=True"):
         pv.diagnose(pv.sensors.lidar.canonical(), pv.Measurements(np.zeros((3, 3)), np.zeros((3, 21))), learn=True)
+
+
+def test_training_with_progress_says_how_long_it_will_take(capsys):
+    pytest.importorskip("torch")
+    from percver.noise import train_generative
+
+    rng = np.random.default_rng(0)
+    canonical = rng.uniform(0, 1, (64, 3))
+    train_generative(canonical, rng.uniform(0, 1, (64, 1)), canonical, (4,), epochs=3, progress=True, threads=1)
+    err = capsys.readouterr().err
+    assert "generative: about" in err and "s for 3 epochs" in err and "3/3" in err

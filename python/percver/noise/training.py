@@ -7,6 +7,8 @@ is a :class:`percver.Network`, evaluated with numpy, written as ONNX and read ba
 
 from __future__ import annotations
 
+import time
+
 import numpy as np
 
 from percver.errors import InputError, MissingDependencyError
@@ -74,7 +76,8 @@ def fit(torch, module, inputs, targets, loss_fn, *, epochs, batch, lr, weight_de
         from tqdm import tqdm
 
         bar = tqdm(total=epochs, desc=desc, unit="epoch")
-    for _ in range(epochs):
+    started = time.perf_counter()
+    for epoch in range(epochs):
         order = torch.randperm(len(x), generator=generator)
         total = 0.0
         for lo in range(0, len(x), batch):
@@ -88,6 +91,8 @@ def fit(torch, module, inputs, targets, loss_fn, *, epochs, batch, lr, weight_de
         if bar is not None:
             bar.set_postfix(loss=f"{total / len(x):.4f}")
             bar.update(1)
+            if epoch == 0:  # the first epoch times them all
+                bar.write(f"{desc}: about {(time.perf_counter() - started) * epochs:.0f} s for {epochs} epochs", file=bar.fp)
     if bar is not None:
         bar.close()
     module.double()

@@ -279,7 +279,7 @@ def learn(model, evaluation, report, kind=True, options=None, *, folds=3, bootst
     if common.get("progress"):
         print(
             f"learning a {kind} noise model on {len(train_rows)} rows x {predicted.shape[1]} dimensions, "
-            f"{settings['epochs']} epochs (the bar estimates the time left after the first epoch)",
+            f"{settings['epochs']} epochs (after the first one it says about how long all take)",
             file=sys.stderr,
         )
     if kind == "knockout":
