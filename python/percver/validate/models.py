@@ -14,6 +14,7 @@ one from a function; ``SystemPlant`` adapts the ``pv.Discrete`` and ``pv.Continu
 from __future__ import annotations
 
 import copy
+import hashlib
 from dataclasses import dataclass, field, replace
 from typing import Callable, Protocol, Sequence
 
@@ -29,8 +30,10 @@ class BatchCache:
     """Results of an expensive canonical computation (ray casting, rendering) for recent batches.
 
     Fitting re-predicts the same states many times while only cheap effects change, through
-    many copies of one model; the copies share this cache. Entries are keyed by the identity
-    of the states array (kept alive by the entry) and a tuple of whatever else matters.
+    many copies of one model; the copies share this cache. An entry is found by the identity
+    of the states array (kept alive by the entry), and used only if the array's contents still
+    hash as they did when it was stored: an array changed in place between two calls is the
+    same object with a different value, and must not get the old value's result.
     """
 
     def __init__(self, size: int = 4):
@@ -38,12 +41,23 @@ class BatchCache:
         self.entries = []
 
     def get(self, states, key, compute):
-        for entry_states, entry_key, value in self.entries:
+        digest = None
+        for entry_states, entry_digest, entry_key, value in self.entries:
             if entry_states is states and entry_key == key:
-                return value
+                digest = digest or _digest(states)
+                if entry_digest == digest:
+                    return value
         value = compute()
-        self.entries = [(states, key, value)] + self.entries[: self.size - 1]
+        self.entries = [(states, digest or _digest(states), key, value)] + [e for e in self.entries if e[0] is not states or e[2] != key][
+            : self.size - 1
+        ]
         return value
+
+
+def _digest(array: np.ndarray) -> bytes:
+    return (
+        hashlib.blake2b(np.ascontiguousarray(array).view(np.uint8), digest_size=16).digest() + repr((array.shape, array.dtype.str)).encode()
+    )
 
 
 @dataclass(frozen=True)
