@@ -150,44 +150,6 @@ def uncertain(lo: float, hi: float, per: str = "step") -> Expr:
     return Expr.uncertain(float(lo), float(hi), per == "run")
 
 
-def substitute(expr: Expr, variables: Mapping[str, ExprLike] = (), parameters: Mapping[int, ExprLike] = ()) -> Expr:
-    """``expr`` with the variables named in ``variables`` and the uncertain parameters whose ids
-    are in ``parameters`` replaced by expressions.
-
-    Works on the DAG's node list (the pickling form), so shared nodes stay shared and every other
-    uncertain parameter keeps its identity (the same parameter wherever it appears).
-    """
-    variables, parameters = dict(variables), dict(parameters)
-    nodes = expr.__reduce__()[1][0]
-
-    def replacement(kind, name):
-        if kind == 2:
-            return variables.get(name)
-        return parameters.get(int(name)) if kind == 1 else None
-
-    out, roots = [], {}
-    for kind, _, _, _, name in nodes:
-        value = replacement(kind, name)
-        if value is None or (kind, name) in roots:
-            continue
-        sub = as_expr(value).__reduce__()[1][0]
-        offset = len(out)
-        out += [(k, s, v, [a + offset for a in args], n) for k, s, v, args, n in sub]
-        roots[(kind, name)] = len(out) - 1
-    if not roots:
-        return expr
-    index = []
-    for kind, sub, x, args, name in nodes:
-        if (kind, name) in roots:
-            index.append(roots[(kind, name)])
-            continue
-        out.append((kind, sub, x, [index[a] for a in args], name))
-        index.append(len(out) - 1)
-    if index[-1] != len(out) - 1:  # the whole expression was one replaced leaf
-        return as_expr(replacement(nodes[-1][0], nodes[-1][4]))
-    return Expr._from_nodes(out)
-
-
 def held_parameters(e: Union[ExprLike, Sequence[ExprLike]]) -> list:
     """The uncertain parameters held over a run (``uncertain(..., per="run")``) that ``e`` reads, as
     ``(id, lo, hi)``, each once."""

@@ -584,8 +584,6 @@ class ClosedLoop:
         one more Taylor-model variable, so the reach sets keep their dependency on it instead of
         taking a new value from its range at every step. ``held`` maps the new states to
         ``(id, lo, hi)``; :meth:`initial_box` starts them on their ranges."""
-        from percver.expr import substitute
-
         found = self.held_parameters()
         if not found:
             return self
@@ -604,7 +602,7 @@ class ClosedLoop:
         as_vars = {pid: Expr.var(n) for n, (pid, _, _) in held.items()}
 
         def plain(exprs):
-            return [substitute(e, parameters=as_vars) for e in exprs]
+            return [e.substitute({}, parameters=as_vars) for e in exprs]
 
         stages = []
         for stage in self.stages:

@@ -149,6 +149,20 @@ impl PyExpr {
     fn __hash__(slf: &Bound<'_, Self>) -> isize {
         slf.as_ptr() as isize
     }
+    /// The expression with the variables named in `mapping` replaced (shared nodes stay shared,
+    /// parameters keep their identity), and the uncertain parameters whose ids are in `parameters`.
+    #[pyo3(signature = (mapping, parameters=None))]
+    fn substitute(
+        &self,
+        mapping: std::collections::HashMap<String, Bound<'_, PyAny>>,
+        parameters: Option<std::collections::HashMap<u64, Bound<'_, PyAny>>>,
+    ) -> PyResult<Self> {
+        let map = mapping.into_iter().map(|(name, value)| Ok((name, operand(&value)?))).collect::<PyResult<_>>()?;
+        let out = self.0.substitute(&map);
+        let Some(parameters) = parameters else { return Ok(PyExpr(out)) };
+        let held = parameters.into_iter().map(|(id, value)| Ok((id, operand(&value)?))).collect::<PyResult<_>>()?;
+        Ok(PyExpr(out.substitute_parameters(&held)))
+    }
     /// Structural hash (each shared node once): for fingerprints of large expression DAGs.
     fn structural_hash(&self) -> u64 {
         self.0.structural_hash()

@@ -21,12 +21,19 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from percver.errors import InputError
-from percver.expr import substitute
 
 
 class NoSetSemanticsError(InputError):
     """A model or effect has no expression form that verification can use; the message names
     it and what to do instead."""
+
+
+def substitute(expr, mapping: dict):
+    """``expr`` with the variables named in ``mapping`` replaced by expressions (shared nodes
+    stay shared, an uncertain parameter keeps its identity); a number stays a number."""
+    from percver.expr import as_expr
+
+    return as_expr(expr).substitute(mapping)
 
 
 # The grid of the region the data covers: measurements per cell on average, most cells per variable.
