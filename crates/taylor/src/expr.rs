@@ -1000,7 +1000,7 @@ mod tests {
     fn substitution_keeps_sharing_and_parameters() {
         // e = s * s + k with s = sin(x + y), k an uncertain parameter; x := 2 t, y untouched.
         let (x, y, t) = (Expr::var("x"), Expr::var("y"), Expr::var("t"));
-        let k = Expr::uncertain(Interval::new(1.0, 2.0).unwrap());
+        let k = Expr::uncertain(Interval::new(1.0, 2.0).unwrap(), false);
         let s = Expr::func(Func::Sin, &Expr::binary(BinOp::Add, &x, &y));
         let e = Expr::binary(BinOp::Add, &Expr::binary(BinOp::Mul, &s, &s), &k);
         let two_t = Expr::binary(BinOp::Mul, &Expr::constant(2.0), &t);
@@ -1020,6 +1020,20 @@ mod tests {
         let f = Expr::binary(BinOp::Add, &z, &x).substitute(&HashMap::from([("x".to_string(), t.clone())]));
         let Node::Binary(_, kept, _) = &*f.0 else { panic!("a sum stays a sum") };
         assert!(Arc::ptr_eq(&kept.0, &z.0));
+    }
+
+    #[test]
+    fn a_held_parameter_is_replaced_by_its_state_and_the_others_stay() {
+        // e = a x + b with a held over a run (to become the state `a0`) and b a disturbance.
+        let a = Expr::uncertain(Interval::new(0.5, 1.5).unwrap(), true);
+        let b = Expr::uncertain(Interval::new(-0.1, 0.1).unwrap(), false);
+        let e = Expr::binary(BinOp::Add, &Expr::binary(BinOp::Mul, &a, &Expr::var("x")), &b);
+        let ids: Vec<u64> = e.parameters().iter().map(|p| p.0).collect();
+        let out = e.substitute_parameters(&HashMap::from([(ids[0], Expr::var("a0"))]));
+        assert_eq!(out.variables(), vec!["a0".to_string(), "x".to_string()]);
+        assert_eq!(out.parameters(), vec![e.parameters()[1]]);
+        let Node::Binary(_, _, kept) = &*out.0 else { panic!("a sum stays a sum") };
+        assert!(Arc::ptr_eq(&kept.0, &b.0) && matches!(&*kept.0, Node::Uncertain { held: false, .. }));
     }
 
     #[test]
