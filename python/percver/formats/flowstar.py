@@ -486,7 +486,7 @@ def _load_hybrid(path: str) -> HybridModel:
     if dnn:
         raise src.error(
             aut.modes[dnn[0]].pos,
-            f"mode {dnn[0]} is a Verisig 2.0 network mode (evaluated by the tool from a network file): read the model with pv.formats.load_verisig(model, networks=[...])",
+            f"mode {dnn[0]} is a Verisig 2.0 network mode (evaluated by the tool from a network file): read the model with pv.load_verisig(model, networks=[...])",
         )
     found = _integration_settings(aut.settings["ignored"], variables, path, src.text)
     for what, value in (("a step size", found["step"]), ("an order", found["order"])):

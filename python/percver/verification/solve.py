@@ -195,7 +195,7 @@ def verify_parts(
     :func:`verify`'s, the same for every part."""
     started = time.time()
     if not isinstance(loop, ClosedLoop) and isinstance(getattr(loop, "loop", None), ClosedLoop):
-        # A loaded problem (e.g. pv.formats.load_verisig): its file's init, horizon and property fill what is not given.
+        # A loaded problem (e.g. pv.load_verisig): its file's init, horizon and property fill what is not given.
         d = loop.defaults
         parts = [p if p.init is not None else replace(p, init=d["init"]) for p in parts]
         steps = d["steps"] if steps is None else steps
