@@ -18,7 +18,7 @@ import pytest
 
 import percver as pv
 from percver import _core
-from percver.executors import MISSING, dumps, run_batch
+from percver.verification.executors import MISSING, dumps, run_batch
 from percver.networks import Layer, Network
 from percver.verification import JournalWarning
 from percver.verification.property import Property

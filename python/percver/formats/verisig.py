@@ -16,7 +16,6 @@ from pathlib import Path
 
 
 from percver.errors import MissingFileError, ParseError
-from percver.formats.flowstar import _block
 
 __all__ = ["read", "Automaton", "AutomatonMode", "AutomatonJump"]
 
@@ -41,6 +40,20 @@ class _Source:
 
     def error(self, pos: int, message: str) -> ParseError:
         return ParseError(f"{self.path}, line {self.line(pos)}: {message}")
+
+
+def _block(text: str, start: int, path: str) -> tuple[str, int]:
+    """The text inside the braces opening at or after ``start``, and the index after them."""
+    open_at = text.index("{", start)
+    depth = 0
+    for i in range(open_at, len(text)):
+        if text[i] == "{":
+            depth += 1
+        elif text[i] == "}":
+            depth -= 1
+            if depth == 0:
+                return text[open_at + 1 : i], i + 1
+    raise ParseError(f"{path}: unbalanced '{{' at line {text.count(chr(10), 0, open_at) + 1}")
 
 
 class _Tokens:

@@ -232,7 +232,6 @@ def lidar_component(model, ranges: dict, residual: dict | None, residual_kind: s
     for every parameter in range (as the float model's unlimited cast does)."""
     from percver import _core
     from percver.expr import Expr, minimum, uncertain, where
-    from percver.sensors.lidar import Lidar
 
     effects, records = _deterministic(model, ranges)
     x, y, theta = (Expr.var(n) for n in model.state_names)
@@ -257,7 +256,7 @@ def lidar_component(model, ranges: dict, residual: dict | None, residual_kind: s
     cap = (limit_hi - b_lo) / a_lo
     if not cap > 0:
         raise NoSetSemanticsError(f"the fitted range bias {b_lo:g} m exceeds the range limit {limit_hi:g} m: no echo is possible")
-    cast = Lidar(model.lidar.angles_deg, cap).exprs(model.track, x, y, theta)
+    cast = model.lidar.with_range(cap).exprs(model.track, x, y, theta)
     rays = []
     for name, r in zip(model.measurement_names, cast):
         reading = minimum(a * r + b, limit)

@@ -233,7 +233,7 @@ def verify_parts(
     problem = loop.compile(safe=safe_r, goal=goal_r, within=within, steps=steps)
     runner = None
     if executor is not None:
-        from percver.executors import Runner
+        from percver.verification.executors import Runner
 
         runner = Runner(executor, slots=workers, batch=batch)  # checked (and connected) before any work
     jobs = []

@@ -25,6 +25,7 @@ from typing import Optional
 
 from percver.errors import InputError, MissingDependencyError, PercverError
 from percver.networks import Network
+from percver.verification.campaign import run_cells
 
 MISSING = "percver: the problem is not on this worker yet"
 RETRIES = 3  # resubmissions of a batch whose task failed (e.g. its worker died)
@@ -58,8 +59,6 @@ def dumps(problem) -> bytes:
 
 def run_batch(fingerprint: str, payload: Optional[bytes], cells: list, options: dict):
     """On a worker: the outcomes of ``cells`` (lists of (lo, hi)), or MISSING."""
-    from percver.verification.campaign import run_cells
-
     problem = _PROBLEMS.get(fingerprint)
     if problem is None:
         if payload is None:
