@@ -5,7 +5,8 @@ from __future__ import annotations
 from typing import Sequence
 
 from percver.formats import verisig
-from percver.networks import Network, load_network
+from percver.formats import load_network
+from percver.networks import Network
 from percver.translation.continuous import continuous_problem
 from percver.translation.discrete import discrete_problem
 from percver.translation.execution import Execution
