@@ -303,14 +303,53 @@ class StepCounter:
     def get(self) -> int: ...
     def reset(self) -> None: ...
 
+class CellOutcome:
+    """What verifying a cell found; picklable, so it comes back from executor workers as it is."""
+
+    def __init__(
+        self,
+        verdict: str,
+        reason: Optional[str],
+        steps_done: int,
+        deepest_step: int,
+        boxes: Sequence[Bounds],
+        seconds: float,
+        nn_seconds: float,
+        branches: int,
+        split: Optional[int],
+    ) -> None: ...
+    @property
+    def verdict(self) -> str:
+        """One of "verified", "unknown", "violated"."""
+    @property
+    def reason(self) -> Optional[str]: ...
+    @property
+    def steps_done(self) -> int:
+        """Steps completed by the whole cell: the boxes cover steps 0..steps_done."""
+    @property
+    def deepest_step(self) -> int:
+        """The deepest step any piece of the cell reached."""
+    @property
+    def boxes(self) -> list[list[Tuple[float, float]]]:
+        """The state box of each step, step 0 first."""
+    @property
+    def seconds(self) -> float: ...
+    @property
+    def nn_seconds(self) -> float: ...
+    @property
+    def branches(self) -> int: ...
+    @property
+    def split(self) -> Optional[int]:
+        """The state the engine would have split next (an index into the state names)."""
+    def __reduce__(self) -> Tuple[Any, Tuple[Any, ...]]: ...
+
 def verify_cells(
     problem: ClosedLoop,
     cells: Sequence[Bounds],
-    done: Callable[[int, dict[str, Any]], Optional[bool]],
+    done: Callable[[int, CellOutcome], Optional[bool]],
     settings: Optional[CellSettings] = None,
     workers: Optional[int] = None,
     progress: Optional[StepCounter] = None,
 ) -> None:
     """Runs ``cells`` ((lo, hi) per state variable) with ``settings``; ``done(index, outcome)`` is
-    called as each cell finishes (outcome keys: verdict, reason, steps_done, deepest_step, boxes,
-    seconds, nn_seconds, branches, split); returning False (or raising) stops starting new cells."""
+    called as each cell finishes; returning False (or raising) stops starting new cells."""

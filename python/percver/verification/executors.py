@@ -58,7 +58,7 @@ def dumps(problem) -> bytes:
 
 
 def run_batch(fingerprint: str, payload: Optional[bytes], cells: list, options: dict):
-    """On a worker: the outcomes of ``cells`` (lists of (lo, hi)), or MISSING."""
+    """On a worker: (outcome, peak RSS in MB) of each of ``cells`` (lists of (lo, hi)), or MISSING."""
     problem = _PROBLEMS.get(fingerprint)
     if problem is None:
         if payload is None:
@@ -69,7 +69,7 @@ def run_batch(fingerprint: str, payload: Optional[bytes], cells: list, options: 
         while len(_PROBLEMS) > _KEPT:
             _PROBLEMS.popitem(last=False)
     out = [None] * len(cells)
-    run_cells(problem, cells, out.__setitem__, options, workers=1)
+    run_cells(problem, cells, lambda i, outcome, rss: out.__setitem__(i, (outcome, rss)), options, workers=1)
     return out
 
 
@@ -169,8 +169,8 @@ class Runner:
                         payload = payload or dumps(problem)
                         submit(cells, payload, tries)
                         continue
-                    for cell, outcome in zip(cells, outcomes):
-                        campaign.record(cell, outcome)
+                    for cell, (outcome, rss) in zip(cells, outcomes):
+                        campaign.record(cell, outcome, rss)
         finally:
             for future in inflight:
                 future.cancel()
