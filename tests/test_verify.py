@@ -262,6 +262,9 @@ def test_verify_parts_rejects_what_is_not_a_part():
         pv.verify_parts(loop, [{"init": {"x": (0, 1)}}], steps=3, safe=x <= 100.0)
     with pytest.raises(pv.InputError, match="workers must be a positive integer"):
         pv.verify_parts(loop, [pv.Part({"x": (0, 1)})], steps=3, safe=x <= 100.0, workers=0, progress=False)
+    # A part's own keywords (and typos) are not verify_parts' keywords; the others are verify's.
+    with pytest.raises(TypeError, match=r"unexpected keyword arguments \['order', 'stpes'\]; it takes steps, goal, "):
+        pv.verify_parts(loop, [pv.Part({"x": (0, 1)})], stpes=3, order=4, safe=x <= 100.0)
 
 
 def test_a_wall_hit_at_different_steps_forks_the_plant():

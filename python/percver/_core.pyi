@@ -8,6 +8,7 @@ from typing import Any, Callable, Mapping, Optional, Sequence, Tuple, Union
 
 import numpy as np
 from numpy.typing import NDArray
+from typing_extensions import TypedDict, Unpack
 
 __version__: str
 
@@ -161,6 +162,12 @@ class NetworkModels:
     @property
     def order(self) -> int: ...
 
+# The keywords of Network.bounds and Network.models; one left out takes the engine's default
+# (nn2hybrid's propagate::Settings::default(): order 5, cutoff 1e-15, symbolic, 4 variables, 4096 symbols).
+PropagationOptions = TypedDict(
+    "PropagationOptions", {"order": int, "cutoff": float, "symbolic": bool, "max_vars": int, "max_symbols": int}, total=False
+)
+
 class Network:
     """A feed-forward network: ``layers`` of (weight n_out x n_in, bias, activations: one name per
     neuron or one per layer), outputs mapped by ``scale`` and ``offset``."""
@@ -179,24 +186,14 @@ class Network:
         self,
         input: Union[Bounds, NetworkModels],
         method: str = "taylor",
-        order: int = 5,
-        cutoff: float = 1e-15,
-        symbolic: bool = True,
-        max_vars: int = 4,
-        max_symbols: int = 4096,
+        *,
         splits: Sequence[Tuple[int, int]] = ...,
+        leaves: int = 1,
+        **options: Unpack[PropagationOptions],
     ) -> list[Tuple[float, float]]:
-        """Sound output bounds over a box (or over earlier models) by "taylor", "verisig" or "interval"."""
-    def models(
-        self,
-        input: Union[Bounds, NetworkModels],
-        method: str = "taylor",
-        order: int = 5,
-        cutoff: float = 1e-15,
-        symbolic: bool = True,
-        max_vars: int = 4,
-        max_symbols: int = 4096,
-    ) -> NetworkModels:
+        """Sound output bounds over a box (or over earlier models) by "taylor", "verisig" or "interval";
+        ``leaves`` > 1 refines a box's Taylor bounds by branch and bound on the input."""
+    def models(self, input: Union[Bounds, NetworkModels], method: str = "taylor", **options: Unpack[PropagationOptions]) -> NetworkModels:
         """The output Taylor models over a box (or over earlier models), to propagate further."""
 
 # A condition for the engine: (margin, op, label) meaning ``margin op 0`` over the state.
