@@ -199,24 +199,16 @@ impl From<&CellOutcome> for PyCellOutcome {
     }
 }
 
+/// The constructor's arguments, the fields in their order (and what `__reduce__` gives back).
 type OutcomeArgs = (String, Option<String>, usize, usize, Vec<Vec<(f64, f64)>>, f64, f64, usize, Option<usize>);
 
 #[pymethods]
 impl PyCellOutcome {
+    /// `CellOutcome(verdict, reason, steps_done, deepest_step, boxes, seconds, nn_seconds, branches, split)`.
     #[new]
-    #[pyo3(signature = (verdict, reason, steps_done, deepest_step, boxes, seconds, nn_seconds, branches, split))]
-    #[allow(clippy::too_many_arguments)]
-    fn new(
-        verdict: String,
-        reason: Option<String>,
-        steps_done: usize,
-        deepest_step: usize,
-        boxes: Vec<Vec<(f64, f64)>>,
-        seconds: f64,
-        nn_seconds: f64,
-        branches: usize,
-        split: Option<usize>,
-    ) -> PyResult<Self> {
+    #[pyo3(signature = (*args))]
+    fn new(args: OutcomeArgs) -> PyResult<Self> {
+        let (verdict, reason, steps_done, deepest_step, boxes, seconds, nn_seconds, branches, split) = args;
         if ![Verdict::Verified, Verdict::Unknown, Verdict::Violated].iter().any(|&v| verdict_name(v) == verdict) {
             return Err(input_error(format!("a cell's verdict is 'verified', 'unknown' or 'violated', not '{verdict}'")));
         }

@@ -9,16 +9,9 @@ from percver.systems import ClosedLoop, Continuous
 from percver.translation.conditions import negate
 from percver.translation.execution import RunState
 from percver.translation.problem import VerisigProblem, make_problem
-from percver.translation.properties import edge_conditions, final_goal, property_edges
+from percver.translation.properties import check_plant_states, final_goal, jump_properties
 from percver.translation.stages import build_stages, same_controller
-from percver.translation.timing import (
-    check_entry_clock,
-    classify_trigger,
-    flow_trigger,
-    horizon_steps,
-    jump_note,
-    property_horizon,
-)
+from percver.translation.timing import check_entry_clock, flow_trigger, horizon_steps, jump_note, property_horizon
 from percver.translation.values import TOL, Relative, ast_vars, build_value
 
 
@@ -88,34 +81,12 @@ def continuous_problem(ex, init_timers: dict) -> VerisigProblem:
     rhs.update({v: 0.0 for v in params})
     ordered = [v for v in ex.vars if v in state_set]
     # The property.
-    unsafe, absorbing = property_edges(ex, F)
-    at = RunState(dict(ex.sym), {v: 0.0 for v in ex.timers})
-    safe, finals = [], []
-    for conds, text in ex.obligations:
-        safe.append(negate(conds, ex.src, None))
-    for j in unsafe + absorbing:
-        timer_atoms, conds = edge_conditions(ex, j, at)
-        trig = flow_trigger(ex, timer_atoms, entries, F, P, H)
-        kind = classify_trigger(ex, trig, f"jump {j.src} -> {j.dst}", j.pos, H)
-        if kind is None:
-            continue
-        if j in absorbing:
-            if kind != "always":
-                ex.notes.append(f"jump {j.src} -> {j.dst} (line {ex.src.line(j.pos)}) ends the run at step {kind[1]} only; ignored")
-                continue
-            raise ex.src.error(
-                j.pos, f"jump {j.src} -> {j.dst} ends the run early (an absorbing goal) in a continuous model; not supported"
-            )
-        if kind == "always":
-            safe.append(negate(conds, ex.src, j))
-        else:
-            finals.append((j, conds, kind[1]))
+    obligations = [negate(conds, ex.src, None) for conds, _ in ex.obligations]
+    safe, finals, _ = jump_properties(ex, F, lambda atoms: flow_trigger(ex, atoms, entries, F, P, H), H, "continuous")
+    safe = obligations + safe
     H = property_horizon(ex, finals, safe, H)
     goal, within = final_goal(ex, finals, [], F)
-    for c in safe + ([goal] if goal is not None else []):
-        extra = set(c.margin().variables()) - state_set
-        if extra:
-            raise ParseError(f"{ex.src.path}: the property reads {sorted(extra)}, which are not plant states of '{F}'")
+    check_plant_states(ex, safe, goal, state_set, f" of '{F}'")
     stages, _ = build_stages(ex, calls, state_set, {u: end.env[u] for u in inputs})
     init = ex.init_box(ordered)
     plant_obj = Continuous({v: rhs[v] for v in ordered}, inputs=inputs, period=P)

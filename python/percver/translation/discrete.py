@@ -5,14 +5,12 @@ from __future__ import annotations
 from percver.errors import ParseError
 from percver.expr import Expr
 from percver.systems import ClosedLoop, Discrete
-from percver.translation.conditions import negate
 from percver.translation.execution import RunState
 from percver.translation.problem import VerisigProblem, make_problem
-from percver.translation.properties import edge_conditions, final_goal, property_edges
+from percver.translation.properties import final_goal, jump_properties
 from percver.translation.stages import build_stages
 from percver.translation.timing import (
     check_assumed,
-    classify_trigger,
     discrete_trigger,
     horizon_steps,
     jump_note,
@@ -50,24 +48,7 @@ def discrete_problem(ex, init_timers: dict) -> VerisigProblem:
     timer_at = timer_sequence(ex, start_timers, end.timers, H, lambda v, n, t: t)
     calls = ex.calls
     # Property from the jumps leaving the boundary mode.
-    unsafe, absorbing = property_edges(ex, anchor)
-    at = RunState(dict(ex.sym), {v: 0.0 for v in ex.timers})
-    safe, finals, goals_within = [], [], []
-    for j in unsafe + absorbing:
-        timer_atoms, conds = edge_conditions(ex, j, at)
-        trig = discrete_trigger(ex, timer_atoms, timer_at, H)
-        kind = classify_trigger(ex, trig, f"jump {j.src} -> {j.dst}", j.pos, H)
-        if kind is None:
-            continue
-        if j in absorbing:
-            if kind != "always":
-                ex.notes.append(f"jump {j.src} -> {j.dst} (line {ex.src.line(j.pos)}) ends the run at step {kind[1]} only; ignored")
-                continue
-            goals_within.append((j, conds))
-        elif kind == "always":
-            safe.append(negate(conds, ex.src, j))
-        else:
-            finals.append((j, conds, kind[1]))
+    safe, finals, goals_within = jump_properties(ex, anchor, lambda atoms: discrete_trigger(ex, atoms, timer_at, H), H)
     H = property_horizon(ex, finals, safe, H)
     goal, within = final_goal(ex, finals, goals_within, anchor)
     # States: what the property and the controller read, closed under the update.

@@ -9,16 +9,9 @@ from percver.systems import ClosedLoop, Hybrid, Jump, Mode
 from percver.translation.conditions import negate
 from percver.translation.execution import RunState
 from percver.translation.problem import VerisigProblem, make_problem
-from percver.translation.properties import constraint_conditions, edge_conditions, final_goal, property_edges
+from percver.translation.properties import check_plant_states, constraint_conditions, edge_conditions, final_goal, property_edges
 from percver.translation.stages import build_stages, same_controller
-from percver.translation.timing import (
-    check_entry_clock,
-    classify_trigger,
-    flow_trigger,
-    horizon_steps,
-    jump_note,
-    property_horizon,
-)
+from percver.translation.timing import check_entry_clock, classify_trigger, flow_trigger, horizon_steps, jump_note, property_horizon
 from percver.translation.values import TOL, Relative, ast_vars, build_value
 
 
@@ -147,10 +140,7 @@ def hybrid_problem(ex, init_timers: dict) -> VerisigProblem:
             finals.append((j, conds, kind[1]))
     H = property_horizon(ex, finals, safe, H)
     goal, within = final_goal(ex, finals, [], last)
-    for c in safe + ([goal] if goal is not None else []):
-        extra = set(c.margin().variables()) - state_set
-        if extra:
-            raise ParseError(f"{ex.src.path}: the property reads {sorted(extra)}, which are not plant states")
+    check_plant_states(ex, safe, goal, state_set, "")
     stages, _ = build_stages(ex, calls, state_set, {u: end.env[u] for u in inputs})
     ordered = [v for v in ex.vars if v in state_set]
     init = {**ex.init_box([v for v in ordered if v not in clocks]), **{v: (entry0[v], entry0[v]) for v in clocks}}

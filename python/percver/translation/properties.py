@@ -3,10 +3,14 @@ modes, read as conditions at every step, at the final step, or as a goal reached
 
 from __future__ import annotations
 
+from typing import Optional
+
+from percver.errors import ParseError
 from percver.expr import Expr
 from percver.formats.verisig import AutomatonJump
 from percver.translation.conditions import all_of, atom_text, complementary, dedupe, dedupe_atoms, implies, negate
 from percver.translation.execution import RunState
+from percver.translation.timing import classify_trigger
 from percver.translation.values import ast_vars, build_value, condition_of
 
 
@@ -91,3 +95,40 @@ def constraint_conditions(ex, atoms: list, where: str) -> list:
             if c is not True:
                 out.append(c)
     return out
+
+
+def check_plant_states(ex, safe: list, goal, states: set, plant: str):
+    """A property of a flowing plant reads only its states (``plant`` names it in the message)."""
+    for c in safe + ([goal] if goal is not None else []):
+        extra = set(c.margin().variables()) - states
+        if extra:
+            raise ParseError(f"{ex.src.path}: the property reads {sorted(extra)}, which are not plant states{plant}")
+
+
+def jump_properties(ex, source: str, trigger, H: int, model: Optional[str] = None) -> tuple:
+    """The property jumps out of ``source`` by when they fire (``trigger`` maps a jump's counter
+    atoms to its steps): (conditions safe at every step, [(jump, conditions, step)] checked at one
+    final step, [(jump, conditions)] of absorbing goals that end the run at any step). An
+    absorbing goal is refused in a ``model`` (a flowing plant's kind); None accepts it."""
+    unsafe, absorbing = property_edges(ex, source)
+    at = RunState(dict(ex.sym), {v: 0.0 for v in ex.timers})
+    safe, finals, goals_within = [], [], []
+    for j in unsafe + absorbing:
+        timer_atoms, conds = edge_conditions(ex, j, at)
+        kind = classify_trigger(ex, trigger(timer_atoms), f"jump {j.src} -> {j.dst}", j.pos, H)
+        if kind is None:
+            continue
+        if j in absorbing:
+            if kind != "always":
+                ex.notes.append(f"jump {j.src} -> {j.dst} (line {ex.src.line(j.pos)}) ends the run at step {kind[1]} only; ignored")
+                continue
+            if model is not None:
+                raise ex.src.error(
+                    j.pos, f"jump {j.src} -> {j.dst} ends the run early (an absorbing goal) in a {model} model; not supported"
+                )
+            goals_within.append((j, conds))
+        elif kind == "always":
+            safe.append(negate(conds, ex.src, j))
+        else:
+            finals.append((j, conds, kind[1]))
+    return safe, finals, goals_within

@@ -39,14 +39,10 @@ def build_stages(ex, calls: list, states: set, computed_inputs: dict) -> tuple:
         else:
             in_name = ex.fresh(f"{c.output}_in")
             exprs = [as_expr(v) for v in c.inputs]
-            used = sorted({n for e in exprs for n in e.variables()}, key=order_key(ex.vars))
-            missing = [n for n in used if n not in known]
-            if missing:
-                raise ParseError(
-                    f"{ex.src.path}: the inputs of the network in '{c.mode}' read {missing}, which are neither plant states nor earlier signals"
-                )
-            if not used:
-                raise ParseError(f"{ex.src.path}: the inputs of the network in '{c.mode}' are constants")
+            what = f"the inputs of the network in '{c.mode}'"
+            used = _inputs(
+                ex, exprs, known, f"{what} read {{}}, which are neither plant states nor earlier signals", f"{what} are constants"
+            )
             stages.append(Stage(exprs, inputs=used, output=in_name))
             known.add(in_name)
             wired = [in_name]
@@ -66,18 +62,24 @@ def build_stages(ex, calls: list, states: set, computed_inputs: dict) -> tuple:
         if u in done:
             continue
         e = as_expr(e)
-        used = sorted(set(e.variables()), key=order_key(ex.vars))
-        missing = [n for n in used if n not in known]
-        if missing:
-            raise ParseError(
-                f"{ex.src.path}: the plant input '{u}' reads {missing} from the previous period; only plant states carry over between periods"
-            )
-        if not used:
-            raise ParseError(f"{ex.src.path}: the plant input '{u}' is a constant; make it a parameter instead")
+        unknown = f"the plant input '{u}' reads {{}} from the previous period; only plant states carry over between periods"
+        used = _inputs(ex, [e], known, unknown, f"the plant input '{u}' is a constant; make it a parameter instead")
         stages.append(Stage([e], inputs=used, output=u))
         known.add(u)
         signals.append(u)
     return stages, signals
+
+
+def _inputs(ex, exprs: list, known: set, unknown: str, constant: str) -> list:
+    """The variables ``exprs`` read, in the model's order; refused when one is not ``known`` yet
+    (``unknown`` names them at its ``{}``) or when there is none (``constant``)."""
+    used = sorted({n for e in exprs for n in e.variables()}, key=order_key(ex.vars))
+    missing = [n for n in used if n not in known]
+    if missing:
+        raise ParseError(f"{ex.src.path}: {unknown.format(missing)}")
+    if not used:
+        raise ParseError(f"{ex.src.path}: {constant}")
+    return used
 
 
 def same_controller(ex, pre_calls, pre_env, calls, env, plant):

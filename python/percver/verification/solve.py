@@ -204,7 +204,7 @@ def _verify_parts(loop, parts: Sequence[Part], keywords: dict) -> list:
     bar = Progress(lock)
     try:
         with ExitStack() as journals:
-            for p, box, (part_splitter, cells) in zip(parts, boxes, splitters):
+            for p, box, (splitter, cells) in zip(parts, boxes, splitters):
                 settings = {
                     "steps": o.steps,
                     "method": o.method,
@@ -228,17 +228,7 @@ def _verify_parts(loop, parts: Sequence[Part], keywords: dict) -> list:
                 journal = Journal(p.journal, fingerprint)
                 journals.callback(journal.close)
                 campaign = Campaign(
-                    loop,
-                    prop,
-                    box,
-                    part_splitter,
-                    cells,
-                    journal,
-                    bar,
-                    timeout=o.timeout_per_cell,
-                    falsify=o.falsify,
-                    seed=o.seed,
-                    lock=lock,
+                    loop, prop, box, splitter, cells, journal, bar, timeout=o.timeout_per_cell, falsify=o.falsify, seed=o.seed, lock=lock
                 )
                 jobs.append((campaign, settings, fingerprint, options))
             if o.progress:
