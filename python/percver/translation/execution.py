@@ -37,6 +37,8 @@ START = "<start>"  # the period's first mode, distinct from the same mode as its
 
 @dataclass
 class Call:
+    """A network evaluated in the period: its inputs' values and the signal its outputs become."""
+
     net: object
     inputs: list  # values (float or Expr) of _f1.._fN
     output: str  # signal name
