@@ -21,7 +21,7 @@ def networks():
 
 @pytest.fixture(scope="module")
 def loop(networks):
-    return pv.ClosedLoop(V.plant(), V.stages(*networks))
+    return pv.ClosedLoop(V.plant(), V.perception(*networks))
 
 
 def starts(lo, hi, n, seed=0):

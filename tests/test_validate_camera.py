@@ -9,7 +9,7 @@ import pytest
 import hidden_world
 import percver as pv
 from percver.errors import InputError
-from percver.validate import ImageModel
+from percver.sensors.camera import ImageModel
 
 POSITIONS = np.random.default_rng(3).uniform(-1.2, 0.6, (120, 1))
 

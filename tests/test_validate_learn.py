@@ -13,7 +13,7 @@ import hidden_world  # noqa: E402
 import percver as pv  # noqa: E402
 from percver.errors import InputError  # noqa: E402
 from percver.noise import KnockoutModel  # noqa: E402
-from percver.validate import ImageModel  # noqa: E402
+from percver.sensors.camera import ImageModel  # noqa: E402
 
 GHOST = (10.0, 19.3, 0.25)  # a round obstacle in the north hallway
 PANEL = (8.0, 12.0, 40.0)  # a reflective stretch of the north wall

@@ -154,3 +154,14 @@ def test_a_network_or_expressions_of_the_states_are_sensor_models():
     assert report.per_dimension["heading"] == pytest.approx(0.01, rel=0.2)
     network = pv.Network([([[0.0, -1.0, 0.0], [0.0, 0.0, 1.0]], [20.0, 0.0], "identity")])
     assert np.allclose(pv.compare(network, data).residuals, report.residuals)
+
+
+def test_cached_casts_follow_an_array_changed_in_place(model):
+    """The cast cache finds batches by the states array; one changed in place must be cast again."""
+    states = np.array(POSES[:50], dtype=float)
+    before = model.predict_inputs({"states": states})
+    states[:, 0] += 0.5
+    after = model.predict_inputs({"states": states})
+    fresh = pv.sensors.lidar.canonical().predict_inputs({"states": states.copy()})
+    np.testing.assert_array_equal(after, fresh)
+    assert not np.array_equal(before, after)

@@ -43,6 +43,7 @@ from percver.flowpipe import Flowpipe, flowpipe
 from percver.sets import Box
 from percver.properties import all_of, any_of, during
 from percver.systems import ClosedLoop, Continuous, Discrete, Hybrid, Jump, Mode, Stage
+from percver.perception import Perception
 from percver.verification import Adaptive, Bisection, DomainWarning, Grid, Part, Result, verify, verify_parts
 
 min = minimum  # noqa: A001 - the design's names pv.min / pv.max, like numpy's

@@ -69,6 +69,9 @@ class Expr:
         """The variable's name if this expression is a bare variable."""
     def parameters(self) -> list[Tuple[int, float, float]]:
         """The uncertain parameters the expression reads, as (id, lo, hi), each once."""
+    def substitute(self, mapping: Mapping[str, Operand]) -> Expr:
+        """The expression with the variables named in `mapping` replaced (shared nodes stay shared,
+        parameters keep their identity)."""
     def structural_hash(self) -> int:
         """Structural hash (each shared node once): for fingerprints of large expression DAGs."""
     def __add__(self, o: Operand) -> Expr: ...

@@ -147,6 +147,12 @@ impl PyExpr {
     fn __hash__(slf: &Bound<'_, Self>) -> isize {
         slf.as_ptr() as isize
     }
+    /// The expression with the variables named in `mapping` replaced (shared nodes stay shared,
+    /// parameters keep their identity).
+    fn substitute(&self, mapping: std::collections::HashMap<String, Bound<'_, PyAny>>) -> PyResult<Self> {
+        let map = mapping.into_iter().map(|(name, value)| Ok((name, operand(&value)?))).collect::<PyResult<_>>()?;
+        Ok(PyExpr(self.0.substitute(&map)))
+    }
     /// Structural hash (each shared node once): for fingerprints of large expression DAGs.
     fn structural_hash(&self) -> u64 {
         self.0.structural_hash()

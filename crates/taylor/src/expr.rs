@@ -193,6 +193,56 @@ impl Expr {
         out
     }
 
+    /// The expression with the variables named in `map` replaced by expressions. Shared nodes
+    /// stay shared (each distinct node is rebuilt once) and parameters keep their identity, so a
+    /// model written in terms of other signals becomes one over the states without copies.
+    pub fn substitute(&self, map: &HashMap<String, Expr>) -> Expr {
+        // Post-order without recursion: a network written as an expression is thousands deep.
+        let mut done: HashMap<usize, Expr> = HashMap::new();
+        let mut stack = vec![(self.clone(), false)];
+        let key = |e: &Expr| Arc::as_ptr(&e.0) as usize;
+        while let Some((e, expanded)) = stack.pop() {
+            if done.contains_key(&key(&e)) {
+                continue;
+            }
+            let children = children_of(&e);
+            if !expanded && children.iter().any(|c| !done.contains_key(&key(c))) {
+                stack.push((e.clone(), true));
+                stack.extend(children.into_iter().map(|c| (c.clone(), false)));
+                continue;
+            }
+            let new = |c: &Expr| done[&key(c)].clone();
+            let unchanged = |cs: &[&Expr]| cs.iter().all(|c| Arc::ptr_eq(&done[&key(c)].0, &c.0));
+            let rebuilt = match &*e.0 {
+                Node::Var(_) | Node::Const(_) | Node::Uncertain { .. } => map_leaf(&e, map),
+                _ if unchanged(&children_of(&e)) => e.clone(),
+                Node::Neg(a) => new(a).neg(),
+                Node::PowI(a, n) => new(a).powi(*n),
+                Node::PowF(a, r) => Expr::new(Node::PowF(new(a), *r)),
+                Node::Func(f, a) => Expr::func(*f, &new(a)),
+                Node::Binary(op, a, b) => Expr::binary(*op, &new(a), &new(b)),
+                Node::Where { lhs, cmp, rhs, then, otherwise } => Expr::select(&new(lhs), *cmp, &new(rhs), &new(then), &new(otherwise)),
+            };
+            done.insert(key(&e), rebuilt);
+        }
+        return done[&key(self)].clone();
+
+        fn children_of(e: &Expr) -> Vec<&Expr> {
+            match &*e.0 {
+                Node::Const(_) | Node::Uncertain { .. } | Node::Var(_) => vec![],
+                Node::Neg(a) | Node::PowI(a, _) | Node::PowF(a, _) | Node::Func(_, a) => vec![a],
+                Node::Binary(_, a, b) => vec![a, b],
+                Node::Where { lhs, rhs, then, otherwise, .. } => vec![lhs, rhs, then, otherwise],
+            }
+        }
+        fn map_leaf(e: &Expr, map: &HashMap<String, Expr>) -> Expr {
+            match &*e.0 {
+                Node::Var(n) => map.get(n).cloned().unwrap_or_else(|| e.clone()),
+                _ => e.clone(),
+            }
+        }
+    }
+
     /// Names of the variables used, in order of first appearance.
     pub fn variables(&self) -> Vec<String> {
         let mut seen = std::collections::HashSet::new();
@@ -922,6 +972,32 @@ mod tests {
             let tm = p.eval(&TaylorModels { ctx: &ctx }, &[tx, ty]).unwrap();
             assert!(tm[1].bound(&ctx.space).contains(floats[1][k]));
         }
+    }
+
+    #[test]
+    fn substitution_keeps_sharing_and_parameters() {
+        // e = s * s + k with s = sin(x + y), k an uncertain parameter; x := 2 t, y untouched.
+        let (x, y, t) = (Expr::var("x"), Expr::var("y"), Expr::var("t"));
+        let k = Expr::uncertain(Interval::new(1.0, 2.0).unwrap());
+        let s = Expr::func(Func::Sin, &Expr::binary(BinOp::Add, &x, &y));
+        let e = Expr::binary(BinOp::Add, &Expr::binary(BinOp::Mul, &s, &s), &k);
+        let two_t = Expr::binary(BinOp::Mul, &Expr::constant(2.0), &t);
+        let out = e.substitute(&HashMap::from([("x".to_string(), two_t)]));
+        assert_eq!(out.variables(), vec!["t".to_string(), "y".to_string()]);
+        assert_eq!(out.parameters(), e.parameters());
+        // Shared: sin(2 t + y) is one node, so the program computes it once.
+        let p = Program::compile(&[out], &["t".into(), "y".into()]).unwrap();
+        let direct = Program::compile(&[e], &["x".into(), "y".into()]).unwrap();
+        assert_eq!(p.ops.len(), direct.ops.len() + 2);
+        let (tv, yv) = (vec![0.3, -1.1], vec![0.5, 2.0]);
+        let xv: Vec<f64> = tv.iter().map(|t| 2.0 * t).collect();
+        let batch = FloatBatch::new(2);
+        assert_eq!(p.eval(&batch, &[tv, yv.clone()]).unwrap(), direct.eval(&batch, &[xv, yv]).unwrap());
+        // A part that reads no replaced variable is the same node, not a copy.
+        let z = Expr::func(Func::Exp, &y);
+        let f = Expr::binary(BinOp::Add, &z, &x).substitute(&HashMap::from([("x".to_string(), t.clone())]));
+        let Node::Binary(_, kept, _) = &*f.0 else { panic!("a sum stays a sum") };
+        assert!(Arc::ptr_eq(&kept.0, &z.0));
     }
 
     #[test]

@@ -1,5 +1,5 @@
 """Canonical sensor models: first-principles measurement functions g_c of the state."""
 
-from percver.sensors import lidar
+from percver.sensors import camera, lidar
 
-__all__ = ["lidar"]
+__all__ = ["camera", "lidar"]

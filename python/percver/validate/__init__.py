@@ -2,7 +2,7 @@
 
 ``compare(model, data)`` gives a ``Report`` (errors, ``where()``, ``explain()``, HTML/JSON);
 ``diagnose(model, data)`` adds effects from ``effects`` until none helps on held-out data.
-Models: ``percver.sensors.lidar.canonical(...)``, ``ImageModel``, ``DynamicsModel`` around
+Models: ``percver.sensors.lidar.canonical(...)``, ``percver.sensors.camera.ImageModel``, ``DynamicsModel`` around
 any plant (``FunctionPlant``, ``pv.Discrete``, ``pv.Continuous``), or ``FunctionSensor`` around
 any function (a ``Network``, an ``Expr`` evaluator). ``diagnose(..., learn=True)`` ends with a
 learned noise model (``percver.validate.learned``) where effects leave a localized residual.
@@ -16,7 +16,6 @@ from percver.validate.models import (
     Evaluation,
     FunctionPlant,
     FunctionSensor,
-    ImageModel,
     Model,
     Plant,
     SensorModel,
@@ -42,7 +41,6 @@ __all__ = [
     "Model",
     "SensorModel",
     "FunctionSensor",
-    "ImageModel",
     "DynamicsModel",
     "FunctionPlant",
     "Plant",

@@ -14,6 +14,7 @@ one from a function; ``SystemPlant`` adapts the ``pv.Discrete`` and ``pv.Continu
 from __future__ import annotations
 
 import copy
+import hashlib
 from dataclasses import dataclass, field, replace
 from typing import Callable, Protocol, Sequence
 
@@ -29,8 +30,10 @@ class BatchCache:
     """Results of an expensive canonical computation (ray casting, rendering) for recent batches.
 
     Fitting re-predicts the same states many times while only cheap effects change, through
-    many copies of one model; the copies share this cache. Entries are keyed by the identity
-    of the states array (kept alive by the entry) and a tuple of whatever else matters.
+    many copies of one model; the copies share this cache. An entry is found by the identity
+    of the states array (kept alive by the entry), and used only if the array's contents still
+    hash as they did when it was stored: an array changed in place between two calls is the
+    same object with a different value, and must not get the old value's result.
     """
 
     def __init__(self, size: int = 4):
@@ -38,12 +41,23 @@ class BatchCache:
         self.entries = []
 
     def get(self, states, key, compute):
-        for entry_states, entry_key, value in self.entries:
+        digest = None
+        for entry_states, entry_digest, entry_key, value in self.entries:
             if entry_states is states and entry_key == key:
-                return value
+                digest = digest or _digest(states)
+                if entry_digest == digest:
+                    return value
         value = compute()
-        self.entries = [(states, key, value)] + self.entries[: self.size - 1]
+        self.entries = [(states, digest or _digest(states), key, value)] + [e for e in self.entries if e[0] is not states or e[2] != key][
+            : self.size - 1
+        ]
         return value
+
+
+def _digest(array: np.ndarray) -> bytes:
+    return (
+        hashlib.blake2b(np.ascontiguousarray(array).view(np.uint8), digest_size=16).digest() + repr((array.shape, array.dtype.str)).encode()
+    )
 
 
 @dataclass(frozen=True)
@@ -223,60 +237,6 @@ class FunctionSensor(SensorModel):
     def predict_inputs(self, inputs):
         values = np.asarray(self.function(inputs["states"]), dtype=float)
         return values.reshape(len(inputs["states"]), -1)
-
-
-class ImageModel(SensorModel):
-    """A camera: ``render(states) -> images`` (N x H x W in [0, 1], or flattened rows).
-
-    ``position`` names the state whose shift blurs the image (the paper's motion blur
-    overlays renders at ``position -/+ delta``); the first state by default.
-    """
-
-    kind = "image"
-
-    def __init__(self, render: Callable, state_names, shape, *, position: str | None = None, effects=()):
-        self.shape = tuple(int(s) for s in shape)
-        if len(self.shape) != 2:
-            raise InputError(f"image shape must be (height, width), got {shape}")
-        names = [f"px{r}_{c}" for r in range(self.shape[0]) for c in range(self.shape[1])]
-        super().__init__(state_names, names, effects)
-        self.render = render
-        # Three renders (centre and the blur's two overlays) for the data and each fold.
-        self._cache = BatchCache(size=12)
-        self.position = position or self.state_names[0]
-        if self.position not in self.state_names:
-            raise InputError(f"position '{self.position}' is not a state of the model {list(self.state_names)}")
-
-    def images(self, states, effects=None, *, shift: float = 0.0) -> np.ndarray:
-        """Images (N x H x W) in ``states`` after ``effects`` (the model's deterministic ones by default).
-
-        ``shift`` moves the ``position`` state first (the blur's overlays); the renders of
-        shifted states are cached too, so that fitting other effects under a fixed blur
-        does not render again.
-        """
-        states = np.asarray(states, dtype=float)
-        images = self._cache.get(states, shift, lambda: self._render(self._moved(states, shift)))
-        states = self._moved(states, shift)
-        stack = self.deterministic_effects if effects is None else effects
-        for i, effect in enumerate(stack):
-            images = effect.apply(images, states, self, stack[:i])
-        return images
-
-    def _moved(self, states, shift):
-        if not shift:
-            return states
-        moved = states.copy()
-        moved[:, self.state_names.index(self.position)] += shift
-        return moved
-
-    def _render(self, states):
-        return np.asarray(self.render(states), dtype=float).reshape((len(states),) + self.shape)
-
-    def predict_inputs(self, inputs):
-        return self.images(inputs["states"]).reshape(len(inputs["states"]), -1)
-
-    def clip(self, values):
-        return np.clip(values, 0.0, 1.0)
 
 
 class Plant(Protocol):

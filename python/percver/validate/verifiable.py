@@ -29,34 +29,11 @@ class NoSetSemanticsError(InputError):
 
 
 def substitute(expr, mapping: dict):
-    """``expr`` with the variables named in ``mapping`` replaced by expressions.
+    """``expr`` with the variables named in ``mapping`` replaced by expressions (shared nodes
+    stay shared, an uncertain parameter keeps its identity); a number stays a number."""
+    from percver.expr import as_expr
 
-    Works on the DAG's node list (the pickling form), so shared nodes stay shared and an
-    uncertain parameter keeps its identity (the same parameter wherever it appears).
-    """
-    from percver.expr import Expr, as_expr
-
-    nodes = expr.__reduce__()[1][0]
-    out, roots = [], {}
-    for name, replacement in mapping.items():
-        if not any(kind == 2 and node_name == name for kind, _, _, _, node_name in nodes):
-            continue
-        sub = as_expr(replacement).__reduce__()[1][0]
-        offset = len(out)
-        out += [(k, s, x, [a + offset for a in args], n) for k, s, x, args, n in sub]
-        roots[name] = len(out) - 1
-    if not roots:
-        return expr
-    index = []
-    for kind, sub, x, args, name in nodes:
-        if kind == 2 and name in roots:
-            index.append(roots[name])
-            continue
-        out.append((kind, sub, x, [index[a] for a in args], name))
-        index.append(len(out) - 1)
-    if index[-1] != len(out) - 1:  # the whole expression was one substituted variable
-        return as_expr(mapping[nodes[-1][4]])
-    return Expr._from_nodes(out)
+    return as_expr(expr).substitute(mapping)
 
 
 @dataclass

@@ -73,8 +73,8 @@ def plant():
     return pv.Continuous(dynamics.equations("local", delta="u"), inputs=["u"], period=dynamics.PERIOD)
 
 
-def stages(controller, noise_model=None, denoiser=None, forced=None) -> list:
-    """LiDAR -> [classifier, knock-out, denoiser] -> controller, as ``pv.Stage``s.
+def perception(controller, noise_model=None, denoiser=None, forced=None):
+    """LiDAR -> [classifier, knock-out] -> [denoiser] -> controller, as a ``pv.Perception``.
 
     Without ``noise_model`` the controller reads the canonical scan (the loop without noise).
     ``forced={ray: knocked}`` fixes those rays' knock-out decisions (one case of a branch)."""
@@ -83,14 +83,14 @@ def stages(controller, noise_model=None, denoiser=None, forced=None) -> list:
 
     y1, y2, y4 = pv.variables("y1 y2 y4")
     scale = world.NORMALISATION_SCALE
-    chain = [
-        pv.Stage(world.scan_exprs(y1, y2, y4), inputs=[y1, y2, y4], output="scan", scale=scale, offset=-world.NORMALISATION_OFFSET * scale)
-    ]
-    reads = "scan"
+    canonical = pv.Stage(
+        world.scan_exprs(y1, y2, y4), inputs=[y1, y2, y4], output="scan", scale=scale, offset=-world.NORMALISATION_OFFSET * scale
+    )
+    noiser, reads = [], "scan"
     if noise_model is not None:
         pose = [0.1 * y1, 0.1 * (10.0 - y2), y4 / (1.5 * np.pi) + 1.0 / 3.0]
-        chain.append(pv.Stage(pose, inputs=[y1, y2, y4], output="pose"))
-        chain.append(pv.Stage(noise_model.network, inputs=["scan", "pose"], output="prob"))
+        noiser.append(pv.Stage(pose, inputs=[y1, y2, y4], output="pose"))
+        noiser.append(pv.Stage(noise_model.network, inputs=["scan", "pose"], output="prob"))
         rays = range(noise_model.network.n_out)
         forced = forced or {}
         knocked = [
@@ -99,13 +99,14 @@ def stages(controller, noise_model=None, denoiser=None, forced=None) -> list:
         ]
         for i, knock in forced.items():
             knocked[i] = as_expr(float(noise_model.knocked[i])) if knock else pv.Expr.var(f"scan_{i}")
-        chain.append(pv.Stage(knocked, inputs=["prob", "scan"], output="noised"))
+        noiser.append(pv.Stage(knocked, inputs=["prob", "scan"], output="noised"))
         reads = "noised"
+    clean = None
     if denoiser is not None:
-        chain.append(pv.Stage(denoiser.network, inputs=[reads], output="clean", scale=noise.DENOISER_SCALE))
+        clean = pv.Stage(denoiser.network, inputs=[reads], output="clean", scale=noise.DENOISER_SCALE)
         reads = "clean"
-    chain.append(pv.Stage(controller.network, inputs=[reads], output="u", scale=float(dynamics.MAX_STEERING)))
-    return chain
+    control = pv.Stage(controller.network, inputs=[reads], output="u", scale=float(dynamics.MAX_STEERING))
+    return pv.Perception(canonical=canonical, noiser=noiser, denoiser=clean, controller=control)
 
 
 def load_networks(networks="paper", controller: str = ctl.VERIFIED, data=None):
@@ -127,9 +128,9 @@ def closed_loop(networks="paper", *, noise_model: bool = True, controller: str =
 
     if noise_model:
         control, classifier, denoiser = load_networks(networks, controller, data)
-        chain = stages(control, classifier, denoiser)
+        chain = perception(control, classifier, denoiser)
     else:
-        chain = stages(ctl.load(controller, data))
+        chain = perception(ctl.load(controller, data))
     return pv.ClosedLoop(plant(), chain)
 
 
@@ -142,7 +143,7 @@ def knockout_cases(control, classifier, denoiser, *, max_rays: int = 2, near: fl
 
     import percver as pv
 
-    base = pv.ClosedLoop(plant(), stages(control, classifier, denoiser))
+    base = pv.ClosedLoop(plant(), perception(control, classifier, denoiser))
     upto = next(k for k, stage in enumerate(base.stages) if stage.output == "prob") + 1
     columns = base.signals["prob"]
     loops: dict = {}
@@ -160,7 +161,7 @@ def knockout_cases(control, classifier, denoiser, *, max_rays: int = 2, near: fl
         for decisions in itertools.product((False, True), repeat=len(rays)) if rays else ():
             key = tuple(zip(map(int, rays), decisions))
             if key not in loops:
-                loops[key] = pv.ClosedLoop(plant(), stages(control, classifier, denoiser, forced=dict(key)))
+                loops[key] = pv.ClosedLoop(plant(), perception(control, classifier, denoiser, forced=dict(key)))
             out.append(loops[key])
         return out
 
@@ -213,7 +214,7 @@ def verify(
         raise InputError(f"cell width must be positive, got {cell}")
     if noise_model:
         control, classifier, denoiser = load_networks(networks, controller, data)
-        loop = pv.ClosedLoop(plant(), stages(control, classifier, denoiser))
+        loop = pv.ClosedLoop(plant(), perception(control, classifier, denoiser))
         if mode == "stepwise":
             verify_kwargs.setdefault("cases", knockout_cases(control, classifier, denoiser))
     else:

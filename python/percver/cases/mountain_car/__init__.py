@@ -42,7 +42,7 @@ def train(dataset, out, **options):
 
 def canonical_camera():
     """The canonical camera as a validation model (``percver validate --model mc-camera``)."""
-    from percver.validate import ImageModel
+    from percver.sensors.camera import ImageModel
 
     cam = camera()
     return ImageModel(lambda states: cam.render(states[:, 0]), ["p"], SHAPE)

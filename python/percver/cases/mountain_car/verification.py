@@ -145,16 +145,19 @@ def closed_loop(noise: str = "contrast", networks="paper", *, controller=None, s
     noise_vars = {name: pv.variables(name) for name in states}
     step = dynamics.equations()
     plant = pv.Discrete({p: p_next, v: v_next, **{d: d for d in noise_vars.values()}}, inputs=["next"])
-    stages = [pv.Stage(nets.generator, inputs=[p], output="image")]
+    noiser, image = [], "image"
     for name, network in (("dc", nets.contrast), ("db", nets.blur)):
         if name in noise_vars:
-            stages.append(pv.Stage(network, inputs=[stages[-1].output, noise_vars[name]], output=f"image_{name}"))
-    stages += [
-        pv.Stage(nets.estimator, inputs=[stages[-1].output], output="p_hat"),
-        pv.Stage(nets.controller, inputs=["p_hat", v], output="u"),
-        pv.Stage([step["p"], step["v"]], inputs=[p, v, u], output="next"),
-    ]
-    return pv.ClosedLoop(plant, stages)
+            noiser.append(pv.Stage(network, inputs=[image, noise_vars[name]], output=f"image_{name}"))
+            image = noiser[-1].output
+    perception = pv.Perception(
+        canonical=pv.Stage(nets.generator, inputs=[p], output="image"),
+        noiser=noiser,
+        estimator=pv.Stage(nets.estimator, inputs=[image], output="p_hat"),
+        controller=pv.Stage(nets.controller, inputs=["p_hat", v], output="u"),
+        then=pv.Stage([step["p"], step["v"]], inputs=[p, v, u], output="next"),
+    )
+    return pv.ClosedLoop(plant, perception)
 
 
 def specification() -> dict:
