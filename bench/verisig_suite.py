@@ -1,6 +1,6 @@
 """Benchmark (run by hand): the Verisig 2.0 suite from its own Flow* model files.
 
-Each benchmark is loaded with ``pv.formats.load_verisig`` and verified with the file's initial
+Each benchmark is loaded with ``pv.load_verisig`` and verified with the file's initial
 set, horizon and property (``problem.verify()``: one cell unless --split is given). Writes
 bench/results/verisig_suite.json: median wall seconds of 3 runs (falsification included), the
 load time, verdict, cells, and the ratio against Verisig 2.0's times measured on this machine
@@ -48,7 +48,7 @@ def load(name: str):
     model, net = BENCHMARKS[name]
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")  # f1tenth's stray brace; recorded in problem.notes
-        return pv.formats.load_verisig(str(SUITE / name / model), networks=[str(SUITE / name / net)])
+        return pv.load_verisig(str(SUITE / name / model), networks=[str(SUITE / name / net)])
 
 
 # Options beyond the file's own: see the module doc.

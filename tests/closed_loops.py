@@ -89,7 +89,7 @@ def expression_sensor():
 
 
 def verisig(name: str, stem: str, network: str):
-    return pv.formats.load_verisig(_data(SUITE / name / f"{stem}_verisig.model"), networks=[_data(SUITE / name / network)])
+    return pv.load_verisig(_data(SUITE / name / f"{stem}_verisig.model"), networks=[_data(SUITE / name / network)])
 
 
 def _cases():
@@ -182,7 +182,7 @@ def _cases():
         # Verisig 2.0's F1/10 model: its LiDAR remainders feed back through the loop, so parts restart from their boxes.
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")  # the file's stray brace, recorded in problem.notes
-            problem = pv.formats.load_verisig(
+            problem = pv.load_verisig(
                 _data(SUITE / "f1tenth" / "f1tenth_tanh_verisig.model"), networks=[_data(SUITE / "f1tenth" / "tanh64x64.yml")]
             )
         return problem, dict(rebox=True)

@@ -55,7 +55,7 @@ def test_known_unsafe_start_exits_4_with_a_counterexample_that_replays(tmp_path)
     res = pv.Result.from_json(out.read_text())
     cex = res.counterexample
     assert res.verdict == "falsified" and cex.step == 150 and "x1" in cex.violated
-    problem = pv.formats.load_verisig(str(MODEL), networks=[str(NET)])
+    problem = pv.load_verisig(str(MODEL), networks=[str(NET)])
     replay = problem.simulate(np.array([[cex.initial[s] for s in problem.states]]), 150)[0]
     np.testing.assert_allclose(np.asarray(cex.trajectory), replay, rtol=1e-9, atol=1e-12)
     assert replay[:, 0].max() <= 0.45

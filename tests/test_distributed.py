@@ -18,7 +18,7 @@ import pytest
 
 import percver as pv
 from percver import _core
-from percver.executors import MISSING, dumps, run_batch
+from percver.verification.executors import MISSING, dumps, run_batch
 from percver.networks import Layer, Network
 from percver.verification import JournalWarning
 from percver.verification.property import Property
@@ -102,7 +102,9 @@ def test_process_pool_ships_the_problem_once_and_matches_rayon(tmp_path):
         assert executor.submit(run_batch, "fp", None, cells, options).result() == MISSING
         first = executor.submit(run_batch, "fp", payload, cells, options).result()
         again = executor.submit(run_batch, "fp", None, cells, options).result()
-    assert first[0]["verdict"] == again[0]["verdict"] == "verified"
+    (outcome, rss), (repeated, _) = first[0], again[0]
+    assert outcome.verdict == repeated.verdict == "verified" and rss > 10
+    assert outcome.boxes == repeated.boxes and len(outcome.boxes) == outcome.steps_done + 1
 
 
 def test_dask_worker_killed_mid_campaign_loses_and_repeats_no_cell(tmp_path):

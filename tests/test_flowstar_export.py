@@ -28,7 +28,7 @@ def samples(box: list, seed: int = 0) -> np.ndarray:
 
 
 def exported_outputs(network: pv.Network, box: list, tmp_path: Path) -> list:
-    path = network.to_flowstar(tmp_path / "network.model", box)
+    path = pv.formats.to_flowstar(network, tmp_path / "network.model", box)
     model = pv.formats.load_flowstar(str(path))
     assert isinstance(model, pv.formats.HybridModel)
     final = model.run().final_box("_out")
@@ -78,7 +78,7 @@ def test_chain_with_passthrough_and_output_maps(tmp_path):
 
 def test_the_file_is_verisig_style(tmp_path):
     network = load(MC_CONTROLLER)
-    text = network.to_flowstar(tmp_path / "mc.model", [(-0.5, -0.49), (0.0, 0.0)]).read_text()
+    text = pv.formats.to_flowstar(network, tmp_path / "mc.model", [(-0.5, -0.49), (0.0, 0.0)]).read_text()
     assert text.startswith("hybrid reachability")
     assert "_z1' = _a1 * _z1 * (1 - _z1)" in text  # sigmoid layers
     assert "_z1' = _a1 * (1 - _z1 * _z1)" in text  # the tanh output layer
@@ -113,7 +113,7 @@ def test_closed_loop_with_a_piecewise_plant(tmp_path):
     network = load(MC_CONTROLLER).with_input_names(["p", "v"])
     plant, steps = mountain_car_plant(), 6
     init = {"p": (-0.52, -0.518), "v": (0.0, 0.0)}
-    path = network.to_flowstar(tmp_path / "loop.model", init, plant=plant, steps=steps)
+    path = pv.formats.to_flowstar(network, tmp_path / "loop.model", init, plant=plant, steps=steps)
     text = path.read_text()
     assert "_reset_plant" in text and text.count("_reset_plant -> _start") == 3
     run = pv.formats.load_flowstar(str(path)).run()
@@ -130,7 +130,7 @@ def test_where_and_abs_become_branches(tmp_path):
     plant = pv.Discrete({x: pv.where(x >= 0, 0.5 * x, -x) + 0.1 * u, y: pv.abs_(y - x) + pv.exp(u) * 0.01}, inputs=[u])
     network = load("onnx/nn_1_tanh.onnx").with_input_names(["x", "y"])
     init = {"x": (-0.02, 0.03), "y": (0.2, 0.21)}
-    path = network.to_flowstar(tmp_path / "branches.model", init, plant=plant, steps=3)
+    path = pv.formats.to_flowstar(network, tmp_path / "branches.model", init, plant=plant, steps=3)
     final = pv.formats.load_flowstar(str(path)).run().final_box("_done")
     points = simulate(network, plant, samples([init["x"], init["y"]], seed=3), 3)
     for k, name in enumerate(plant.states):
@@ -140,31 +140,34 @@ def test_where_and_abs_become_branches(tmp_path):
 class TestBadInput:
     def test_relu_networks_are_refused(self, tmp_path):
         with pytest.raises(pv.InputError, match=r"layer 1: \['relu'\] neurons have no Verisig ODE"):
-            load("onnx/nn_1_relu.onnx").to_flowstar(tmp_path / "x.model", [(0, 1), (0, 1)])
+            pv.formats.to_flowstar(load("onnx/nn_1_relu.onnx"), tmp_path / "x.model", [(0, 1), (0, 1)])
 
     def test_plant_mismatches(self, tmp_path):
         network = load(MC_CONTROLLER)
         with pytest.raises(pv.InputError, match=r"reads \['in0', 'in1'\], which are not states of the plant"):
-            network.to_flowstar(tmp_path / "x.model", {"p": (0, 0), "v": (0, 0)}, plant=mountain_car_plant())
+            pv.formats.to_flowstar(network, tmp_path / "x.model", {"p": (0, 0), "v": (0, 0)}, plant=mountain_car_plant())
         p, v = pv.variables("p v")
         with pytest.raises(pv.InputError, match="1 outputs but the plant has 0 inputs"):
-            network.with_input_names(["p", "v"]).to_flowstar(
-                tmp_path / "x.model", {"p": (0, 0), "v": (0, 0)}, plant=pv.Discrete({p: p, v: v})
+            pv.formats.to_flowstar(
+                network.with_input_names(["p", "v"]), tmp_path / "x.model", {"p": (0, 0), "v": (0, 0)}, plant=pv.Discrete({p: p, v: v})
             )
         u = pv.variables("u")
         with pytest.raises(pv.InputError, match=r"Flow\* has no sigmoid\(\)"):
-            network.with_input_names(["p", "v"]).to_flowstar(
-                tmp_path / "x.model", {"p": (0, 0), "v": (0, 0)}, plant=pv.Discrete({p: p + pv.sigmoid(u), v: v}, inputs=[u])
+            pv.formats.to_flowstar(
+                network.with_input_names(["p", "v"]),
+                tmp_path / "x.model",
+                {"p": (0, 0), "v": (0, 0)},
+                plant=pv.Discrete({p: p + pv.sigmoid(u), v: v}, inputs=[u]),
             )
 
     def test_bad_boxes_and_names(self, tmp_path):
         network = load(MC_CONTROLLER)
         with pytest.raises(pv.InputError, match=r"init \(one interval per network input: in0, in1\): bound of 'in0' is NaN"):
-            network.to_flowstar(tmp_path / "x.model", [(float("nan"), 1.0), (0, 1)])
+            pv.formats.to_flowstar(network, tmp_path / "x.model", [(float("nan"), 1.0), (0, 1)])
         with pytest.raises(pv.InputError, match="box has 2 names but 1 intervals"):
-            network.to_flowstar(tmp_path / "x.model", [(0, 1)])
+            pv.formats.to_flowstar(network, tmp_path / "x.model", [(0, 1)])
         with pytest.raises(pv.InputError, match="'clock' cannot be a Flow. variable"):
-            network.with_input_names(["clock", "v"]).to_flowstar(tmp_path / "x.model", [(0, 1), (0, 1)])
+            pv.formats.to_flowstar(network.with_input_names(["clock", "v"]), tmp_path / "x.model", [(0, 1), (0, 1)])
 
     def test_verisig_2_models_point_to_load_verisig(self):
         with pytest.raises(pv.ParseError, match=r"MC_small_sig_verisig.model, line \d+: mode DNNm1 .*load_verisig"):
@@ -172,7 +175,7 @@ class TestBadInput:
 
     def test_modes_need_a_clock(self, tmp_path):
         network = load(MC_CONTROLLER)
-        path = network.to_flowstar(tmp_path / "x.model", [(0, 0.1), (0, 0.1)])
+        path = pv.formats.to_flowstar(network, tmp_path / "x.model", [(0, 0.1), (0, 0.1)])
         text = path.read_text()
         # Drop layer1's invariant: the runner cannot tell how long the mode lasts.
         start = text.index("\t\tlayer1\n")
@@ -184,7 +187,7 @@ class TestBadInput:
             pv.formats.load_flowstar(str(path))
 
     def test_jumps_must_wait_for_the_clock(self, tmp_path):
-        path = load(MC_CONTROLLER).to_flowstar(tmp_path / "x.model", [(0, 0.1), (0, 0.1)])
+        path = pv.formats.to_flowstar(load(MC_CONTROLLER), tmp_path / "x.model", [(0, 0.1), (0, 0.1)])
         text = path.read_text()
         at = text.index("\t\tlayer1 -> layer2\n")
         path.write_text(text[:at] + text[at:].replace("guard { clock = 1 }", "guard { }", 1))

@@ -189,7 +189,7 @@ def test_verisig_model_with_two_plant_modes_per_period_is_verified(tmp_path):
     )
     write_verisig_yaml(net, tmp_path / "net.yml")
     _segments_model(tmp_path / "segments.model", horizon=0.5, bound=2.0)
-    problem = pv.formats.load_verisig(str(tmp_path / "segments.model"), networks=[str(tmp_path / "net.yml")])
+    problem = pv.load_verisig(str(tmp_path / "segments.model"), networks=[str(tmp_path / "net.yml")])
     assert isinstance(problem.loop.plant, pv.Hybrid) and list(problem.loop.plant.modes) == ["seg_a", "seg_b"]
     assert problem.steps == 5
     result = problem.verify(progress=False)
@@ -217,5 +217,5 @@ def test_verisig_model_with_two_plant_modes_per_period_is_verified(tmp_path):
             ).all()
     # A bound the runs cross is not verified.
     _segments_model(tmp_path / "tight.model", horizon=0.5, bound=float(runs[:, -1, 0].max()) - 0.05)
-    tight = pv.formats.load_verisig(str(tmp_path / "tight.model"), networks=[str(tmp_path / "net.yml")])
+    tight = pv.load_verisig(str(tmp_path / "tight.model"), networks=[str(tmp_path / "net.yml")])
     assert tight.verify(progress=False).verdict != "verified"

@@ -140,9 +140,9 @@ def test_passthrough_carries_inputs_exactly():
 def test_mixed_layers_cannot_be_written(tmp_path):
     net = pv.Network([(np.eye(2), [0.0, 0.0], ("tanh", "identity"))])
     with pytest.raises(NetworkFormatError, match="mixes"):
-        net.to_onnx(tmp_path / "mixed.onnx")
+        pv.save_network(net, tmp_path / "mixed.onnx")
     with pytest.raises(NetworkFormatError, match="per neuron"):
-        net.to_verisig_yaml(tmp_path / "mixed.yml")
+        pv.save_network(net, tmp_path / "mixed.yml")
     with pytest.raises(NetworkFormatError, match="3 activations for 2 neurons"):
         pv.Network([(np.eye(2), [0.0, 0.0], ("tanh", "identity", "relu"))])
 

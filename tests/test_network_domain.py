@@ -61,12 +61,12 @@ def test_bad_domains_are_input_errors(domain, message):
 def test_onnx_keeps_the_domain_and_load_network_overrides_it(tmp_path):
     net = _net([(-math.inf, 0.5), (0.0, 2.0)])
     path = tmp_path / "net.onnx"
-    net.to_onnx(path)
+    pv.save_network(net, path)
     stored = {p.key: p.value for p in onnx.load(str(path)).metadata_props}
     assert json.loads(stored[DOMAIN_KEY]) == [[None, 0.5], [0.0, 2.0]]  # unbounded sides are null
     assert pv.load_network(path).domain == net.domain
     assert pv.load_network(path, domain={"in1": (1, 3)}).domain == ((-math.inf, math.inf), (1.0, 3.0))
-    _net().to_onnx(path)  # no domain: no metadata, None again
+    pv.save_network(_net(), path)  # no domain: no metadata, None again
     assert pv.load_network(path).domain is None
 
 
@@ -81,7 +81,7 @@ def test_onnx_keeps_the_domain_and_load_network_overrides_it(tmp_path):
 )
 def test_bad_domain_metadata_names_file_and_key(tmp_path, value, message):
     path = tmp_path / "bad.onnx"
-    _net().to_onnx(path)
+    pv.save_network(_net(), path)
     model = onnx.load(str(path))
     helper.set_model_props(model, {DOMAIN_KEY: value})
     onnx.save(model, str(path))

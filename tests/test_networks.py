@@ -172,12 +172,12 @@ def test_shared_round_trips(shared_onnx, shared_yaml, tmp_path):
     for network in networks:
         x = rng.uniform(-1, 1, size=(16, network.n_in))
         expected = network(x)
-        network.to_onnx(tmp_path / "net.onnx")
+        pv.save_network(network, tmp_path / "net.onnx")
         _close(_run(_session(tmp_path / "net.onnx"), x), expected, rtol=1e-12)
         again = pv.load_network(tmp_path / "net.onnx")
         assert all(np.array_equal(a.weight, b.weight) for a, b in zip(again.layers, network.layers))
         np.testing.assert_array_equal(again(x), expected)
-        network.to_verisig_yaml(tmp_path / "net.yml")
+        pv.save_network(network, tmp_path / "net.yml")
         _close(pv.load_network(tmp_path / "net.yml")(x), expected, rtol=1e-12)
 
 
@@ -513,7 +513,7 @@ def test_fixture_round_trips(tmp_path):
     rng = np.random.default_rng(12)
     network = _mixed(rng)
     x = rng.normal(size=(20, 3))
-    network.to_onnx(tmp_path / "mixed.onnx")
+    pv.save_network(network, tmp_path / "mixed.onnx")
     _close(_run(_session(tmp_path / "mixed.onnx"), x), network(x), rtol=1e-12)
     again = pv.load_network(tmp_path / "mixed.onnx")
     # reading folds the linear layer into the next one; the output map stays an output map
@@ -522,7 +522,7 @@ def test_fixture_round_trips(tmp_path):
     np.testing.assert_array_equal(again.offset, [0.5, 0.5])
     _close(again(x), network(x), rtol=1e-12)
 
-    network.to_verisig_yaml(tmp_path / "mixed.yml")
+    pv.save_network(network, tmp_path / "mixed.yml")
     document = _read_yaml(tmp_path / "mixed.yml")
     assert document["activations"] == {1: "Relu", 2: "Linear", 3: "Sigmoid", 4: "Tanh", 5: "Linear"}
     assert document["weights"][5] == [[2.0, 0.0], [0.0, -3.0]] and document["offsets"][5] == [0.5, 0.5]

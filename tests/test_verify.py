@@ -262,6 +262,9 @@ def test_verify_parts_rejects_what_is_not_a_part():
         pv.verify_parts(loop, [{"init": {"x": (0, 1)}}], steps=3, safe=x <= 100.0)
     with pytest.raises(pv.InputError, match="workers must be a positive integer"):
         pv.verify_parts(loop, [pv.Part({"x": (0, 1)})], steps=3, safe=x <= 100.0, workers=0, progress=False)
+    # A part's own keywords (and typos) are not verify_parts' keywords; the others are verify's.
+    with pytest.raises(TypeError, match=r"unexpected keyword arguments \['order', 'stpes'\]; it takes steps, goal, "):
+        pv.verify_parts(loop, [pv.Part({"x": (0, 1)})], stpes=3, order=4, safe=x <= 100.0)
 
 
 def test_a_wall_hit_at_different_steps_forks_the_plant():
@@ -400,8 +403,8 @@ def test_the_bar_shows_the_step_a_running_cell_reached():
     loop = pv.ClosedLoop(pv.Discrete({x: 0.9 * x}))
     problem = loop.compile(safe=[(x - 5, "<=", "x <= 5", None)], goal=None, within=False, steps=30)
     counter, outcomes = _core.StepCounter(), []
-    run_cells(problem, [[(0.0, 1.0)]], lambda i, o: outcomes.append(o), {}, 1, counter)
-    assert outcomes[0]["verdict"] == "verified" and counter.get() == outcomes[0]["deepest_step"] == 30
+    run_cells(problem, [[(0.0, 1.0)]], lambda i, o, rss: outcomes.append(o), {}, 1, counter)
+    assert outcomes[0].verdict == "verified" and counter.get() == outcomes[0].deepest_step == 30
     bar = Progress(threading.RLock())
     bar.start(2)
     try:
@@ -417,3 +420,55 @@ def test_the_bar_shows_the_step_a_running_cell_reached():
         assert "steps=0/30" in bar.tqdm.postfix
     finally:
         bar.close()
+
+
+# Written by percver before cell outcomes crossed the Rust boundary as typed objects (they were
+# dicts); the seconds are marked (1.5, 2.5) so that a resumed cell is told from a rerun one.
+OLD_JOURNAL = """{"fingerprint": "bbf992233b11b913"}
+{"box": {"x": [0.0, 0.5]}, "verdict": "verified", "seconds": 1.5, "nn_seconds": 0.0, "branches": 0, "steps_done": 3, "reason": null, "counterexample": null, "boxes": [[[0.0, 0.5]], [[-2.9420910152566677e-16, 0.4500000000000004]], [[-3.463895836830493e-16, 0.40500000000000047]], [[-4.09339229179296e-16, 0.36450000000000055]]], "peak_rss_mb": 77.4140625, "split": null, "deepest_step": 3}
+{"box": {"x": [0.5, 1.0]}, "verdict": "verified", "seconds": 2.5, "nn_seconds": 0.0, "branches": 0, "steps_done": 3, "reason": null, "counterexample": null, "boxes": [[[0.5, 1.0]], [[0.4499999999999995, 0.9000000000000007]], [[0.4049999999999994, 0.8100000000000008]], [[0.36449999999999927, 0.729000000000001]]], "peak_rss_mb": 77.5390625, "split": null, "deepest_step": 3}
+"""
+
+
+def test_a_journal_written_with_dict_outcomes_resumes_and_new_lines_keep_its_keys(tmp_path):
+    x = pv.variables("x")
+    loop = pv.ClosedLoop(pv.Discrete({x: 0.9 * x}))
+    kwargs = dict(init={"x": (0.0, 1.0)}, steps=3, safe=x <= 5, split={"x": 2}, progress=False, workers=1)
+    old = tmp_path / "old.jsonl"
+    old.write_text(OLD_JOURNAL)
+    resumed = pv.verify(loop, journal=str(old), **kwargs)
+    assert sorted(c.seconds for c in resumed.cells) == [1.5, 2.5]  # read back, not run again
+    new = tmp_path / "new.jsonl"
+    fresh = pv.verify(loop, journal=str(new), **kwargs)
+    assert [c.verdict for c in fresh.cells] == [c.verdict for c in resumed.cells] == ["verified", "verified"]
+    old_lines, new_lines = ([json.loads(line) for line in p.read_text().splitlines()] for p in (old, new))
+    assert new_lines[0] == old_lines[0]  # the same problem's fingerprint
+    assert [list(line) for line in new_lines[1:]] == [list(line) for line in old_lines[1:]]
+    for line in new_lines[1:]:
+        assert len(line["boxes"]) == line["steps_done"] + 1 and line["peak_rss_mb"] > 0
+
+
+def test_cell_outcomes_are_typed_picklable_and_checked():
+    import pickle
+
+    from percver import _core
+
+    x = pv.variables("x")
+    problem = pv.ClosedLoop(pv.Discrete({x: 0.5 * x})).compile(safe=[(x - 5, "<=", "x <= 5", None)], goal=None, within=False, steps=2)
+    outcomes = []
+    _core.verify_cells(problem, [[(0.0, 1.0)]], lambda i, o: outcomes.append(o))
+    (outcome,) = outcomes
+    assert isinstance(outcome, _core.CellOutcome)
+    assert (outcome.verdict, outcome.reason, outcome.steps_done, outcome.deepest_step, outcome.split) == ("verified", None, 2, 2, None)
+    assert len(outcome.boxes) == 3 and outcome.boxes[0] == [(0.0, 1.0)]
+    lo, hi = outcome.boxes[2][0]
+    assert lo <= 0.0 and 0.25 <= hi < 0.25 + 1e-9  # 0.5^2 of [0, 1], outward rounded
+    again = pickle.loads(pickle.dumps(outcome))
+    assert (again.verdict, again.boxes, again.seconds, again.branches) == (
+        outcome.verdict,
+        outcome.boxes,
+        outcome.seconds,
+        outcome.branches,
+    )
+    with pytest.raises(pv.InputError, match="'verified', 'unknown' or 'violated', not 'maybe'"):
+        _core.CellOutcome("maybe", None, 0, 0, [], 0.0, 0.0, 0, None)

@@ -92,9 +92,9 @@ B2 = np.array([0.0])
 
 def write(tmp_path, name, set_speed):
     net = pv.Network([(W1, B1, "tanh"), (W2, B2, "identity")], name="car")
-    net.to_verisig_yaml(tmp_path / "car.yml")
+    pv.save_network(net, tmp_path / "car.yml")
     (tmp_path / name).write_text(MODEL.format(set_speed=set_speed))
-    return pv.formats.load_verisig(str(tmp_path / name), networks=[str(tmp_path / "car.yml")])
+    return pv.load_verisig(str(tmp_path / name), networks=[str(tmp_path / "car.yml")])
 
 
 def numpy_runs(x0, steps):

@@ -1,4 +1,4 @@
-"""The Verisig 2.0 benchmark suite read from its own Flow* files (pv.formats.load_verisig).
+"""The Verisig 2.0 benchmark suite read from its own Flow* files (pv.load_verisig).
 
 Mountain Car (a discrete plant) and ex1/ex2/ex3 (ODE plants between control steps) are verified
 with the file's initial set, horizon and property, as Verisig 2.0 verified them, under the
@@ -36,7 +36,7 @@ def load(name, variant="verisig"):
     assert model.exists(), f"{model} missing: CI has ../shared beside the repo"
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")  # f1tenth's stray brace (tested separately)
-        return pv.formats.load_verisig(str(model), networks=[str(SUITE / name / net)])
+        return pv.load_verisig(str(model), networks=[str(SUITE / name / net)])
 
 
 def config(name):
@@ -156,7 +156,7 @@ def test_example_verified_as_verisig_did(name):
 def test_f1tenth_loads_as_a_continuous_loop_with_lidar_stage():
     model = SUITE / "f1tenth" / "f1tenth_tanh_verisig.model"
     with pytest.warns(UserWarning, match=r"line 45578: ignoring 'm_end_sr"):
-        problem = pv.formats.load_verisig(str(model), networks=[str(SUITE / "f1tenth" / "tanh64x64.yml")])
+        problem = pv.load_verisig(str(model), networks=[str(SUITE / "f1tenth" / "tanh64x64.yml")])
     assert problem.kind == "continuous" and problem.period == pytest.approx(0.1) and problem.steps == 50
     assert problem.states == ["y1", "y2", "y3", "y4"] and problem.loop.plant.inputs == ["u"]
     assert problem.init == {"y1": (0.75, 0.755), "y2": (7.0, 7.0), "y3": (2.39999999, 2.40000001), "y4": (-0.005, 0.005)}
@@ -224,63 +224,63 @@ def line_of(text, needle):
 class TestBadFiles:
     def test_missing_file_and_wrong_kind(self, tmp_path):
         with pytest.raises(FileNotFoundError, match="does not exist"):
-            pv.formats.load_verisig(str(tmp_path / "nope.model"), MC_NET)
+            pv.load_verisig(str(tmp_path / "nope.model"), MC_NET)
         path = write(tmp_path, "continuous reachability\n{\n state var x\n}\n")
         with pytest.raises(pv.ParseError, match=r"bad.model, line 1: .*load_flowstar"):
-            pv.formats.load_verisig(path, MC_NET)
+            pv.load_verisig(path, MC_NET)
 
     def test_syntax_errors_name_the_line(self, tmp_path):
         text = mc_text().replace("guard { clock = 1.0 x2 + temp >= 0.07 }", "guard { clock = 1.0 x2 + temp => 0.07 }")
         line = line_of(text, "x2 + temp => 0.07")
         with pytest.raises(pv.ParseError, match=rf"line {line}: expected an expression, found '>'"):
-            pv.formats.load_verisig(write(tmp_path, text), MC_NET)
+            pv.load_verisig(write(tmp_path, text), MC_NET)
         text = mc_text().replace("mode2 -> mode3", "mode2 -> mode9")
         with pytest.raises(pv.ParseError, match=rf"line {line_of(text, 'mode2 -> mode9')}: jump mode2 -> mode9: no mode named 'mode9'"):
-            pv.formats.load_verisig(write(tmp_path, text), MC_NET)
+            pv.load_verisig(write(tmp_path, text), MC_NET)
         text = mc_text().replace("reset { clock' := 0 }", "reset { speed' := 0 }", 1)
         with pytest.raises(pv.ParseError, match=r"reset of undeclared variable 'speed'"):
-            pv.formats.load_verisig(write(tmp_path, text), MC_NET)
+            pv.load_verisig(write(tmp_path, text), MC_NET)
 
     def test_network_count(self, tmp_path):
         with pytest.raises(pv.ParseError, match=r"1 DNN mode\(s\) \(DNNm1\) but 0 network"):
-            pv.formats.load_verisig(str(SUITE / "mountain_car_small" / "MC_small_sig_tmp.model"), [])
+            pv.load_verisig(str(SUITE / "mountain_car_small" / "MC_small_sig_tmp.model"), [])
 
     def test_untranslatable_constructs_are_refused(self, tmp_path):
         # A counter in a continuing guard makes the step depend on the step number.
         text = mc_text().replace("guard { clock = 0.0 x1 >= -1.2 x1 <= 0.45 }", "guard { clock = 0.0 x1 >= -1.2 x1 <= 0.45 k <= 100 }")
         with pytest.raises(pv.ParseError, match="counter 'k', which changes from step to step"):
-            pv.formats.load_verisig(write(tmp_path, text), MC_NET)
+            pv.load_verisig(write(tmp_path, text), MC_NET)
         # A jump mixing a counter and a state in one constraint.
         text = mc_text().replace("guard { k >= 150.0 x1 <= 0.45 }", "guard { k + x1 >= 150.0 }")
         with pytest.raises(pv.ParseError, match=rf"line {line_of(text, 'k + x1')}: .*mixing clocks/counters"):
-            pv.formats.load_verisig(write(tmp_path, text), MC_NET)
+            pv.load_verisig(write(tmp_path, text), MC_NET)
         # The network evaluated on one branch only.
         text = mc_text().replace(
             "mode2 -> m0\n\t\tguard { clock = 0.0 x1 <= -1.2 }", "mode2 -> _reset_mode1\n\t\tguard { clock = 0.0 x1 <= -1.2 }"
         )
         with pytest.raises(pv.ParseError, match="DNN mode 'DNNm1' is reached on only some branches"):
-            pv.formats.load_verisig(write(tmp_path, text), MC_NET)
+            pv.load_verisig(write(tmp_path, text), MC_NET)
         # A jump out of a flowing mode without 'clock = c' could fire in the middle of the flow.
         text = mc_text().replace("guard { clock = 1.0 x2 + temp >= 0.07 }", "guard { x2 + temp >= 0.07 }")
         line = line_of(text, "guard { x2 + temp >= 0.07 }") - 1  # the jump's 'A -> B' line
         with pytest.raises(
             pv.ParseError, match=rf"line {line}: jump _reset_mode1 -> mode2 leaves the flowing mode .*without a 'clock = c' guard"
         ):
-            pv.formats.load_verisig(write(tmp_path, text), MC_NET)
+            pv.load_verisig(write(tmp_path, text), MC_NET)
         # Linear-time-invariant dynamics blocks.
         text = mc_text().replace("nonpoly ode", "lti ode", 1)
         with pytest.raises(pv.ParseError, match=rf"line {line_of(text, 'lti ode')}: mode 'm0': 'lti ode' dynamics are not supported"):
-            pv.formats.load_verisig(write(tmp_path, text), MC_NET)
+            pv.load_verisig(write(tmp_path, text), MC_NET)
         # An unsafe jump from somewhere other than the step boundary.
         text = mc_text().replace("mode2 -> unsafe1", "m0 -> unsafe1")
         with pytest.raises(
             pv.ParseError,
             match=rf"line {line_of(text, 'm0 -> unsafe1')}: jump m0 -> unsafe1 ends the run from 'm0', but jump mode2 -> mode3",
         ):
-            pv.formats.load_verisig(write(tmp_path, text), MC_NET)
+            pv.load_verisig(write(tmp_path, text), MC_NET)
 
     def test_absorbing_goal_must_end_every_run(self, tmp_path):
         # If the run could continue from the goal region, a "within" goal would be unsound.
         text = mc_text().replace("guard { clock = 0.0 x1 >= -1.2 x1 <= 0.45 }", "guard { clock = 0.0 x1 >= -1.2 }")
         with pytest.raises(pv.ParseError, match="continues the run without requiring x1 <= 0.45"):
-            pv.formats.load_verisig(write(tmp_path, text), MC_NET)
+            pv.load_verisig(write(tmp_path, text), MC_NET)

@@ -49,7 +49,9 @@ from percver.verification import Adaptive, Bisection, DomainWarning, Grid, Part,
 min = minimum  # noqa: A001 - the design's names pv.min / pv.max, like numpy's
 max = maximum  # noqa: A001
 abs = abs_  # noqa: A001 - pv.abs, like numpy's
-from percver.networks import Network, chain, load_network
+from percver.networks import Network, chain
+from percver.formats import load_network, save_network
+from percver.translation import VerisigProblem, load_verisig
 
 from percver import noise, sensors, validate
 from percver.measurements import Measurements

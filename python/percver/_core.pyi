@@ -8,6 +8,7 @@ from typing import Any, Callable, Mapping, Optional, Sequence, Tuple, Union
 
 import numpy as np
 from numpy.typing import NDArray
+from typing_extensions import TypedDict, Unpack
 
 __version__: str
 
@@ -165,6 +166,12 @@ class NetworkModels:
     @property
     def order(self) -> int: ...
 
+# The keywords of Network.bounds and Network.models; one left out takes the engine's default
+# (nn2hybrid's propagate::Settings::default(): order 5, cutoff 1e-15, symbolic, 4 variables, 4096 symbols).
+PropagationOptions = TypedDict(
+    "PropagationOptions", {"order": int, "cutoff": float, "symbolic": bool, "max_vars": int, "max_symbols": int}, total=False
+)
+
 class Network:
     """A feed-forward network: ``layers`` of (weight n_out x n_in, bias, activations: one name per
     neuron or one per layer), outputs mapped by ``scale`` and ``offset``."""
@@ -183,24 +190,14 @@ class Network:
         self,
         input: Union[Bounds, NetworkModels],
         method: str = "taylor",
-        order: int = 5,
-        cutoff: float = 1e-15,
-        symbolic: bool = True,
-        max_vars: int = 4,
-        max_symbols: int = 4096,
+        *,
         splits: Sequence[Tuple[int, int]] = ...,
+        leaves: int = 1,
+        **options: Unpack[PropagationOptions],
     ) -> list[Tuple[float, float]]:
-        """Sound output bounds over a box (or over earlier models) by "taylor", "verisig" or "interval"."""
-    def models(
-        self,
-        input: Union[Bounds, NetworkModels],
-        method: str = "taylor",
-        order: int = 5,
-        cutoff: float = 1e-15,
-        symbolic: bool = True,
-        max_vars: int = 4,
-        max_symbols: int = 4096,
-    ) -> NetworkModels:
+        """Sound output bounds over a box (or over earlier models) by "taylor", "verisig" or "interval";
+        ``leaves`` > 1 refines a box's Taylor bounds by branch and bound on the input."""
+    def models(self, input: Union[Bounds, NetworkModels], method: str = "taylor", **options: Unpack[PropagationOptions]) -> NetworkModels:
         """The output Taylor models over a box (or over earlier models), to propagate further."""
 
 # A condition for the engine: (margin, op, label) meaning ``margin op 0`` over the state.
@@ -307,14 +304,53 @@ class StepCounter:
     def get(self) -> int: ...
     def reset(self) -> None: ...
 
+class CellOutcome:
+    """What verifying a cell found; picklable, so it comes back from executor workers as it is."""
+
+    def __init__(
+        self,
+        verdict: str,
+        reason: Optional[str],
+        steps_done: int,
+        deepest_step: int,
+        boxes: Sequence[Bounds],
+        seconds: float,
+        nn_seconds: float,
+        branches: int,
+        split: Optional[int],
+    ) -> None: ...
+    @property
+    def verdict(self) -> str:
+        """One of "verified", "unknown", "violated"."""
+    @property
+    def reason(self) -> Optional[str]: ...
+    @property
+    def steps_done(self) -> int:
+        """Steps completed by the whole cell: the boxes cover steps 0..steps_done."""
+    @property
+    def deepest_step(self) -> int:
+        """The deepest step any piece of the cell reached."""
+    @property
+    def boxes(self) -> list[list[Tuple[float, float]]]:
+        """The state box of each step, step 0 first."""
+    @property
+    def seconds(self) -> float: ...
+    @property
+    def nn_seconds(self) -> float: ...
+    @property
+    def branches(self) -> int: ...
+    @property
+    def split(self) -> Optional[int]:
+        """The state the engine would have split next (an index into the state names)."""
+    def __reduce__(self) -> Tuple[Any, Tuple[Any, ...]]: ...
+
 def verify_cells(
     problem: ClosedLoop,
     cells: Sequence[Bounds],
-    done: Callable[[int, dict[str, Any]], Optional[bool]],
+    done: Callable[[int, CellOutcome], Optional[bool]],
     settings: Optional[CellSettings] = None,
     workers: Optional[int] = None,
     progress: Optional[StepCounter] = None,
 ) -> None:
     """Runs ``cells`` ((lo, hi) per state variable) with ``settings``; ``done(index, outcome)`` is
-    called as each cell finishes (outcome keys: verdict, reason, steps_done, deepest_step, boxes,
-    seconds, nn_seconds, branches, split); returning False (or raising) stops starting new cells."""
+    called as each cell finishes; returning False (or raising) stops starting new cells."""

@@ -21,7 +21,7 @@ import numpy as np
 from scipy.special import expit
 
 from percver import _core
-from percver.errors import InputError, MissingFileError, NetworkFormatError
+from percver.errors import InputError, NetworkFormatError
 
 ACTIVATIONS = ("sigmoid", "tanh", "relu", "identity")
 
@@ -205,7 +205,7 @@ class Network:
 
         Outside it the network's outputs are extrapolation, so a proof over such inputs is about a
         function nobody checked; :func:`percver.verify` warns when a set leaves it. percver's ONNX
-        exports carry it in their metadata; :func:`load_network` (``domain=``) and
+        exports carry it in their metadata; :func:`percver.formats.load_network` (``domain=``) and
         :meth:`with_domain` set it for other files.
         """
         return self._domain
@@ -406,26 +406,6 @@ class Network:
             return self._core().models(box, method, **settings)
         return self._core().models(self._box(box), method, **settings)
 
-    def to_onnx(self, path) -> None:
-        """Write a float64 ONNX graph (one Gemm per layer) that onnxruntime and :func:`load_network` read."""
-        from percver.formats.onnx import write_onnx
-
-        write_onnx(self, path)
-
-    def to_verisig_yaml(self, path) -> None:
-        """Write a Verisig ``.yml``; an output map becomes an extra linear layer (the format has none)."""
-        from percver.formats.verisig_yaml import write_verisig_yaml
-
-        write_verisig_yaml(self, path)
-
-    def to_flowstar(self, path, init, **options) -> Path:
-        """Write a Flow* hybrid model of this network (Verisig 1.0 style: one mode of neuron ODEs
-        per layer, affine resets), optionally closed with a discrete plant; see
-        :func:`percver.formats.to_flowstar` for ``init`` and the options."""
-        from percver.formats.flowstar_export import to_flowstar
-
-        return to_flowstar(self, path, init, **options)
-
     def __repr__(self) -> str:
         def describe(layer: Layer) -> str:
             if isinstance(layer.activation, str):
@@ -443,31 +423,6 @@ def _checked_names(names, n_in: int, network: str) -> tuple[str, ...]:
     if len(names) != n_in or len(set(names)) != n_in:
         raise InputError(f"network {network!r} has {n_in} inputs: give as many distinct names, got {list(names)[:8]}")
     return names
-
-
-def load_network(path, *, domain=None) -> Network:
-    """Read a network from ``.onnx``, a Verisig ``.yml``/``.yaml``, an NNet ``.nnet`` or a MATLAB
-    ``.mat`` file (W, b and act_fcns, the NNV/CORA/JuliaReach layout).
-
-    ``domain`` (see :attr:`Network.domain`) overrides the input domain the file records (percver's
-    ONNX exports record it; the other formats cannot).
-    """
-    from percver.formats.mat import read_mat
-    from percver.formats.nnet import read_nnet
-    from percver.formats.onnx import read_onnx
-    from percver.formats.verisig_yaml import read_verisig_yaml
-
-    path = Path(path)
-    readers = {".onnx": read_onnx, ".yml": read_verisig_yaml, ".yaml": read_verisig_yaml, ".nnet": read_nnet, ".mat": read_mat}
-    if not path.is_file():
-        raise MissingFileError(f"network file not found: {path}")
-    reader = readers.get(path.suffix.lower())
-    if reader is None:
-        raise NetworkFormatError(
-            f"{path}: unknown network file type {path.suffix!r}; percver reads .onnx, Verisig .yml/.yaml, .nnet and .mat"
-        )
-    network = reader(path)
-    return network if domain is None else network.with_domain(domain)
 
 
 def chain(*networks: Network) -> Network:

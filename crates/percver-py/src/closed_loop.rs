@@ -1,6 +1,6 @@
 //! `percver._core.ClosedLoop`, `CellSettings` and `verify_cells` (crate `closed_loop`): cells
 //! verified in parallel with the GIL released; each finished cell is handed to a Python callback
-//! (journal, progress) as a dict.
+//! (journal, progress) as a `CellOutcome`.
 use crate::error::{reach_to_py, IntoPy};
 use crate::expr::{compile, PyExpr};
 use crate::network::PyNetwork;
@@ -158,26 +158,81 @@ impl PyClosedLoop {
     }
 }
 
-fn outcome_dict<'py>(py: Python<'py>, o: &CellOutcome) -> PyResult<Bound<'py, PyDict>> {
-    let d = PyDict::new(py);
-    d.set_item(
-        "verdict",
-        match o.verdict {
-            Verdict::Verified => "verified",
-            Verdict::Unknown => "unknown",
-            Verdict::Violated => "violated",
-        },
-    )?;
-    d.set_item("reason", o.reason.clone())?;
-    d.set_item("steps_done", o.steps_done)?;
-    d.set_item("deepest_step", o.deepest_step)?;
-    let boxes: Vec<Vec<(f64, f64)>> = o.boxes.iter().map(|b| b.iter().map(|i| (i.lo(), i.hi())).collect()).collect();
-    d.set_item("boxes", boxes)?;
-    d.set_item("seconds", o.seconds)?;
-    d.set_item("nn_seconds", o.nn_seconds)?;
-    d.set_item("branches", o.branches)?;
-    d.set_item("split", o.split)?;
-    Ok(d)
+/// What verifying a cell found (`closed_loop::CellOutcome`), with the boxes as (lo, hi) pairs.
+/// Picklable: outcomes come back from executor workers as they are.
+#[pyclass(name = "CellOutcome", module = "percver._core", frozen, get_all)]
+#[derive(Clone)]
+pub struct PyCellOutcome {
+    /// "verified", "unknown" or "violated".
+    verdict: String,
+    reason: Option<String>,
+    steps_done: usize,
+    deepest_step: usize,
+    boxes: Vec<Vec<(f64, f64)>>,
+    seconds: f64,
+    nn_seconds: f64,
+    branches: usize,
+    split: Option<usize>,
+}
+
+fn verdict_name(v: Verdict) -> &'static str {
+    match v {
+        Verdict::Verified => "verified",
+        Verdict::Unknown => "unknown",
+        Verdict::Violated => "violated",
+    }
+}
+
+impl From<&CellOutcome> for PyCellOutcome {
+    fn from(o: &CellOutcome) -> Self {
+        PyCellOutcome {
+            verdict: verdict_name(o.verdict).to_string(),
+            reason: o.reason.clone(),
+            steps_done: o.steps_done,
+            deepest_step: o.deepest_step,
+            boxes: o.boxes.iter().map(|b| b.iter().map(|i| (i.lo(), i.hi())).collect()).collect(),
+            seconds: o.seconds,
+            nn_seconds: o.nn_seconds,
+            branches: o.branches,
+            split: o.split,
+        }
+    }
+}
+
+/// The constructor's arguments, the fields in their order (and what `__reduce__` gives back).
+type OutcomeArgs = (String, Option<String>, usize, usize, Vec<Vec<(f64, f64)>>, f64, f64, usize, Option<usize>);
+
+#[pymethods]
+impl PyCellOutcome {
+    /// `CellOutcome(verdict, reason, steps_done, deepest_step, boxes, seconds, nn_seconds, branches, split)`.
+    #[new]
+    #[pyo3(signature = (*args))]
+    fn new(args: OutcomeArgs) -> PyResult<Self> {
+        let (verdict, reason, steps_done, deepest_step, boxes, seconds, nn_seconds, branches, split) = args;
+        if ![Verdict::Verified, Verdict::Unknown, Verdict::Violated].iter().any(|&v| verdict_name(v) == verdict) {
+            return Err(input_error(format!("a cell's verdict is 'verified', 'unknown' or 'violated', not '{verdict}'")));
+        }
+        Ok(PyCellOutcome { verdict, reason, steps_done, deepest_step, boxes, seconds, nn_seconds, branches, split })
+    }
+    fn __repr__(&self) -> String {
+        format!(
+            "CellOutcome(verdict='{}', reason={:?}, steps_done={}, deepest_step={}, {} boxes, seconds={}, nn_seconds={}, branches={}, split={:?})",
+            self.verdict,
+            self.reason,
+            self.steps_done,
+            self.deepest_step,
+            self.boxes.len(),
+            self.seconds,
+            self.nn_seconds,
+            self.branches,
+            self.split
+        )
+    }
+    /// Pickling (Dask, process pools): the constructor's arguments.
+    fn __reduce__<'py>(slf: &Bound<'py, Self>) -> (Bound<'py, pyo3::types::PyType>, OutcomeArgs) {
+        let o = slf.get().clone();
+        (slf.get_type(), (o.verdict, o.reason, o.steps_done, o.deepest_step, o.boxes, o.seconds, o.nn_seconds, o.branches, o.split))
+    }
 }
 
 /// How each cell is verified; every keyword left out takes the engine's default (Rust's
@@ -306,7 +361,7 @@ pub fn _cell_settings(kwargs: &Bound<'_, PyDict>) -> PyResult<PyCellSettings> {
 }
 
 /// Runs `cells` (lists of (lo, hi) per state variable) with `settings` (the defaults when None);
-/// `done(index, outcome: dict) -> bool` is called as each cell finishes; returning False (or
+/// `done(index, outcome: CellOutcome) -> bool` is called as each cell finishes; returning False (or
 /// raising) stops starting new cells. `progress` is raised to the deepest step reached as they run.
 #[pyfunction]
 #[pyo3(signature = (problem, cells, done, settings=None, workers=None, progress=None))]
@@ -337,7 +392,7 @@ pub fn verify_cells(
     let failure: Mutex<Option<PyErr>> = Mutex::new(None);
     let callback = |i: usize, o: &CellOutcome| -> bool {
         Python::with_gil(|py| {
-            let result = outcome_dict(py, o).and_then(|d| done.call1(py, (i, d))).and_then(|r| r.is_truthy(py).map(|t| t || r.is_none(py)));
+            let result = done.call1(py, (i, PyCellOutcome::from(o))).and_then(|r| r.is_truthy(py).map(|t| t || r.is_none(py)));
             match result {
                 Ok(go_on) => go_on,
                 Err(e) => {

@@ -27,6 +27,7 @@ fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<closed_loop::PyClosedLoop>()?;
     m.add_class::<closed_loop::PyCellSettings>()?;
     m.add_class::<closed_loop::PyStepCounter>()?;
+    m.add_class::<closed_loop::PyCellOutcome>()?;
     m.add_function(wrap_pyfunction!(closed_loop::verify_cells, m)?)?;
     m.add_function(wrap_pyfunction!(closed_loop::_cell_settings, m)?)?;
     Ok(())

@@ -5,6 +5,7 @@ use nn2hybrid::propagate::{self, Models, Settings};
 use nn2hybrid::{verisig, Activation, LayerArrays, Network, NetworkError};
 use numpy::{PyReadonlyArray1, PyReadonlyArray2};
 use pyo3::prelude::*;
+use pyo3::types::PyDict;
 use std::sync::Arc;
 use taylor::Interval;
 
@@ -34,16 +35,23 @@ fn pairs(bounds: &[Interval]) -> Vec<(f64, f64)> {
     bounds.iter().map(|b| (b.lo(), b.hi())).collect()
 }
 
-#[allow(clippy::too_many_arguments)]
-fn settings(
-    order: usize,
-    cutoff: f64,
-    symbolic: bool,
-    max_vars: usize,
-    max_symbols: usize,
-    splits: Vec<(usize, usize)>,
-) -> PyResult<Settings> {
-    let s = Settings { order, cutoff, symbolic, max_symbols, max_vars, splits, ..Settings::default() };
+/// The propagation keywords of `bounds` and `models`, one list for both: each one left out
+/// takes `Settings::default()`'s value (the one source of the defaults).
+fn settings(options: Option<&Bound<'_, PyDict>>, splits: Vec<(usize, usize)>) -> PyResult<Settings> {
+    let mut s = Settings { splits, ..Settings::default() };
+    for (key, value) in options.into_iter().flat_map(|d| d.iter()) {
+        match key.extract::<String>()?.as_str() {
+            "order" => s.order = value.extract()?,
+            "cutoff" => s.cutoff = value.extract()?,
+            "symbolic" => s.symbolic = value.extract()?,
+            "max_vars" => s.max_vars = value.extract()?,
+            "max_symbols" => s.max_symbols = value.extract()?,
+            other => {
+                return Err(NetworkError::input(format!("unknown keyword '{other}'; use order, cutoff, symbolic, max_vars or max_symbols")))
+                    .py_err()
+            }
+        }
+    }
     s.validate().py_err()?;
     Ok(s)
 }
@@ -99,23 +107,18 @@ impl PyNetwork {
 
     /// Sound output bounds over a box (or over earlier models) by "taylor", "verisig" or "interval";
     /// `leaves` > 1 refines a box's Taylor bounds by branch and bound on the input.
-    #[pyo3(signature = (input, method="taylor", order=5, cutoff=1e-15, symbolic=true, max_vars=4, max_symbols=4096, splits=vec![], leaves=1))]
-    #[allow(clippy::too_many_arguments)]
+    #[pyo3(signature = (input, method="taylor", *, splits=vec![], leaves=1, **options))]
     fn bounds(
         &self,
         py: Python<'_>,
         input: Input<'_>,
         method: &str,
-        order: usize,
-        cutoff: f64,
-        symbolic: bool,
-        max_vars: usize,
-        max_symbols: usize,
         splits: Vec<(usize, usize)>,
         leaves: usize,
+        options: Option<&Bound<'_, PyDict>>,
     ) -> PyResult<Vec<(f64, f64)>> {
         let net = self.0.clone();
-        let s = settings(order, cutoff, symbolic, max_vars, max_symbols, splits)?;
+        let s = settings(options, splits)?;
         let result = match input {
             Input::Box(b) => {
                 let b = to_box(&b)?;
@@ -139,21 +142,10 @@ impl PyNetwork {
     }
 
     /// The output Taylor models over a box (or over earlier models), to propagate further.
-    #[pyo3(signature = (input, method="taylor", order=5, cutoff=1e-15, symbolic=true, max_vars=4, max_symbols=4096))]
-    #[allow(clippy::too_many_arguments)]
-    fn models(
-        &self,
-        py: Python<'_>,
-        input: Input<'_>,
-        method: &str,
-        order: usize,
-        cutoff: f64,
-        symbolic: bool,
-        max_vars: usize,
-        max_symbols: usize,
-    ) -> PyResult<PyNetworkModels> {
+    #[pyo3(signature = (input, method="taylor", **options))]
+    fn models(&self, py: Python<'_>, input: Input<'_>, method: &str, options: Option<&Bound<'_, PyDict>>) -> PyResult<PyNetworkModels> {
         let net = self.0.clone();
-        let s = settings(order, cutoff, symbolic, max_vars, max_symbols, vec![])?;
+        let s = settings(options, vec![])?;
         let verisig = match method {
             "taylor" => false,
             "verisig" => true,

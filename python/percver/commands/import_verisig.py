@@ -1,7 +1,7 @@
 """``percver import-verisig MODEL.model NET.yml ... -o CONFIG.toml``: a ``percver verify`` config for
 a Verisig 2.0 benchmark, with the file's initial set and horizon written out to edit.
 
-The model is translated once here (``pv.formats.load_verisig``), so a file percver cannot read
+The model is translated once here (``pv.load_verisig``), so a file percver cannot read
 fails now, with file and line, rather than when the campaign starts. The config keeps the model's
 own property (its ``unsafe`` block) unless ``[property]`` overrides it.
 """
@@ -33,7 +33,7 @@ def register(sub) -> None:
 
 
 def run(args) -> int:
-    from percver.formats import load_verisig
+    from percver.translation import load_verisig
 
     networks = [*args.nets, *args.networks]
     problem = load_verisig(args.model, networks=networks)

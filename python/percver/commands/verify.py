@@ -283,6 +283,7 @@ class Config:
 
     def _model(self, plant: dict):
         from percver import formats
+        from percver.translation import load_verisig
 
         model = self.file("[plant] model", plant["model"])
         networks = plant.get("networks", [])
@@ -293,7 +294,7 @@ class Config:
             return FlowstarProblem(formats.load_flowstar(str(model)), plant.get("period"))
         if "period" in plant:
             raise self.error("[plant] period", "Verisig models carry their own control period")
-        return formats.load_verisig(str(model), networks=nets)
+        return load_verisig(str(model), networks=nets)
 
     def checked(self, target, kwargs: dict):
         """``target`` if there is a property to verify: the config's, or the model file's own."""

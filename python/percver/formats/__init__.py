@@ -2,4 +2,4 @@
 
 from percver.formats.flowstar import FlowstarModel, HybridModel, load_flowstar
 from percver.formats.flowstar_export import to_flowstar
-from percver.formats.verisig import VerisigProblem, load_verisig
+from percver.formats.network_files import load_network, save_network

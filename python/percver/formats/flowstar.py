@@ -26,6 +26,7 @@ from typing import Optional, Union
 
 from percver import _core
 from percver.errors import BlowUpError, InputError, MissingFileError, ParseError
+from percver.formats.verisig import _block
 
 
 @dataclass
@@ -66,20 +67,6 @@ class FlowstarModel:
             progress=progress,
             on_failure=on_failure,
         )
-
-
-def _block(text: str, start: int, path: str) -> tuple[str, int]:
-    """The text inside the braces opening at or after ``start``, and the index after them."""
-    open_at = text.index("{", start)
-    depth = 0
-    for i in range(open_at, len(text)):
-        if text[i] == "{":
-            depth += 1
-        elif text[i] == "}":
-            depth -= 1
-            if depth == 0:
-                return text[open_at + 1 : i], i + 1
-    raise ParseError(f"{path}: unbalanced '{{' at line {text.count(chr(10), 0, open_at) + 1}")
 
 
 def _line_of(text: str, needle: str) -> int:
@@ -486,7 +473,7 @@ def _load_hybrid(path: str) -> HybridModel:
     if dnn:
         raise src.error(
             aut.modes[dnn[0]].pos,
-            f"mode {dnn[0]} is a Verisig 2.0 network mode (evaluated by the tool from a network file): read the model with pv.formats.load_verisig(model, networks=[...])",
+            f"mode {dnn[0]} is a Verisig 2.0 network mode (evaluated by the tool from a network file): read the model with pv.load_verisig(model, networks=[...])",
         )
     found = _integration_settings(aut.settings["ignored"], variables, path, src.text)
     for what, value in (("a step size", found["step"]), ("an order", found["order"])):

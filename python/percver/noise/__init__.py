@@ -7,7 +7,7 @@
 - :mod:`~percver.noise.denoiser`: denoisers h_d (measured -> canonical measurements, a network stage);
 - :mod:`~percver.noise.thresholds`: labels by t_Delta and per-output probability thresholds;
 - :mod:`~percver.noise.training`: the lazy torch import, dense modules, the training loop and
-  the conversion to :class:`percver.Network` (``to_onnx`` writes files ``load_network`` reads).
+  the conversion to :class:`percver.Network` (``pv.save_network`` writes files ``pv.load_network`` reads).
 
 Training needs torch (``pip install "percver[train]"``); trained models evaluate with numpy.
 """

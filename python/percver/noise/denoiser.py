@@ -30,12 +30,14 @@ class Denoiser:
 
     @classmethod
     def load(cls, path, scale: float = 0.5) -> "Denoiser":
-        from percver.networks import load_network
+        from percver.formats import load_network
 
         return cls(load_network(path), scale, Path(path).stem)
 
     def save(self, path) -> None:
-        self.network.to_onnx(path)
+        from percver.formats import save_network
+
+        save_network(self.network, path)
 
     def __call__(self, normalised) -> np.ndarray:
         return self.scale * self.network(normalised)

@@ -37,11 +37,13 @@ class GenerativeModel:
 
     def save(self, path) -> None:
         """The network as ONNX; the number of conditions is its inputs minus its outputs."""
-        self.network.to_onnx(path)
+        from percver.formats import save_network
+
+        save_network(self.network, path)
 
     @classmethod
     def load(cls, path) -> "GenerativeModel":
-        from percver.networks import load_network
+        from percver.formats import load_network
 
         network = load_network(path)
         return cls(network, network.n_in - network.n_out, Path(path).stem)

@@ -56,12 +56,14 @@ class KnockoutModel:
 
     def save(self, network_path, parameters_path) -> None:
         """The classifier as ONNX, thresholds and knocked values as ``.npz``."""
-        self.network.to_onnx(network_path)
+        from percver.formats import save_network
+
+        save_network(self.network, network_path)
         np.savez(parameters_path, thresholds=self.thresholds, knocked=self.knocked)
 
     @classmethod
     def load(cls, network_path, parameters_path) -> "KnockoutModel":
-        from percver.networks import load_network
+        from percver.formats import load_network
 
         parameters_path = Path(parameters_path)
         if not parameters_path.is_file():

@@ -219,6 +219,10 @@ class Lidar:
         """The full F1/10 sensor: 1081 rays over -135..135 degrees (0.25 degree steps), 10 m."""
         return cls(np.linspace(-135.0, 135.0, 1081), 10.0)
 
+    def with_range(self, max_range: float) -> "Lidar":
+        """The same rays with another range limit."""
+        return Lidar(self.angles_deg, max_range)
+
     @property
     def names(self) -> tuple:
         return tuple(f"ray{i}" for i in range(len(self.angles)))

@@ -75,7 +75,9 @@ class LearnedNoise:
         directory = Path(directory)
         directory.mkdir(parents=True, exist_ok=True)
         network, parameters = directory / f"{self.name}.onnx", directory / f"{self.name}.npz"
-        self.network.to_onnx(network)
+        from percver.formats import save_network
+
+        save_network(self.network, network)
         arrays = {"features": np.array(self.feature_names)}
         if self.kind == "knockout":
             arrays.update(thresholds=self.model.thresholds, knocked=self.model.knocked)

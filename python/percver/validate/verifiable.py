@@ -246,7 +246,6 @@ def lidar_component(model, ranges: dict, residual: dict | None, residual_kind: s
     for every parameter in range (as the float model's unlimited cast does)."""
     from percver import _core
     from percver.expr import Expr, minimum, uncertain, where
-    from percver.sensors.lidar import Lidar
 
     effects, records = _deterministic(model, ranges, per)
     x, y, theta = (Expr.var(n) for n in model.state_names)
@@ -271,7 +270,7 @@ def lidar_component(model, ranges: dict, residual: dict | None, residual_kind: s
     cap = (limit_hi - b_lo) / a_lo
     if not cap > 0:
         raise NoSetSemanticsError(f"the fitted range bias {b_lo:g} m exceeds the range limit {limit_hi:g} m: no echo is possible")
-    cast = Lidar(model.lidar.angles_deg, cap).exprs(model.track, x, y, theta)
+    cast = model.lidar.with_range(cap).exprs(model.track, x, y, theta)
     rays = []
     for r in cast:
         reading = minimum(a * r + b, limit)
@@ -388,7 +387,7 @@ def learned_sensor(
     """The :class:`LearnedSensor` of a canonical component and a learned noise model; with ``onnx``
     (a directory) the network is written there (``learned_KIND.onnx``, with its training domain)
     and the stage reads it back, so that what is verified is the file."""
-    from percver.networks import load_network
+    from percver.formats import load_network
 
     network = learned.network
     notes = list(canonical.validation.notes)

@@ -7,6 +7,7 @@ The modules, in the order a cell meets them:
 - :mod:`~percver.verification.splitters`: how the initial set is cut into cells and unknown cells cut again (``splitter=``);
 - :mod:`~percver.verification.journal`: resumable campaigns (append-only JSONL, problem fingerprints);
 - :mod:`~percver.verification.campaign`: cells flowing through probe, engine and falsification, locally or on executors;
+- :mod:`~percver.verification.executors`: cells on Dask or any ``concurrent.futures`` executor, the problem pickled once;
 - :mod:`~percver.verification.falsify`: float runs that look for a counterexample;
 - :mod:`~percver.verification.domains`: where a set leaves the input domain of a network stage;
 - :mod:`~percver.verification.results`: :class:`Cell`, :class:`Counterexample`, :class:`Result`.

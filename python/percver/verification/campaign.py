@@ -97,17 +97,17 @@ class Campaign:
                 fresh.append(cell)
         return fresh
 
-    def record(self, cell: Box, outcome: dict):
+    def record(self, cell: Box, outcome: _core.CellOutcome, peak_rss_mb: Optional[float]):
         """A cell's outcome from the engine (``run_cells``); one not verified is sampled first
         (outside the lock: the simulation must not hold up other threads' outcomes)."""
         cex = None
-        if outcome["verdict"] != "verified" and self.falsify > 0:
+        if outcome.verdict != "verified" and self.falsify > 0:
             cex = falsify(self.loop, self.prop, [cell], self.prop.steps, self.falsify, self.seed, probe=False)[0]
         with self.lock:
-            self._record(cell, outcome, cex)
+            self._record(cell, outcome, peak_rss_mb, cex)
 
-    def _record(self, cell: Box, outcome: dict, cex: Optional[Counterexample]):
-        verdict, reason = outcome["verdict"], outcome["reason"]
+    def _record(self, cell: Box, outcome: _core.CellOutcome, peak_rss_mb: Optional[float], cex: Optional[Counterexample]):
+        verdict, reason = outcome.verdict, outcome.reason
         if cex is not None:
             verdict, reason = "falsified", f"simulation violates {cex.violated} at step {cex.step}; the engine: {reason}"
         elif verdict == "violated":
@@ -117,16 +117,16 @@ class Campaign:
         c = Cell(
             cell.to_dict(),
             verdict,
-            outcome["seconds"],
-            outcome["nn_seconds"],
-            outcome["branches"],
-            outcome["steps_done"],
+            outcome.seconds,
+            outcome.nn_seconds,
+            outcome.branches,
+            outcome.steps_done,
             reason,
             cex,
-            outcome["boxes"],
-            outcome.get("peak_rss_mb"),
-            None if outcome.get("split") is None else self.init.names[outcome["split"]],
-            outcome["deepest_step"],
+            outcome.boxes,
+            peak_rss_mb,
+            None if outcome.split is None else self.init.names[outcome.split],
+            outcome.deepest_step,
         )
         self.cell_seconds[0] += c.seconds
         self.cell_seconds[1] += 1
@@ -239,13 +239,13 @@ def _peak_rss_mb() -> float:
 
 
 def run_cells(problem, cells: list, done, options: dict, workers: Optional[int], progress=None):
-    """``_core.verify_cells`` on cells given as lists of (lo, hi), each outcome with the peak RSS
-    of this process from the batch's start to the cell's end; the one place cells run, locally
-    and on executor workers. ``progress`` (a ``_core.StepCounter``) follows the deepest step."""
+    """``_core.verify_cells`` on cells given as lists of (lo, hi): ``done(index, outcome,
+    peak_rss_mb)`` gets each outcome with the peak RSS of this process from the batch's start to
+    the cell's end; the one place cells run, locally and on executor workers. ``progress`` (a
+    ``_core.StepCounter``) follows the deepest step."""
 
     def each(i, outcome):
-        outcome["peak_rss_mb"] = _peak_rss_mb()
-        return done(i, outcome)
+        return done(i, outcome, _peak_rss_mb())
 
     _reset_peak_rss()
     _core.verify_cells(problem, [list(c) for c in cells], each, _core.CellSettings(**options), workers=workers, progress=progress)
@@ -293,7 +293,7 @@ def run_local(jobs: list, workers: Optional[int], bar: Progress):
                 counter.reset()
                 bar.cell_started(counter, campaign.prop.steps)
                 try:
-                    run_cells(problem, [cell.bounds], lambda i, o: campaign.record(cell, o), options, 1, counter)
+                    run_cells(problem, [cell.bounds], lambda i, o, rss: campaign.record(cell, o, rss), options, 1, counter)
                 finally:
                     bar.cell_ended()
                     with idle:

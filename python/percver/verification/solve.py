@@ -9,10 +9,13 @@ Verdicts per cell: "verified" (the engine proved the property for every state of
 
 from __future__ import annotations
 
+import copy
+import inspect
 import threading
 import time
 from contextlib import ExitStack
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, fields, replace
+from types import SimpleNamespace
 from typing import Optional, Sequence, Union
 
 import numpy as np
@@ -24,8 +27,6 @@ from percver.sets import BoxLike
 from percver.systems import ClosedLoop
 from percver.verification.campaign import Campaign, Progress, run_local
 from percver.verification.domains import domain_checks, domain_exits, flag_exits, runs
-import copy
-
 from percver.verification.splitters import Adaptive, Bisection, Grid
 from percver.verification.journal import Journal
 from percver.verification.journal import fingerprint as fingerprint_of
@@ -131,76 +132,38 @@ def verify(
     :class:`~percver.errors.NetworkDomainError` instead (after the run, with the results as its
     ``results`` attribute).
     """
-    part = Part(init, split, order, max_splits, journal)
-    return verify_parts(
-        loop,
-        [part],
-        steps=steps,
-        goal=goal,
-        safe=safe,
-        unsafe=unsafe,
-        within=within,
-        reward=reward,
-        refine=refine,
-        min_width=min_width,
-        splitter=splitter,
-        method=method,
-        rebox=rebox,
-        state_symbols=state_symbols,
-        workers=workers,
-        executor=executor,
-        batch=batch,
-        timeout_per_cell=timeout_per_cell,
-        falsify=falsify,
-        progress=progress,
-        seed=seed,
-        strict=strict,
-        validated=validated,
-    )[0]
+    options = dict(locals())  # the keywords above, the one list of them
+    part = Part(**{k: options.pop(k) for k in PART_KEYWORDS})
+    return _verify_parts(options.pop("loop"), [part], options)[0]
 
 
-def verify_parts(
-    loop: ClosedLoop,
-    parts: Sequence[Part],
-    *,
-    steps: Optional[int] = None,
-    goal: Optional[Condition] = None,
-    safe: Union[Condition, Sequence[Condition], None] = None,
-    unsafe: Union[Condition, Sequence[Condition], None] = None,
-    within: bool = False,
-    reward: Optional[dict] = None,
-    refine: bool = False,
-    min_width: Optional[dict] = None,
-    splitter=None,
-    method: str = "taylor",
-    rebox: bool = False,
-    state_symbols: bool = False,
-    workers: Optional[int] = None,
-    executor=None,
-    batch: Optional[int] = None,
-    timeout_per_cell: Optional[float] = None,
-    falsify: int = 32,
-    progress: bool = True,
-    seed: int = 0,
-    strict: bool = False,
-    validated=None,
-) -> list:
+def verify_parts(loop: ClosedLoop, parts: Sequence[Part], **options) -> list:
     """:func:`verify` on several :class:`Part` s of an initial set (regions that need different
     cell widths or orders), one :class:`Result` per part, each with the whole call's wall time.
 
     Locally, all parts' cells share one pool of ``workers`` threads, each running one cell at a
     time and taking the next from the first part that has one: no core waits for the last cell
     of a batch or of a part (verifying the parts one after another left a core idle at each
-    part's end). On an executor the parts run one after another. The other keywords are
-    :func:`verify`'s, the same for every part."""
+    part's end). On an executor the parts run one after another. ``options`` are :func:`verify`'s
+    keywords but a part's own (init, split, order, max_splits, journal), the same for every part."""
+    unknown = sorted(set(options) - set(SHARED_KEYWORDS))
+    if unknown:
+        raise TypeError(f"verify_parts() got unexpected keyword arguments {unknown}; it takes {', '.join(SHARED_KEYWORDS)}")
+    defaults = {k: p.default for k, p in inspect.signature(verify).parameters.items() if k in SHARED_KEYWORDS}
+    return _verify_parts(loop, parts, {**defaults, **options})
+
+
+def _verify_parts(loop, parts: Sequence[Part], keywords: dict) -> list:
+    """The campaign of :func:`verify_parts`, with every shared keyword of :func:`verify` given."""
+    o = SimpleNamespace(**keywords)
     started = time.time()
     if not isinstance(loop, ClosedLoop) and isinstance(getattr(loop, "loop", None), ClosedLoop):
-        # A loaded problem (e.g. pv.formats.load_verisig): its file's init, horizon and property fill what is not given.
+        # A loaded problem (e.g. pv.load_verisig): its file's init, horizon and property fill what is not given.
         d = loop.defaults
         parts = [p if p.init is not None else replace(p, init=d["init"]) for p in parts]
-        steps = d["steps"] if steps is None else steps
-        if goal is None and safe is None and unsafe is None:
-            goal, safe, within = d.get("goal"), d.get("safe"), d.get("within", within)
+        o.steps = d["steps"] if o.steps is None else o.steps
+        if o.goal is None and o.safe is None and o.unsafe is None:
+            o.goal, o.safe, o.within = d.get("goal"), d.get("safe"), d.get("within", o.within)
         loop = loop.loop
     if not isinstance(loop, ClosedLoop):
         raise InputError("verify() needs a pv.ClosedLoop")
@@ -211,74 +174,74 @@ def verify_parts(
             raise InputError(f"part {k} is a {type(p).__name__}; give pv.Part(init=..., split=..., order=..., max_splits=..., journal=...)")
     if any(p.init is None for p in parts):
         raise InputError("verify() needs init={state: (lo, hi), ...}")
-    if not (isinstance(steps, int) and steps >= 0):
-        raise InputError(f"steps must be a non-negative integer, got {steps!r}")
-    if method not in ("taylor", "verisig"):
-        raise InputError(f"unknown method '{method}'; use 'taylor' or 'verisig'")
+    if not (isinstance(o.steps, int) and o.steps >= 0):
+        raise InputError(f"steps must be a non-negative integer, got {o.steps!r}")
+    if o.method not in ("taylor", "verisig"):
+        raise InputError(f"unknown method '{o.method}'; use 'taylor' or 'verisig'")
     for p in parts:
         if not (isinstance(p.max_splits, int) and p.max_splits >= 0):
             raise InputError(f"max_splits must be a non-negative integer, got {p.max_splits!r}")
     from percver.validate.verifiable import validated_domain, validity
 
-    validated, caveats = validated_domain(loop, validated)  # of the loop as given: the plants below are rebuilt
-    if reward is not None:
-        loop = loop.with_accumulators(reward)  # sums as extra states: see ClosedLoop.with_accumulators
+    validated, caveats = validated_domain(loop, o.validated)  # of the loop as given: the plants below are rebuilt
+    if o.reward is not None:
+        loop = loop.with_accumulators(o.reward)  # sums as extra states: see ClosedLoop.with_accumulators
     loop = loop.with_held_parameters()  # parameters held over a run as states: see ClosedLoop.with_held_parameters
     boxes = [loop.initial_box(p.init) for p in parts]
     splitters = []  # each part's splitter and its initial cells, checked before any journal is opened
     for p, box in zip(parts, boxes):
-        part_splitter = _splitter_of(p, splitter, refine, min_width)
+        part_splitter = _splitter_of(p, o.splitter, o.refine, o.min_width)
         splitters.append((part_splitter, part_splitter.initial(box)))
     checks = domain_checks(loop)
     initial_exits = domain_exits(checks, [np.array([box.bounds]) for box in boxes])
-    flag_exits(initial_exits, strict)  # before the run: strict then costs nothing
-    prop = Property(loop, safe, unsafe, goal, within, steps)
+    flag_exits(initial_exits, o.strict)  # before the run: strict then costs nothing
+    prop = Property(loop, o.safe, o.unsafe, o.goal, o.within, o.steps)
     safe_r, goal_r = prop.rust()
-    problem = loop.compile(safe=safe_r, goal=goal_r, within=within, steps=steps)
+    problem = loop.compile(safe=safe_r, goal=goal_r, within=o.within, steps=o.steps)
     runner = None
-    if executor is not None:
-        from percver.executors import Runner
+    if o.executor is not None:
+        from percver.verification.executors import Runner
 
-        runner = Runner(executor, slots=workers, batch=batch)  # checked (and connected) before any work
+        runner = Runner(o.executor, slots=o.workers, batch=o.batch)  # checked (and connected) before any work
     jobs = []
     lock = threading.RLock()  # one for all parts: they share the progress bar
     bar = Progress(lock)
     try:
         with ExitStack() as journals:
-            for p, box, (part_splitter, cells) in zip(parts, boxes, splitters):
+            for p, box, (splitter, cells) in zip(parts, boxes, splitters):
                 settings = {
-                    "steps": steps,
-                    "method": method,
+                    "steps": o.steps,
+                    "method": o.method,
                     "order": p.order,
                     "max_splits": p.max_splits,
-                    "rebox": bool(rebox),
-                    "timeout_per_cell": timeout_per_cell,
-                    "within": within,
+                    "rebox": bool(o.rebox),
+                    "timeout_per_cell": o.timeout_per_cell,
+                    "within": o.within,
                 }
-                if state_symbols:  # only when on, so that journals written before the option still resume
+                if o.state_symbols:  # only when on, so that journals written before the option still resume
                     settings["state_symbols"] = True
                 fingerprint = fingerprint_of(loop, prop, settings)
                 options = {
                     "order": p.order,
-                    "method": method,
-                    "timeout": timeout_per_cell,
+                    "method": o.method,
+                    "timeout": o.timeout_per_cell,
                     "max_splits": p.max_splits,
-                    "rebox": bool(rebox),
-                    "state_symbols": bool(state_symbols),
+                    "rebox": bool(o.rebox),
+                    "state_symbols": bool(o.state_symbols),
                 }
                 journal = Journal(p.journal, fingerprint)
                 journals.callback(journal.close)
                 campaign = Campaign(
-                    loop, prop, box, part_splitter, cells, journal, bar, timeout=timeout_per_cell, falsify=falsify, seed=seed, lock=lock
+                    loop, prop, box, splitter, cells, journal, bar, timeout=o.timeout_per_cell, falsify=o.falsify, seed=o.seed, lock=lock
                 )
                 jobs.append((campaign, settings, fingerprint, options))
-            if progress:
+            if o.progress:
                 bar.start(sum(campaign.left for campaign, *_ in jobs))
             if runner is None:
-                run_local([(campaign, problem, options) for campaign, _, _, options in jobs], workers, bar)
+                run_local([(campaign, problem, options) for campaign, _, _, options in jobs], o.workers, bar)
             else:
                 for campaign, _, fingerprint, options in jobs:
-                    runner.run(campaign, (loop, safe_r, goal_r, within, steps), fingerprint, options)
+                    runner.run(campaign, (loop, safe_r, goal_r, o.within, o.steps), fingerprint, options)
     finally:
         if runner is not None:
             runner.close()
@@ -291,8 +254,13 @@ def verify_parts(
     for result in results:
         _record_held(loop, result)
     flagged = {(e["stage"], e["input"]) for e in initial_exits}
-    flag_exits([e for r in results for e in r.domain_exits if (e["stage"], e["input"]) not in flagged], strict, results)
+    flag_exits([e for r in results for e in r.domain_exits if (e["stage"], e["input"]) not in flagged], o.strict, results)
     return validity(results, validated, caveats)
+
+
+# The keywords a Part carries, and those verify shares with verify_parts: one list, verify's signature.
+PART_KEYWORDS = tuple(f.name for f in fields(Part))
+SHARED_KEYWORDS = tuple(k for k in inspect.signature(verify).parameters if k != "loop" and k not in PART_KEYWORDS)
 
 
 def _record_held(loop: ClosedLoop, result) -> None:

@@ -48,7 +48,7 @@ class Controller:
 
 
 def load(name: str, data=None) -> Controller:
-    from percver.networks import load_network
+    from percver.formats import load_network
 
     if name not in NAMES:
         raise InputError(f"unknown F1/10 controller '{name}'; the 21-ray controllers are {', '.join(NAMES)}")

@@ -83,7 +83,7 @@ def threshold_curve(real, canonical, thresholds=None) -> ThresholdCurve:
 
 # ------------------------------------------------------------------------------------------ models
 def _network(path):
-    from percver.networks import load_network
+    from percver.formats import load_network
 
     return load_network(path)
 
@@ -113,7 +113,9 @@ class NoiseModel(KnockoutModel):
         return cls(_network(network_path), thresholds, Path(network_path).stem)
 
     def save(self, network_path, thresholds_path) -> None:
-        self.network.to_onnx(network_path)
+        from percver.formats import save_network
+
+        save_network(self.network, network_path)
         np.save(thresholds_path, self.thresholds)
 
 

@@ -353,11 +353,11 @@ def stepwise(
         """The hull of the outcomes' step-1 boxes if all are proved and not grown, else None
         (their time is the cell's either way)."""
         for out in outs:
-            rec["seconds"] += out["seconds"]
-            rec["nn"] += out["nn_seconds"]
-        if any(out["verdict"] != "verified" for out in outs):
+            rec["seconds"] += out.seconds
+            rec["nn"] += out.nn_seconds
+        if any(out.verdict != "verified" for out in outs):
             return None
-        ends = np.array([out["boxes"][1] for out in outs])
+        ends = np.array([out.boxes[1] for out in outs])
         nxt = np.column_stack([ends[:, :, 0].min(0), ends[:, :, 1].max(0)])
         return None if size(nxt) > growth * max(size(b), _NEGLIGIBLE) else nxt
 
@@ -431,7 +431,7 @@ def stepwise(
                         for nxt in ends:
                             record(k, step + 1, nxt)
                             pieces.append((k, step + 1, nxt))
-                    elif rec["splits"] < max_splits and out["verdict"] != "violated":
+                    elif rec["splits"] < max_splits and out.verdict != "violated":
                         rec["splits"] += 1
                         j = int(np.argmax((b[:, 1] - b[:, 0]) * weights))
                         mid = 0.5 * (b[j, 0] + b[j, 1])
@@ -440,7 +440,7 @@ def stepwise(
                             half[j] = (lo, hi)
                             pieces.append((k, step, half))
                     else:
-                        why = out["reason"] or f"the box grew more than {growth:g} times"
+                        why = out.reason or f"the box grew more than {growth:g} times"
                         why = why.replace("step 1", f"step {step + 1}").replace("step 0", f"step {step}")
                         finish(k, "unknown", f"{why} (from the box of step {step}, after {rec['splits']} splits)")
                 for k in [k for k in live if not any(p[0] == k for p in pieces)]:

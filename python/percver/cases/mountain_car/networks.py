@@ -18,7 +18,8 @@ import numpy as np
 from percver.cases.mountain_car import dynamics
 from percver.cases.mountain_car.camera import PIXELS
 from percver.errors import InputError, MissingFileError
-from percver.networks import Network, load_network
+from percver.formats import load_network
+from percver.networks import Network
 
 ROLES = ("generator", "contrast", "blur", "estimator", "controller")
 PAPER_FILES = {

@@ -32,7 +32,8 @@ from percver.cases.mountain_car.camera import PIXELS
 from percver.cases.mountain_car.dataset import Dataset
 from percver.cases.mountain_car.networks import ESTIMATE_OFFSET, ESTIMATE_SCALE, OUR_FILES, ROLES, training_domain
 from percver.errors import InputError, MissingDependencyError, NetworkFormatError
-from percver.networks import Layer, Network, load_network
+from percver.formats import load_network, save_network
+from percver.networks import Layer, Network
 
 try:
     import torch
@@ -307,7 +308,7 @@ def _single_precision(path) -> None:
 def export(model: MLP, role: str, path) -> Network:
     """Write ``model`` as float32 ONNX, with its training domain, and check that percver reads back the same function (to 1e-5)."""
     network = model.to_network(role).with_domain(training_domain(role))
-    network.to_onnx(path)
+    save_network(network, path)
     _single_precision(path)
     loaded = load_network(path)
     n_in = network.n_in

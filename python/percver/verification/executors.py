@@ -25,6 +25,7 @@ from typing import Optional
 
 from percver.errors import InputError, MissingDependencyError, PercverError
 from percver.networks import Network
+from percver.verification.campaign import run_cells
 
 MISSING = "percver: the problem is not on this worker yet"
 RETRIES = 3  # resubmissions of a batch whose task failed (e.g. its worker died)
@@ -57,9 +58,7 @@ def dumps(problem) -> bytes:
 
 
 def run_batch(fingerprint: str, payload: Optional[bytes], cells: list, options: dict):
-    """On a worker: the outcomes of ``cells`` (lists of (lo, hi)), or MISSING."""
-    from percver.verification.campaign import run_cells
-
+    """On a worker: (outcome, peak RSS in MB) of each of ``cells`` (lists of (lo, hi)), or MISSING."""
     problem = _PROBLEMS.get(fingerprint)
     if problem is None:
         if payload is None:
@@ -70,7 +69,7 @@ def run_batch(fingerprint: str, payload: Optional[bytes], cells: list, options: 
         while len(_PROBLEMS) > _KEPT:
             _PROBLEMS.popitem(last=False)
     out = [None] * len(cells)
-    run_cells(problem, cells, out.__setitem__, options, workers=1)
+    run_cells(problem, cells, lambda i, outcome, rss: out.__setitem__(i, (outcome, rss)), options, workers=1)
     return out
 
 
@@ -170,8 +169,8 @@ class Runner:
                         payload = payload or dumps(problem)
                         submit(cells, payload, tries)
                         continue
-                    for cell, outcome in zip(cells, outcomes):
-                        campaign.record(cell, outcome)
+                    for cell, (outcome, rss) in zip(cells, outcomes):
+                        campaign.record(cell, outcome, rss)
         finally:
             for future in inflight:
                 future.cancel()
