@@ -28,10 +28,18 @@ def test_the_adaptive_default_decides_what_one_cell_cannot():
     assert all(a[1] == b[0] for a, b in zip(widths, widths[1:]))
 
 
+def _cell(box: Box, verdict: str, **kwargs) -> Cell:
+    return Cell(box.to_dict(), verdict, **kwargs)
+
+
 def test_adaptive_cuts_a_cell_to_the_size_its_neighbours_needed():
     init = Box(("p", "v"), ((0.0, 1.0), (0.0, 0.0)))
     a = pv.Adaptive()
-    a.learn(Box(("p", "v"), ((0.0, 0.125), (0.0, 0.0))), "verified", init)
+    parent = Box(("p", "v"), ((0.0, 0.25), (0.0, 0.0)))
+    a.learn(parent, _cell(parent, "unknown"), init)
+    (left, _), (right, _) = a.again(parent, _cell(parent, "unknown", split="p"), init, False)
+    assert left.bounds[0] == (0.0, 0.125)
+    a.learn(left, _cell(left, "verified"), init)
     assert [c.bounds[0] for c in a.prepare(Box(("p", "v"), ((0.125, 0.5), (0.0, 0.0))), init)] == [
         (0.125, 0.21875),
         (0.21875, 0.3125),
@@ -41,6 +49,10 @@ def test_adaptive_cuts_a_cell_to_the_size_its_neighbours_needed():
     # A cell that does not touch it is left alone.
     far = Box(("p", "v"), ((0.5, 1.0), (0.0, 0.0)))
     assert a.prepare(far, init) == [far]
+    # A verified cell that was cut ahead of its run (no parent failed) is no evidence of its size.
+    b = pv.Adaptive()
+    b.learn(left, _cell(left, "verified"), init)
+    assert b.prepare(right, init) == [right]
 
 
 def test_adaptive_stops_where_halving_does_not_push_the_loss_later():
@@ -52,12 +64,12 @@ def test_adaptive_stops_where_halving_does_not_push_the_loss_later():
         if halves is None:
             break
         splits += 1
-        cell = halves[0]
+        cell = halves[0][0]
     assert splits == 2  # the first halving is free; two stalls in a row end the lineage
     # A lineage that keeps gaining steps goes on, down to min_width.
     b, cell, steps = pv.Adaptive(min_width={"x": 0.1}), init, 0
     while (halves := b.again(cell, Cell(cell.to_dict(), "unknown", steps_done=steps), init, False)) is not None:
-        cell, steps = halves[0], steps + 1
+        cell, steps = halves[0][0], steps + 1
     assert 0.1 <= cell.bounds[0][1] - cell.bounds[0][0] < 0.2
 
 

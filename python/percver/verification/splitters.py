@@ -4,10 +4,18 @@ cut again. A splitter is a parameter of :func:`percver.verify` (``splitter=``), 
 - :class:`Grid`: a uniform grid (``split={state: pieces}``); a cell's verdict is final.
 - :class:`Bisection`: a grid whose unknown cells are halved (along the state the engine wanted
   to split, else the widest relative to the initial set) down to ``min_width``.
-- :class:`Adaptive` (the default): no layout to give. It starts from a coarse grid, halves what
-  stays unknown, and learns from the cells settled so far how small cells must be where: a cell
-  about to run next to smaller cells that were needed (they verified after their parents did
-  not) is cut to their size first, so the engine does not spend a run on a cell that is too big.
+- :class:`Adaptive` (the default): no layout to give. It starts from the whole set, halves what
+  stays unknown while halving pushes the loss of precision later, cuts cells ahead of their run
+  to the size their settled neighbours needed, and retries a cell lost to a domain error or a
+  blow-up with ``rebox`` (see its doc).
+
+A splitter has four methods: ``initial(init)`` (the first cells, lazily, and their count),
+``prepare(cell, init)`` (the cell cut before it runs), ``learn(cell, result, init)`` (every cell
+settled or split) and ``again(cell, result, init, timed_out)`` (None: the verdict is final; else
+the cells replacing it, each a Box or ``(Box, engine options)``, or a :class:`Retry`). Whatever
+it returns, every verdict comes from the engine (or a simulated counterexample) on that very
+cell; the coverage is the share of settled cells, so pieces must tile the cell they replace, as
+grids and halves do (a custom splitter's pieces are its own responsibility).
 
 Timed-out cells (``timeout_per_cell``) are halved by every splitter that can.
 """
@@ -22,6 +30,13 @@ import numpy as np
 
 from percver.errors import InputError
 from percver.sets import Box
+
+
+@dataclass(frozen=True)
+class Retry:
+    """What :meth:`Adaptive.again` returns to run the same cell again with more engine settings."""
+
+    options: dict
 
 
 def grid(box: Box, split: dict):
@@ -101,8 +116,8 @@ class Grid:
             return bisect(cell, init, self.min_width, result.split)
         return None
 
-    def learn(self, cell: Box, verdict: str, init: Box) -> None:
-        pass
+    def learn(self, cell: Box, result, init: Box) -> None:
+        """Called with every settled or split cell (``result``: its Cell), before :meth:`again`."""
 
 
 @dataclass
@@ -120,22 +135,41 @@ class Bisection(Grid):
 class Adaptive(Bisection):
     """The default: the initial set as it is (or ``start`` pieces along each state it is wide in,
     the first six of them), so a set that verifies whole costs one run; unknown cells halved down
-    to ``min_width`` (default 1/1024 of the initial set); at most ``max_cells`` engine runs in all
-    (then what is left is reported unknown, with its reason); and cells cut ahead of their run to
-    the size their settled neighbours needed.
+    to ``min_width`` (default 1/1024 of the initial set); at most ``max_cells`` cells in all
+    (then what is left is reported unknown, with its reason). What it learns from the cells
+    settled so far (it never makes a verdict, only cells: every cell gets its own proof):
 
-    Learning is by position: a cell that verified after its ancestors did not says that cells of
-    its size are needed there; a cell about to run that touches one is cut to that size along the
-    states where it is wider. It never makes a verdict, only cells: every cell still gets its
-    own proof. Resuming from a journal settles the journal's cells in the order they come, so a
-    resumed run may cut differently and run a few cells again (never fewer proofs)."""
+    - Where cells must be small: a half that verified after its parent did not says that cells
+      of its size are needed there; a cell about to run that touches one is cut to that size
+      (along the states where it is wider) instead of spending a run at a size that failed next
+      door. Only such halves count: a cell cut ahead of its run proves nothing about its size,
+      and counting it would spread the smallest size over the whole set.
+    - Which state to halve: the one the engine wanted to split while halving pushes the loss
+      of precision later (a deeper ``steps_done`` or ``deepest_step`` than the parent's); after
+      a halving that did not, the widest of the other states relative to the initial set (the
+      engine's choice inside a cell is not always the state whose width decides: Mountain Car's
+      noise ranges need cutting as much as p0, which the engine names).
+    - Where halving stops paying: a lineage that gains no step ``patience`` times per state it
+      can halve in a row stops (the loss is not the cell's width).
+    - Whether restarting from boxes pays: a cell lost because an operation left its domain
+      (``division is undefined``, a square root of a negative range) or because an enclosure
+      blew up is run again with ``rebox=True`` before it is halved (remainders that feed back
+      and grow are what makes both; see :func:`percver.verify`), and its halves keep ``rebox``
+      when the retry went deeper than the plain run. Retries stop once they have failed to go
+      deeper ``patience`` times more often than they succeeded, so a loop where reboxing does
+      not help pays a few runs for finding out.
+
+    Decisions are journaled with the cells (:class:`~percver.verification.journal.Journal`): a
+    resumed run replays them, so it makes the same cells and runs none of the journal's again."""
 
     start: int = 1
-    max_cells: int = 1024
-    patience: int = 3
-    needed: list = field(default_factory=list, repr=False)  # cells that verified below the top
+    max_cells: int = 16384
+    patience: int = 4
+    needed: list = field(default_factory=list, repr=False)  # halves that verified after their parent did not
     runs: int = field(default=0, repr=False)
-    lineage: dict = field(default_factory=dict, repr=False)  # cell key -> (parent's steps reached, stalls)
+    lineage: dict = field(default_factory=dict, repr=False)  # half's key -> (parent's steps, deepest step, stalls, state halved)
+    retried: dict = field(default_factory=dict, repr=False)  # cell key -> steps the plain run reached
+    rebox_score: list = field(default_factory=lambda: [0, 0], repr=False)  # retries that went deeper, and not
 
     def __post_init__(self):
         super().__post_init__()
@@ -143,6 +177,8 @@ class Adaptive(Bisection):
             raise InputError(f"Adaptive(start=...) must be a positive integer, got {self.start!r}")
         if not (isinstance(self.max_cells, int) and self.max_cells >= 1):
             raise InputError(f"Adaptive(max_cells=...) must be a positive integer, got {self.max_cells!r}")
+        if not (isinstance(self.patience, int) and self.patience >= 1):
+            raise InputError(f"Adaptive(patience=...) must be a positive integer, got {self.patience!r}")
 
     def initial(self, init: Box):
         widest = [n for n, (lo, hi) in zip(init.names, init.bounds) if hi > lo][:6]
@@ -159,7 +195,7 @@ class Adaptive(Bisection):
                 for n, (lo, hi) in zip(box.names, box.bounds):
                     target[n] = min(target.get(n, np.inf), hi - lo)
         pieces = {}
-        for j, (n, (lo, hi)) in enumerate(zip(cell.names, cell.bounds)):
+        for n, (lo, hi) in zip(cell.names, cell.bounds):
             if n in target and hi - lo > 1.5 * target[n]:
                 pieces[n] = min(int(2 ** np.ceil(np.log2((hi - lo) / target[n]))), 64)
         if not pieces:
@@ -167,26 +203,61 @@ class Adaptive(Bisection):
         cells, _ = grid(cell, pieces)
         return list(cells)
 
-    def again(self, cell: Box, result, init: Box, timed_out: bool) -> Optional[list]:
-        """Halves of an unknown cell while halving pays: a lineage whose cells lose precision no
-        later than their parents did ``patience`` times in a row stops (splitting does not help
-        there: the loss is not the cell's width), as do cells at ``min_width`` and any cell once
-        ``max_cells`` have run."""
+    def learn(self, cell: Box, result, init: Box) -> None:
         self.runs += 1
-        if result.verdict != "unknown" or self.runs >= self.max_cells or not splittable(cell, init, self._min(init), 0):
-            return None
-        reached, stalls = self.lineage.pop(_key(cell), (-1, 0))
-        stalls = stalls + 1 if result.steps_done <= reached else 0
-        if stalls >= self.patience:
-            return None
-        halves = bisect(cell, init, self._min(init), result.split)
-        for half in halves:
-            self.lineage[_key(half)] = (result.steps_done, stalls)
-        return halves
-
-    def learn(self, cell: Box, verdict: str, init: Box) -> None:
-        if verdict == "verified" and any(hi - lo < ihi - ilo for (lo, hi), (ilo, ihi) in zip(cell.bounds, init.bounds)):
+        key = _key(cell)
+        if key in self.retried and result.options.get("rebox"):
+            self.rebox_score[0 if result.verdict == "verified" or result.steps_done > self.retried[key] else 1] += 1
+        if result.verdict == "verified" and self.lineage.get(key, (None,))[0] is not None:
             self.needed.append(cell)
+
+    def again(self, cell: Box, result, init: Box, timed_out: bool):
+        """A :class:`Retry` with rebox, halves (with their options), or None (see the class doc)."""
+        key = _key(cell)
+        if result.verdict != "unknown" or self.runs >= self.max_cells:
+            self.lineage.pop(key, None)
+            return None
+        if self._rebox_pays(key, result):
+            self.retried[key] = result.steps_done
+            return Retry({"rebox": True})
+        if not splittable(cell, init, self._min(init), 0):
+            return None
+        widths = self._min(init)
+        reached, deepest, stalls, halved = self.lineage.pop(key, (-1, -1, 0, None))
+        stalls = stalls + 1 if result.steps_done <= reached and result.deepest_step <= deepest else 0
+        if stalls >= self.patience * sum(above_min_width(init, init, widths, 0)):
+            return None
+        hint = result.split
+        if stalls:
+            above = above_min_width(cell, init, widths, 0)
+            others = [
+                ((hi - lo) / (ihi - ilo), n)
+                for ok, n, (lo, hi), (ilo, ihi) in zip(above, cell.names, cell.bounds, init.bounds)
+                if ok and n != halved
+            ]
+            hint = max(others)[1] if others else hint
+        options = dict(result.options)
+        if options.get("rebox") and key in self.retried and result.steps_done <= self.retried[key]:
+            options.pop("rebox")  # the retry went no deeper than the plain run: the halves run plain
+        halves = bisect(cell, init, widths, hint)
+        j = next(j for j, (a, b) in enumerate(zip(halves[0].bounds, cell.bounds)) if a != b)
+        for half in halves:
+            self.lineage[_key(half)] = (result.steps_done, result.deepest_step, stalls, cell.names[j])
+        return [(half, options) for half in halves]
+
+    def _rebox_pays(self, key: tuple, result) -> bool:
+        wins, losses = self.rebox_score
+        return (
+            not result.options.get("rebox")
+            and key not in self.retried
+            and losses - wins < self.patience
+            and any(words in (result.reason or "") for words in PRECISION_LOST)
+        )
+
+
+# Reasons (the engine's words) after which a cell is retried with rebox: an operation left its
+# domain (taylor's Domain error: division, sqrt, log) or an enclosure blew up.
+PRECISION_LOST = (" is undefined on ", " blew up ")
 
 
 def _key(box: Box) -> tuple:

@@ -218,6 +218,10 @@ def verify(
     if overlap:
         raise InputError(f"{sorted(overlap)} are fixed by the Mountain Car property; use pv.verify(closed_loop(...)) to change them")
     name = networks.name if isinstance(networks, Networks) else str(networks)
+    if "splitter" in verify_kwargs:
+        result = pv.verify(loop, init, **specification(), **verify_kwargs)
+        result.settings["case"] = {"case": "mountain_car", "noise": noise, "networks": name, "init": init}
+        return result
     options = {"refine": True, "min_width": MIN_WIDTH, "timeout_per_cell": 60.0, **verify_kwargs}
     bands = _grid(init, _layout(name, controller, noise), options)
     journal = options.pop("journal", None)
