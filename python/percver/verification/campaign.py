@@ -3,6 +3,7 @@ engine (a local pool of threads, or an executor) and falsification to their verd
 
 from __future__ import annotations
 
+import functools
 import os
 import sys
 import threading
@@ -12,7 +13,7 @@ from typing import Optional
 from percver import _core
 from percver.errors import InputError
 from percver.sets import Box
-from percver.verification.falsify import falsify
+from percver.verification.falsify import falsify, spread
 from percver.verification.journal import cell_key
 from percver.verification.results import Cell, Counterexample
 from percver.verification.splitters import Retry
@@ -46,6 +47,8 @@ class Campaign:
         self.cells: list = []
         self.cell_seconds = [0.0, 0]  # engine seconds and cells so far, to size executor batches
         self.lock = lock  # the parts of one call share it, with their progress bar
+        if hasattr(splitter, "probe"):
+            splitter.probe = functools.partial(spread, loop)
 
     def remaining(self) -> int:
         """Cells known to be still to run (sub-cells of running cells may add more)."""

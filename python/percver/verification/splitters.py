@@ -24,7 +24,7 @@ from __future__ import annotations
 
 import itertools
 from dataclasses import dataclass, field
-from typing import Optional
+from typing import Callable, Optional
 
 import numpy as np
 
@@ -139,33 +139,44 @@ class Adaptive(Bisection):
     (then what is left is reported unknown, with its reason). What it learns from the cells
     settled so far (it never makes a verdict, only cells: every cell gets its own proof):
 
-    - Where cells must be small: a half that verified after its parent did not says that cells
-      of its size are needed there; a cell about to run that touches one is cut to that size
-      (along the states where it is wider) instead of spending a run at a size that failed next
-      door. Only such halves count: a cell cut ahead of its run proves nothing about its size,
-      and counting it would spread the smallest size over the whole set.
-    - Which state to halve: the one the engine wanted to split while halving pushes the loss
-      of precision later (a deeper ``steps_done`` or ``deepest_step`` than the parent's); after
-      a halving that did not, the widest of the other states relative to the initial set (the
-      engine's choice inside a cell is not always the state whose width decides: Mountain Car's
-      noise ranges need cutting as much as p0, which the engine names).
+    - Where cells must be small, and how small: a half that verified after its parent did not
+      says that cells of its size are needed there; a cell that verified only after splits
+      inside it (``branches``) says that cells half its size are (an in-cell split costs more
+      than a cell of its own: on Mountain Car, a cell verified whole in about the time of one
+      split). A cell about to run that touches such a cell is cut to that size (along the
+      states where it is wider) instead of spending a run at a size that failed or split next
+      door. A cell cut ahead of its run that verifies whole proves nothing about its size, and
+      counting it would spread the smallest size over the whole set.
+    - Which state to halve: the one whose width moves the runs most up to the step where the
+      cell was lost (``probe``: the campaign simulates the runs from the centres of the cell's
+      opposite faces, :func:`percver.verification.falsify.spread`), else the one the engine
+      wanted to split; after a halving that did not push the loss of precision later (a deeper
+      ``steps_done`` or ``deepest_step`` than the parent's), the widest of the other states
+      relative to the initial set.
     - Where halving stops paying: a lineage that gains no step ``patience`` times per state it
       can halve in a row stops (the loss is not the cell's width).
-    - Whether restarting from boxes pays: a cell lost because an operation left its domain
-      (``division is undefined``, a square root of a negative range) or because an enclosure
-      blew up is run again with ``rebox=True`` before it is halved (remainders that feed back
-      and grow are what makes both; see :func:`percver.verify`), and its halves keep ``rebox``
-      when the retry went deeper than the plain run. Retries stop once they have failed to go
-      deeper ``patience`` times more often than they succeeded, so a loop where reboxing does
-      not help pays a few runs for finding out.
+    - Whether restarting from boxes pays (``rebox``, see :func:`percver.verify`): the first
+      ``patience`` unknown cells, and any cell lost because an operation left its domain
+      (``division is undefined``, a square root of a negative range) or an enclosure blew up
+      (remainders that feed back and grow make both), run again with ``rebox=True`` before
+      they are halved; a retry that gets deeper than the plain run wins, and its halves keep
+      ``rebox`` (so a loop where it decides, such as F1/10's LiDAR loop, runs reboxed from then
+      on). Retries go on while they win more often than not, and for the two reasons above
+      until they have lost ``patience`` times more often than won: a loop where reboxing does
+      not help pays a few runs for finding out. ``rebox=False`` never retries (``True`` is
+      ``pv.verify(rebox=True)``: every cell reboxed from the start).
 
     Decisions are journaled with the cells (:class:`~percver.verification.journal.Journal`): a
-    resumed run replays them, so it makes the same cells and runs none of the journal's again."""
+    resumed run replays them (the same pieces for every cell the journal decided; none of its
+    cells runs again) and relearns from its cells; what the journal had not decided is decided
+    afresh from all of that."""
 
     start: int = 1
     max_cells: int = 16384
     patience: int = 4
-    needed: list = field(default_factory=list, repr=False)  # halves that verified after their parent did not
+    rebox: Optional[bool] = None
+    needed: list = field(default_factory=list, repr=False)  # (cell, widths needed there)
+    probe: Optional[Callable] = field(default=None, repr=False)  # (cell, steps) -> {state: spread}, set by the campaign
     runs: int = field(default=0, repr=False)
     lineage: dict = field(default_factory=dict, repr=False)  # half's key -> (parent's steps, deepest step, stalls, state halved)
     retried: dict = field(default_factory=dict, repr=False)  # cell key -> steps the plain run reached
@@ -181,6 +192,8 @@ class Adaptive(Bisection):
             raise InputError(f"Adaptive(patience=...) must be a positive integer, got {self.patience!r}")
 
     def initial(self, init: Box):
+        if self.rebox:
+            raise InputError("Adaptive(rebox=True) is pv.verify(rebox=True): give that instead")
         widest = [n for n, (lo, hi) in zip(init.names, init.bounds) if hi > lo][:6]
         return grid(init, {n: self.start for n in widest})
 
@@ -190,10 +203,10 @@ class Adaptive(Bisection):
     def prepare(self, cell: Box, init: Box) -> list:
         """``cell`` cut to the widths its settled neighbours needed (where they are narrower)."""
         target = {}
-        for box in self.needed:
+        for box, widths in self.needed:
             if _touches(cell, box):
-                for n, (lo, hi) in zip(box.names, box.bounds):
-                    target[n] = min(target.get(n, np.inf), hi - lo)
+                for n, w in widths.items():
+                    target[n] = min(target.get(n, np.inf), w)
         pieces = {}
         for n, (lo, hi) in zip(cell.names, cell.bounds):
             if n in target and hi - lo > 1.5 * target[n]:
@@ -208,8 +221,9 @@ class Adaptive(Bisection):
         key = _key(cell)
         if key in self.retried and result.options.get("rebox"):
             self.rebox_score[0 if result.verdict == "verified" or result.steps_done > self.retried[key] else 1] += 1
-        if result.verdict == "verified" and self.lineage.get(key, (None,))[0] is not None:
-            self.needed.append(cell)
+        if result.verdict == "verified" and (result.branches or key in self.lineage):
+            size = bisect(cell, init, self._min(init), result.split)[0] if result.branches else cell
+            self.needed.append((cell, {n: hi - lo for n, (lo, hi) in zip(size.names, size.bounds)}))
 
     def again(self, cell: Box, result, init: Box, timed_out: bool):
         """A :class:`Retry` with rebox, halves (with their options), or None (see the class doc)."""
@@ -228,6 +242,10 @@ class Adaptive(Bisection):
         if stalls >= self.patience * sum(above_min_width(init, init, widths, 0)):
             return None
         hint = result.split
+        if self.probe is not None:
+            moves = self.probe(cell, result.deepest_step)
+            above = above_min_width(cell, init, widths, 0)
+            hint = max(((moves.get(n, 0.0), n) for ok, n in zip(above, cell.names) if ok), default=(0.0, hint))[1]
         if stalls:
             above = above_min_width(cell, init, widths, 0)
             others = [
@@ -246,13 +264,11 @@ class Adaptive(Bisection):
         return [(half, options) for half in halves]
 
     def _rebox_pays(self, key: tuple, result) -> bool:
+        if self.rebox is False or result.options.get("rebox") or key in self.retried:
+            return False
         wins, losses = self.rebox_score
-        return (
-            not result.options.get("rebox")
-            and key not in self.retried
-            and losses - wins < self.patience
-            and any(words in (result.reason or "") for words in PRECISION_LOST)
-        )
+        lost = any(words in (result.reason or "") for words in PRECISION_LOST)
+        return wins + losses < self.patience or wins > losses or (lost and losses - wins < self.patience)
 
 
 # Reasons (the engine's words) after which a cell is retried with rebox: an operation left its
