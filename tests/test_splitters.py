@@ -177,3 +177,9 @@ def test_a_resumed_adaptive_run_follows_the_journal_s_decisions_and_reruns_none(
             (lo, hi) = piece["p"]
             inside = [c for c in resumed.cells if lo <= c.box["p"][0] and c.box["p"][1] <= hi]
             assert sum(c.box["p"][1] - c.box["p"][0] for c in inside) == pytest.approx(hi - lo)
+
+
+def test_with_rebox_given_the_adaptive_default_retries_nothing():
+    loop, kwargs = _wall_problem()
+    reboxed = pv.verify(loop, rebox=True, **kwargs)
+    assert reboxed.settings["rebox"] is True and all(c.options == {} for c in reboxed.cells)
