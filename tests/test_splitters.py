@@ -183,3 +183,15 @@ def test_with_rebox_given_the_adaptive_default_retries_nothing():
     loop, kwargs = _wall_problem()
     reboxed = pv.verify(loop, rebox=True, **kwargs)
     assert reboxed.settings["rebox"] is True and all(c.options == {} for c in reboxed.cells)
+
+
+def test_spread_names_the_dimension_that_moves_the_runs():
+    """x' = x + 10 d with d constant: over 5 steps the width of d moves x 50 times as far as the
+    width of x does; d itself (a constant state) is not compared with itself."""
+    from percver.verification.falsify import spread
+
+    x, d = pv.variables("x d")
+    loop = pv.ClosedLoop(pv.Discrete({x: x + 10.0 * d, d: d}))
+    moves = spread(loop, Box(("x", "d"), ((0.0, 1.0), (0.0, 1.0))), 5)
+    assert moves["d"] == pytest.approx(1.0) and moves["x"] == pytest.approx(1 / 50)
+    assert spread(loop, Box(("x", "d"), ((0.0, 0.0), (0.0, 0.0))), 5) == {}
