@@ -67,8 +67,9 @@ class Journal:
     """Append-only JSONL: a header with the problem's fingerprint, then one line per cell, with
     the splitter's decision about it (``"into"``: null when it is final, else the pieces that
     replace it, each ``[box, options]``), and one line per cell cut before it ran (``"cut"``).
-    A resumed campaign follows the recorded decisions, so it makes the same cells; lines
-    written before decisions were journaled have no ``"into"`` and the splitter decides again.
+    A resumed campaign follows the recorded decisions (every cell decided before gets the same
+    pieces, and none runs again); lines written before decisions were journaled have no
+    ``"into"``, and the splitter decides again.
 
     ``done`` maps a cell's key to its cell, ``decided`` to its recorded pieces (None: final),
     ``cuts`` the key of a cell cut before it ran to its pieces."""
