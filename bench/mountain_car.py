@@ -23,6 +23,7 @@ from pathlib import Path
 
 from percver.cases.mountain_car import verification
 from percver.verification import Cell
+from percver.verification.journal import journal_cells
 
 ROOT = Path(__file__).resolve().parent
 SURVEY_SPLITS = 4  # in-cell splits per cell of a --survey: enough for the easy cells, cheap on the hard ones
@@ -31,7 +32,7 @@ RESULTS = ROOT / "results"
 
 def _journal_cells(path: Path) -> list:
     """Every cell the journal (or the journals of its bands, ``run.band0.jsonl`` ...) holds, refined (bisected) ones included."""
-    return [Cell.from_dict(json.loads(line)) for p in _journals(path) for line in p.read_text().splitlines()[1:] if line.strip()]
+    return [cell for p in _journals(path) for cell in journal_cells(p)]
 
 
 def _journals(path: Path) -> list:

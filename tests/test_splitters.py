@@ -7,6 +7,7 @@ import pytest
 
 import percver as pv
 from percver.sets import Box
+from percver.verification.journal import journal_cells
 from percver.verification.results import Cell
 from percver.verification.splitters import Retry
 from test_verify import assert_contains_simulations, mountain_car
@@ -162,6 +163,7 @@ def test_a_resumed_adaptive_run_follows_the_journal_s_decisions_and_reruns_none(
     assert first.coverage == pytest.approx(1.0) and _tiles(first.cells, first.init)
     lines = whole.read_text().splitlines(keepends=True)
     assert len(lines) > 4
+    assert [c.box["p"] for c in journal_cells(whole)] == [tuple(json.loads(x)["box"]["p"]) for x in lines[1:] if "cut" not in json.loads(x)]
     cut = tmp_path / "cut.jsonl"
     kept = [json.loads(x) for x in lines[1 : len(lines) // 2]]
     cut.write_text("".join(lines[: len(lines) // 2]))

@@ -177,6 +177,18 @@ def _alive(pid: int) -> bool:
 _UNDECIDED = object()  # a cell line without "into": written before decisions were journaled
 
 
+def journal_cells(path) -> list:
+    """Every cell a journal file holds, in the order run (cells later split included; the
+    splitter's cut lines left out): for benchmarks that count attempts."""
+    cells = []
+    for line in Path(path).read_text().splitlines()[1:]:
+        record = json.loads(line) if line.strip() else {"cut": None}
+        if "cut" not in record:
+            record.pop("into", None)
+            cells.append(Cell.from_dict(record))
+    return cells
+
+
 def _records(pieces: Optional[list]) -> Optional[list]:
     return None if pieces is None else [[box.to_dict(), options] for box, options in pieces]
 
