@@ -23,6 +23,7 @@ from pathlib import Path
 
 from percver.cases.mountain_car import verification
 from percver.verification import Cell
+from percver.verification.journal import journal_cells
 
 ROOT = Path(__file__).resolve().parent
 SURVEY_SPLITS = 4  # in-cell splits per cell of a --survey: enough for the easy cells, cheap on the hard ones
@@ -31,7 +32,7 @@ RESULTS = ROOT / "results"
 
 def _journal_cells(path: Path) -> list:
     """Every cell the journal (or the journals of its bands, ``run.band0.jsonl`` ...) holds, refined (bisected) ones included."""
-    return [Cell.from_dict(json.loads(line)) for p in _journals(path) for line in p.read_text().splitlines()[1:] if line.strip()]
+    return [cell for p in _journals(path) for cell in journal_cells(p)]
 
 
 def _journals(path: Path) -> list:
@@ -64,8 +65,17 @@ def _cpu() -> str:
     return f"{info.get('model name', '?')} (family {info.get('cpu family', '?')}, model {info.get('model', '?')})"
 
 
-def run(noise: str, networks: str, p0, workers: int, journal_dir: Path, options: dict, survey: bool = False, controller=None) -> dict:
+def _cpu_seconds() -> float:
+    """User + system CPU seconds of this process so far (every thread's)."""
+    t = os.times()
+    return t.user + t.system
+
+
+def run(
+    noise: str, networks: str, p0, workers: int, journal_dir: Path, options: dict, survey: bool = False, controller=None, label: str = ""
+) -> dict:
     tag = f"{noise}_{_networks_key(networks, controller)}" + ("_survey" if survey else "") + ("" if p0 is None else f"_{p0[0]:g}_{p0[1]:g}")
+    tag += f"_{label}" if label else ""
     journal = journal_dir / f"mc_{tag}.jsonl"
     session_file = journal_dir / f"mc_{tag}.sessions.json"
     sessions = _sessions(session_file, journal)
@@ -74,17 +84,20 @@ def run(noise: str, networks: str, p0, workers: int, journal_dir: Path, options:
         "end": None,
         "loadavg_start": os.getloadavg(),
         "cpu": _cpu(),
+        "cpu_seconds_start": _cpu_seconds(),
         "cells_in_journal": len(_journal_cells(journal)),
     }
     session_file.write_text(json.dumps(sessions + [session]))
     result = verification.verify(noise, p0, networks, controller=controller, workers=workers, journal=str(journal), **options)
-    session.update(end=time.time(), loadavg_end=os.getloadavg())
+    session.update(end=time.time(), loadavg_end=os.getloadavg(), cpu_seconds=_cpu_seconds() - session["cpu_seconds_start"])
     sessions.append(session)
     session_file.write_text(json.dumps(sessions))
     attempts = _journal_cells(journal)
     row = verification.table_row(result)
     row["wall_seconds"] = sum(s["end"] - s["start"] for s in sessions)
     row["engine_seconds_all_attempts"] = sum(c.seconds for c in attempts)
+    row["cpu_seconds"] = sum(s.get("cpu_seconds", 0.0) for s in sessions)
+    row["engine_runs"] = len(attempts)
     plot = RESULTS / f"mountain_car_{tag}.png"
     verification.plot_coverage(result, plot)
     noise_states = verification.NOISE_STATES[noise]
@@ -185,6 +198,35 @@ def combine(doc: dict, noise: str, networks: str) -> dict:
     }
 
 
+COMPARED = RESULTS / "mountain_car_adaptive.json"
+
+
+def compare(args) -> None:
+    """The hand layout and the adaptive default on the same rows, one after the other in one process
+    (the same machine and nearly the same load): wall, CPU seconds, engine runs, load average."""
+    import percver as pv
+
+    journal_dir = Path(args.journal_dir) / f"compare-{int(time.time())}"
+    journal_dir.mkdir(parents=True, exist_ok=True)
+    options = {} if args.timeout_per_cell is None else {"timeout_per_cell": args.timeout_per_cell}
+    for networks in args.networks.split(","):
+        for noise in args.rows.split(","):
+            pair = {}
+            for label, extra in (("hand", {}), ("adaptive", {"splitter": pv.Adaptive()})):
+                entry = run(
+                    noise, networks, args.p0, args.workers, journal_dir, {**options, **extra}, controller=args.controller, label=label
+                )
+                pair[label] = entry
+                print(label, verification.format_row(noise, entry["row"], None), f"cpu s {entry['row']['cpu_seconds']:.0f}", flush=True)
+            doc = json.loads(COMPARED.read_text()) if COMPARED.exists() else {}
+            key = f"{noise}/{_networks_key(networks, args.controller)}" + ("" if args.p0 is None else f"/{args.p0[0]:g},{args.p0[1]:g}")
+            pair["ratio_wall"] = pair["adaptive"]["row"]["wall_seconds"] / pair["hand"]["row"]["wall_seconds"]
+            pair["ratio_cpu"] = pair["adaptive"]["row"]["cpu_seconds"] / pair["hand"]["row"]["cpu_seconds"]
+            pair["date"] = time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime())
+            doc[key] = pair
+            COMPARED.write_text(json.dumps(doc, indent=1))
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--rows", default="contrast,blur,composite")
@@ -202,8 +244,17 @@ def main() -> None:
         help=f"a map of where the row verifies, not the row: no refinement, at most {SURVEY_SPLITS} in-cell "
         "splits; stored as <row>/<networks>/survey/<lo>,<hi> and never combined",
     )
+    parser.add_argument(
+        "--compare",
+        action="store_true",
+        help="each row twice, back to back from fresh journals: the hand layout, then the adaptive splitter with no layout; "
+        "both in bench/results/mountain_car_adaptive.json",
+    )
     args = parser.parse_args()
     out = Path(args.out)
+    if args.compare:
+        compare(args)
+        return
     if args.combine:
         doc = json.loads(out.read_text())
         for networks in args.networks.split(","):

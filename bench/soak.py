@@ -26,6 +26,7 @@ from pathlib import Path
 
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")  # see bench/scale.py
 import percver as pv  # noqa: E402
+from percver.verification.journal import journal_cells  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "tests"))
@@ -61,7 +62,7 @@ def outcome(result) -> list:
 
 
 def journal_boxes(path: Path) -> list:
-    return [json.dumps(json.loads(line)["box"], sort_keys=True) for line in path.read_text().splitlines()[1:] if line.strip()]
+    return [json.dumps(c.box, sort_keys=True) for c in journal_cells(path)]
 
 
 def wait_and_kill(proc, cluster, rng, every: float, stats: dict) -> None:

@@ -180,6 +180,15 @@ def test_f1tenth_loads_as_a_continuous_loop_with_lidar_stage():
     assert traj[:, -1, 0].min() > 5, "the car is in the next corridor after 5 s"
 
 
+def test_f1tenth_verifies_at_the_defaults():
+    """Lost at step 31 as it is (a division by a range containing zero), the whole set is
+    retried with rebox by the adaptive default and verified."""
+    problem = load("f1tenth")
+    result = problem.verify(progress=False)
+    assert result.verdict == "verified" and result.coverage == pytest.approx(1.0)
+    assert [c.options for c in result.cells] == [{"rebox": True}]
+
+
 def test_f1tenth_lidar_matches_ray_casting():
     """Verisig's ray modes (_arc_, _cos_, _div_: var_i := op(var_j) on entry) against an
     independent ray caster: rays at -115..115 degrees, walls y1 (left), 1.5 - y1 (right) and

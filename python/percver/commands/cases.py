@@ -317,16 +317,12 @@ def _register_f1tenth(cases) -> None:
         default=[0.65, 0.85],
         help="initial distance to the left wall, m (default: %(default)s)",
     )
-    verify.add_argument("--cell", type=float, default=5e-5, help="cell width in y1, m (default: the paper's %(default)s)")
+    verify.add_argument(
+        "--cell", type=float, help="uniform cells of this width in y1, m (the paper's: 5e-5; default: the adaptive splitter's)"
+    )
     verify.add_argument("--networks", default="paper", help="paper (the authors' classifier and denoiser), ours or DIR from `train`")
     verify.add_argument("--canonical", action="store_true", help="verify the loop without classifier and denoiser")
-    verify.add_argument(
-        "--mode",
-        default="stepwise",
-        choices=["stepwise", "engine"],
-        help="one control period at a time from boxes, or pv.verify as is (default: %(default)s)",
-    )
-    verify.add_argument("--max-splits", type=int, default=16, help="branches per cell (default: %(default)s)")
+    verify.add_argument("--max-splits", type=int, help="in-cell splits and forks per cell (default: the engine's, 64 with --cell)")
     verify.add_argument("--workers", type=int, help="threads (default: all cores)")
     verify.add_argument("--journal", help="JSONL journal: finished cells are kept, a rerun resumes")
     verify.add_argument("--out", default="f1tenth_verification", help="directory for result.json and row.json (default: %(default)s)")
@@ -463,9 +459,8 @@ def _f1_verify(args) -> int:
         args.networks,
         noise_model=not args.canonical,
         cell=args.cell,
-        mode=args.mode,
         data=args.data,
-        max_splits=args.max_splits,
+        **({} if args.max_splits is None else {"max_splits": args.max_splits}),
         workers=args.workers,
         journal=args.journal,
         progress=not args.no_progress and not args.json,

@@ -3,6 +3,7 @@ engine (a local pool of threads, or an executor) and falsification to their verd
 
 from __future__ import annotations
 
+import functools
 import os
 import sys
 import threading
@@ -12,9 +13,10 @@ from typing import Optional
 from percver import _core
 from percver.errors import InputError
 from percver.sets import Box
-from percver.verification.falsify import falsify
+from percver.verification.falsify import falsify, spread
 from percver.verification.journal import cell_key
 from percver.verification.results import Cell, Counterexample
+from percver.verification.splitters import Retry
 
 
 class Campaign:
@@ -39,11 +41,14 @@ class Campaign:
         self.loop, self.prop, self.init, self.splitter, self.journal, self.bar = loop, prop, init, splitter, journal, bar
         self.grid, self.left = cells  # the splitter's initial cells (a lazy iterator) and their count
         self.timeout, self.falsify, self.seed = timeout, falsify, seed
-        self.queue: list = []  # sub-cells, last in first out: depth-first keeps the queue short
+        self.queue: list = []  # sub-cells as (box, options), last in first out: depth-first keeps the queue short
+        self.chosen: dict = {}  # cell key -> engine settings the splitter chose for it, while it is out
         self.ready: deque = deque()  # falsification found nothing: to be run
         self.cells: list = []
         self.cell_seconds = [0.0, 0]  # engine seconds and cells so far, to size executor batches
         self.lock = lock  # the parts of one call share it, with their progress bar
+        if hasattr(splitter, "probe"):
+            splitter.probe = functools.partial(spread, loop)
 
     def remaining(self) -> int:
         """Cells known to be still to run (sub-cells of running cells may add more)."""
@@ -51,11 +56,19 @@ class Campaign:
             return self.left + len(self.queue) + len(self.ready)
 
     def take(self, n: int, stock: int = 0) -> list:
-        """Up to n cells to run (falsifying up to max(n, stock) first); empty when none is left for
-        now. Threads may take and stock at once: cells are drawn under the lock, each by one thread."""
+        """Up to n cells to run (falsifying up to max(n, stock) first), all with the same
+        :meth:`options_of`; empty when none is left for now. Threads may take and stock at once:
+        cells are drawn under the lock, each by one thread."""
         self.stock(max(n, stock))
         with self.lock:
-            return [self.ready.popleft() for _ in range(min(n, len(self.ready)))]
+            out = []
+            while self.ready and len(out) < n and (not out or self.options_of(self.ready[0]) == self.options_of(out[0])):
+                out.append(self.ready.popleft())
+            return out
+
+    def options_of(self, cell: Box) -> dict:
+        """Engine settings the splitter chose for ``cell`` beyond the call's (e.g. rebox)."""
+        return self.chosen.get(cell_key(cell.to_dict()), {})
 
     def stock(self, n: int):
         """Falsifies cells until n are ready to run or none is left for now."""
@@ -64,37 +77,53 @@ class Campaign:
                 if len(self.ready) >= n or not (self.queue or self.left):
                     return
                 fresh = self._draw(min(self.chunk, max(n - len(self.ready), 8)))
-            found = falsify(self.loop, self.prop, fresh, self.prop.steps, 0, self.seed)
+            found = falsify(self.loop, self.prop, [cell for cell, _ in fresh], self.prop.steps, 0, self.seed)
             with self.lock:
-                for cell, cex in zip(fresh, found):
+                for (cell, options), cex in zip(fresh, found):
                     if cex is None:
                         self.ready.append(cell)
+                        if options:
+                            self.chosen[cell_key(cell.to_dict())] = options
                     else:
                         c = Cell(
-                            cell.to_dict(), "falsified", counterexample=cex, reason=f"simulation violates {cex.violated} at step {cex.step}"
+                            cell.to_dict(),
+                            "falsified",
+                            counterexample=cex,
+                            reason=f"simulation violates {cex.violated} at step {cex.step}",
+                            options=options,
                         )
                         self.journal.write(c)
+                        self.splitter.learn(cell, c, self.init)
                         self._place(cell, c, None)
 
     def _draw(self, want: int) -> list:
-        """Up to ``want`` cells not in the journal (the journal's are settled on the way)."""
+        """Up to ``want`` cells ``(box, options)`` not in the journal (the journal's are settled on
+        the way, following its recorded decisions)."""
         fresh = []
         while len(fresh) < want and (self.queue or self.left):
             if self.queue:
-                cell = self.queue.pop()
+                cell, options = self.queue.pop()
             else:
-                cell = next(self.grid)
+                cell, options = next(self.grid), {}
                 self.left -= 1
-            known = self.journal.done.get(cell_key(cell.to_dict()))
+            key = cell_key(cell.to_dict(), options)
+            known = self.journal.done.get(key)
             if known is not None:
-                self._place(cell, known, self._again(cell, known))
+                self.splitter.learn(cell, known, self.init)
+                pieces = self._again(cell, known)
+                self._place(cell, known, self.journal.decided[key] if key in self.journal.decided else pieces)
                 continue
-            pieces = self.splitter.prepare(cell, self.init)
+            if key in self.journal.cuts:
+                pieces = self.journal.cuts[key]
+            else:
+                pieces = [(piece, options) for piece in self.splitter.prepare(cell, self.init)]
+                if len(pieces) > 1:
+                    self.journal.write_cut(cell.to_dict(), options, pieces)
             if len(pieces) > 1:
                 self.queue += pieces
                 self.bar.settled(None, more=len(pieces))
             else:
-                fresh.append(cell)
+                fresh.append((cell, options))
         return fresh
 
     def record(self, cell: Box, outcome: _core.CellOutcome, peak_rss_mb: Optional[float]):
@@ -127,28 +156,35 @@ class Campaign:
             peak_rss_mb,
             None if outcome.split is None else self.init.names[outcome.split],
             outcome.deepest_step,
+            self.chosen.pop(cell_key(cell.to_dict()), {}),
         )
         self.cell_seconds[0] += c.seconds
         self.cell_seconds[1] += 1
-        halves = self._again(cell, c)
-        if self._timed_out(c) and not halves:
+        self.splitter.learn(cell, c, self.init)
+        pieces = self._again(cell, c)
+        if self._timed_out(c) and not pieces:
             c.reason += "; not split further: the cell is at min_width"
-        self.journal.write(c)
-        self._place(cell, c, halves)
+        self.journal.write(c, pieces)
+        self._place(cell, c, pieces)
 
     def _timed_out(self, c: Cell) -> bool:
         # The engine stops a cell between steps once it has run longer than the timeout.
         return c.verdict == "unknown" and self.timeout is not None and c.seconds > self.timeout
 
     def _again(self, cell: Box, c: Cell) -> Optional[list]:
-        return self.splitter.again(cell, c, self.init, self._timed_out(c))
+        """The splitter's pieces ``(box, options)`` replacing an outcome, or None (it is final):
+        halves keep the cell's options unless the splitter gives their own; a :class:`Retry` is the
+        same box with more options."""
+        pieces = self.splitter.again(cell, c, self.init, self._timed_out(c))
+        if isinstance(pieces, Retry):
+            return [(cell, {**c.options, **pieces.options})]
+        return None if not pieces else [piece if isinstance(piece, tuple) else (piece, c.options) for piece in pieces]
 
-    def _place(self, cell: Box, c: Cell, halves: Optional[list]):
-        """A finished cell (fresh or from the journal) is a result, or replaced by its halves."""
-        self.splitter.learn(cell, c.verdict, self.init)
-        if halves:
-            self.queue += halves
-            self.bar.settled(None, more=len(halves))
+    def _place(self, cell: Box, c: Cell, pieces: Optional[list]):
+        """A finished cell (fresh or from the journal) is a result, or replaced by its pieces."""
+        if pieces:
+            self.queue += pieces
+            self.bar.settled(None, more=len(pieces))
         else:
             self.cells.append(c)
             self.bar.settled(c.verdict)
@@ -293,7 +329,14 @@ def run_local(jobs: list, workers: Optional[int], bar: Progress):
                 counter.reset()
                 bar.cell_started(counter, campaign.prop.steps)
                 try:
-                    run_cells(problem, [cell.bounds], lambda i, o, rss: campaign.record(cell, o, rss), options, 1, counter)
+                    run_cells(
+                        problem,
+                        [cell.bounds],
+                        lambda i, o, rss: campaign.record(cell, o, rss),
+                        {**options, **campaign.options_of(cell)},
+                        1,
+                        counter,
+                    )
                 finally:
                     bar.cell_ended()
                     with idle:

@@ -131,7 +131,9 @@ class Runner:
 
         def submit(cells, data, tries):
             try:
-                future = self.pool.submit(run_batch, fingerprint, data, [c.bounds for c in cells], options)
+                future = self.pool.submit(
+                    run_batch, fingerprint, data, [c.bounds for c in cells], {**options, **campaign.options_of(cells[0])}
+                )
             except RuntimeError as error:  # BrokenProcessPool, or shut down
                 raise ExecutorError(
                     f"the executor cannot take work ({error}); finished cells are in the journal: rerun with a working executor to resume"

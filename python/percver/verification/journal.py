@@ -14,6 +14,7 @@ from typing import Optional
 import numpy as np
 
 from percver.errors import PercverError
+from percver.sets import Box
 from percver.systems import ClosedLoop
 from percver.verification.property import Property
 from percver.verification.results import Cell
@@ -63,11 +64,21 @@ def fingerprint(loop: ClosedLoop, prop: Property, settings: dict) -> str:
 
 
 class Journal:
-    """Append-only JSONL: a header with the problem's fingerprint, then one line per cell."""
+    """Append-only JSONL: a header with the problem's fingerprint, then one line per cell, with
+    the splitter's decision about it (``"into"``: null when it is final, else the pieces that
+    replace it, each ``[box, options]``), and one line per cell cut before it ran (``"cut"``).
+    A resumed campaign follows the recorded decisions (every cell decided before gets the same
+    pieces, and none runs again); lines written before decisions were journaled have no
+    ``"into"``, and the splitter decides again.
+
+    ``done`` maps a cell's key to its cell, ``decided`` to its recorded pieces (None: final),
+    ``cuts`` the key of a cell cut before it ran to its pieces."""
 
     def __init__(self, path: Optional[str], fingerprint: str):
         self.path = Path(path) if path else None
         self.done: dict = {}
+        self.decided: dict = {}
+        self.cuts: dict = {}
         self.file = None
         self.synced = 0.0
         if self.path is None:
@@ -97,8 +108,13 @@ class Journal:
                 if not line.strip():
                     continue
                 try:
-                    cell = Cell.from_dict(json.loads(line))
-                except (json.JSONDecodeError, TypeError, UnicodeDecodeError):
+                    record = json.loads(line)
+                    if "cut" in record:
+                        self.cuts[cell_key(record["cut"], record["options"])] = _pieces(record["into"])
+                        continue
+                    into = record.pop("into", _UNDECIDED)
+                    cell = Cell.from_dict(record)
+                except (json.JSONDecodeError, TypeError, KeyError, UnicodeDecodeError):
                     if k == len(lines) or (k == len(lines) - 1 and not lines[-1]):
                         # Cut it off: the next append must start on a line of its own.
                         os.truncate(self.path, sum(len(x) + 1 for x in lines[: k - 1]))
@@ -109,7 +125,10 @@ class Journal:
                         )
                         continue
                     raise JournalError(f"journal {self.path}, line {k} is corrupt") from None
-                self.done[cell_key(cell.box)] = cell
+                key = cell_key(cell.box, cell.options)
+                self.done[key] = cell
+                if into is not _UNDECIDED:
+                    self.decided[key] = None if into is None else _pieces(into)
             self.file = open(self.path, "a")
         else:
             self.file = open(self.path, "w")
@@ -118,11 +137,19 @@ class Journal:
 
     SYNC_SECONDS = 1.0
 
-    def write(self, cell: Cell):
+    def write(self, cell: Cell, into: Optional[list] = None):
+        """``cell`` and what replaces it (``into``: pieces ``(Box, options)``; None: it is final)."""
+        self._append({**cell.to_dict(), "into": _records(into)})
+
+    def write_cut(self, box: dict, options: dict, into: list):
+        """A cell cut into ``into`` (pieces ``(Box, options)``) before it ran."""
+        self._append({"cut": box, "options": options, "into": _records(into)})
+
+    def _append(self, record: dict):
         # Flushed at once (a killed process loses nothing), synced to disk at most once a second
         # (power loss loses at most that second, and a cut last line is tolerated on reading).
         if self.file:
-            self.file.write(json.dumps(cell.to_dict()) + "\n")
+            self.file.write(json.dumps(record) + "\n")
             self.file.flush()
             if time.monotonic() - self.synced > self.SYNC_SECONDS:
                 os.fsync(self.file.fileno())
@@ -147,5 +174,31 @@ def _alive(pid: int) -> bool:
         return True
 
 
-def cell_key(box: dict) -> str:
-    return json.dumps({k: [float(v[0]), float(v[1])] for k, v in sorted(box.items())})
+_UNDECIDED = object()  # a cell line without "into": written before decisions were journaled
+
+
+def journal_cells(path) -> list:
+    """Every cell a journal file holds, in the order run (cells later split included; the
+    splitter's cut lines left out): for benchmarks that count attempts."""
+    cells = []
+    for line in Path(path).read_text().splitlines()[1:]:
+        record = json.loads(line) if line.strip() else {"cut": None}
+        if "cut" not in record:
+            record.pop("into", None)
+            cells.append(Cell.from_dict(record))
+    return cells
+
+
+def _records(pieces: Optional[list]) -> Optional[list]:
+    return None if pieces is None else [[box.to_dict(), options] for box, options in pieces]
+
+
+def _pieces(records: list) -> list:
+    return [(Box({k: tuple(v) for k, v in box.items()}), options) for box, options in records]
+
+
+def cell_key(box: dict, options: Optional[dict] = None) -> str:
+    """A cell's key in a journal: its box and the engine settings chosen for it (the same box
+    run again with other settings is another cell)."""
+    key = json.dumps({k: [float(v[0]), float(v[1])] for k, v in sorted(box.items())})
+    return key + json.dumps(options, sort_keys=True) if options else key

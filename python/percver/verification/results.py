@@ -50,6 +50,8 @@ class Cell:
     # The deepest step any part of the cell reached (an unknown cell's parts stop at different
     # steps; steps_done is the shallowest, where the boxes stop being complete).
     deepest_step: int = 0
+    # Engine settings the splitter chose for this cell beyond the call's (e.g. {"rebox": True}).
+    options: dict = field(default_factory=dict)
 
     def to_dict(self) -> dict:
         # Shallow (asdict would deep-copy the reach boxes of every journaled cell).

@@ -190,7 +190,7 @@ def _verify_parts(loop, parts: Sequence[Part], keywords: dict) -> list:
     boxes = [loop.initial_box(p.init) for p in parts]
     splitters = []  # each part's splitter and its initial cells, checked before any journal is opened
     for p, box in zip(parts, boxes):
-        part_splitter = _splitter_of(p, o.splitter, o.refine, o.min_width)
+        part_splitter = _splitter_of(p, o.splitter, o.refine, o.min_width, bool(o.rebox))
         splitters.append((part_splitter, part_splitter.initial(box)))
     checks = domain_checks(loop)
     initial_exits = domain_exits(checks, [np.array([box.bounds]) for box in boxes])
@@ -280,18 +280,23 @@ def _record_held(loop: ClosedLoop, result) -> None:
         cex.trajectory = [[row[i] for i in keep] for row in cex.trajectory]
 
 
-def _splitter_of(part: Part, splitter, refine: bool, min_width: Optional[dict]):
+def _splitter_of(part: Part, splitter, refine: bool, min_width: Optional[dict], rebox: bool):
     """The part's own splitter (a fresh copy of ``splitter``: an adaptive one learns per part);
     without one, ``split``/``refine``/``min_width`` name a grid or a bisection, and with none of
-    them the adaptive default applies."""
+    them the adaptive default applies. With ``rebox`` every cell is reboxed already: an adaptive
+    splitter does not retry cells with it."""
     if splitter is not None:
         if part.split or refine or min_width:
             raise InputError("give splitter= or split=/refine=/min_width=, not both (a splitter carries its own grid and widths)")
         if not all(hasattr(splitter, m) for m in ("initial", "prepare", "again", "learn")):
             raise InputError(f"splitter= takes pv.Grid, pv.Bisection, pv.Adaptive or an object with their methods, got {splitter!r}")
-        return copy.deepcopy(splitter)
-    if refine:
+        chosen = copy.deepcopy(splitter)
+    elif refine:
         return Bisection(part.split or {}, min_width or {})
-    if part.split or min_width:
+    elif part.split or min_width:
         return Grid(part.split or {}, min_width or {})
-    return Adaptive()
+    else:
+        chosen = Adaptive()
+    if rebox and isinstance(chosen, Adaptive):
+        chosen.rebox = False
+    return chosen

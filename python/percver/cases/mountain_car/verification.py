@@ -210,8 +210,9 @@ def verify(
     and order (``split=`` gives one grid instead; ``max_splits=`` or ``order=`` alone override
     only the bands' own), all bands' cells in one pool (``pv.verify_parts``), and unknown cells (or ones still running after 60 s) are bisected down
     to :data:`MIN_WIDTH` (``refine=True``): a hard cell costs less as two halves than split many
-    times inside. The result's ``settings["case"]`` records the row, the networks, the initial set
-    and the bands.
+    times inside. ``splitter=`` (e.g. ``pv.Adaptive()``) replaces the layout: the row's whole
+    initial set goes to that splitter alone. The result's ``settings["case"]`` records the row,
+    the networks, the initial set and the bands (none with a splitter).
     """
     import percver as pv
 
@@ -221,6 +222,11 @@ def verify(
     if overlap:
         raise InputError(f"{sorted(overlap)} are fixed by the Mountain Car property; use pv.verify(closed_loop(...)) to change them")
     name = networks.name if isinstance(networks, Networks) else str(networks)
+    if "splitter" in verify_kwargs:
+        result = pv.verify(loop, init, **specification(), **verify_kwargs)
+        case = {"case": "mountain_car", "noise": noise, "networks": name, "init": init, "bands": []}
+        result.settings["case"] = {**case, **({} if controller is None else {"controller": str(controller)})}
+        return result
     options = {"refine": True, "min_width": MIN_WIDTH, "timeout_per_cell": 60.0, **verify_kwargs}
     bands = _grid(init, _layout(name, controller, noise), options)
     journal = options.pop("journal", None)
