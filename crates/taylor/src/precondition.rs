@@ -65,7 +65,7 @@ pub fn precondition(x: &[TaylorModel], extra: &[f64], kind: Precondition, ctx: &
     let mut mids = vec![0.0; n];
     for (i, r) in rotated.iter().enumerate() {
         let slack = (0..n).fold(0.0, |s, j| add_up(s, mul_up(q[(j, i)].abs(), extra[j])));
-        let range = crate::bound::range(r, space);
+        let range = r.bound(space);
         mids[i] = if range.is_bounded() { range.mid() } else { 0.0 };
         let r = &r.add_constant(-mids[i]);
         let b = add_up((range - Interval::point(mids[i])).mag(), slack);
@@ -175,7 +175,7 @@ mod tests {
                         assert!(got.contains(truth.mid()), "{kind:?} {got} misses {truth}");
                     }
                 }
-                assert!(crate::bound::range(&p.right[i], &ctx.space).mag() <= 1.0 + 1e-12);
+                assert!(p.right[i].bound(&ctx.space).mag() <= 1.0 + 1e-12);
             }
         }
     }
