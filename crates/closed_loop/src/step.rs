@@ -410,7 +410,6 @@ pub(crate) fn unsafe_segment<'a>(
     for seg in segments {
         for c in lp.safe.iter().filter(|c| applies(c, seg)) {
             let margin = c.margin.eval(&Intervals, &seg.bounds[..n])?;
-            if std::env::var("PV_DEBUG").is_ok() { eprintln!("seg [{}, {}] {:?} margin {}", seg.t0, seg.t1, seg.bounds, margin[0]); }
             if c.cmp.decide(margin[0]) != Some(true) {
                 return Ok(Some(format!("'{}' could not be proved over t in [{:.4}, {:.4}] of the period", c.label, seg.t0, seg.t1)));
             }
