@@ -59,9 +59,8 @@ pub fn precondition(x: &[TaylorModel], extra: &[f64], kind: Precondition, ctx: &
     let mut to_normalised = vec![Interval::ZERO; n * n];
     // Each row is centred on the midpoint of its range, not on its constant term: x0 spans
     // centre +- b, so a nonlinear row whose range is lopsided about its constant term (a
-    // saturating tanh controller's output) would otherwise widen every segment's box and the
-    // next step's start by the difference (measured on ARCH-COMP's docking: a held control
-    // F in [-2.0, 0.25] became [-2.7, 0.97] one step later although F' = 0).
+    // saturating tanh controller's held output) would otherwise widen every segment's box and
+    // the next step's start by the difference (bench/README.md, ARCH-COMP docking).
     let mut mids = vec![0.0; n];
     for (i, r) in rotated.iter().enumerate() {
         let slack = (0..n).fold(0.0, |s, j| add_up(s, mul_up(q[(j, i)].abs(), extra[j])));
