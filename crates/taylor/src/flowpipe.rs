@@ -372,7 +372,7 @@ fn flow_from(
             .iter()
             .zip(composed)
             .map(|(m, mut x)| {
-                entering.push(x.rem + Interval::symmetric(gradient_dot(m, &space, &shift, 2)));
+                entering.push(x.rem + Interval::symmetric(nonlinear_gradient_dot(m, &space, &shift)));
                 x.rem = Interval::ZERO;
                 x
             })
@@ -449,12 +449,12 @@ fn on_grid(h: f64, grid: f64) -> f64 {
 }
 
 /// Bound of sum_j |d p / d x̂_j| shift_j over the domain, counting only monomials of degree
-/// >= `min_degree` (1: the whole gradient; 2: the gradient minus its linear part).
+/// >= 2 (the gradient minus its linear part, which the symbolic remainder carries exactly).
 /// > |d/dx̂_j of c x^e| <= |c| e_j on the domain, since every monomial is bounded by 1 there.
-fn gradient_dot(m: &TaylorModel, space: &Space, shift: &[f64], min_degree: u8) -> f64 {
+fn nonlinear_gradient_dot(m: &TaylorModel, space: &Space, shift: &[f64]) -> f64 {
     let mut total = 0.0f64;
     for (i, &c) in m.coef.iter().enumerate() {
-        if c == 0.0 || space.deg[i] < min_degree {
+        if c == 0.0 || space.deg[i] < 2 {
             continue;
         }
         for (j, &s) in shift.iter().enumerate() {
