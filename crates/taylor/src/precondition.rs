@@ -57,9 +57,17 @@ pub fn precondition(x: &[TaylorModel], extra: &[f64], kind: Precondition, ctx: &
     let mut inv_d = Vec::with_capacity(n);
     let mut right = Vec::with_capacity(n);
     let mut to_normalised = vec![Interval::ZERO; n * n];
+    // Each row is centred on the midpoint of its range, not on its constant term: x0 spans
+    // centre +- b, so a nonlinear row whose range is lopsided about its constant term (a
+    // saturating tanh controller's held output) would otherwise widen every segment's box and
+    // the next step's start by the difference (bench/README.md, ARCH-COMP docking).
+    let mut mids = vec![0.0; n];
     for (i, r) in rotated.iter().enumerate() {
         let slack = (0..n).fold(0.0, |s, j| add_up(s, mul_up(q[(j, i)].abs(), extra[j])));
-        let b = add_up(r.bound(space).mag(), slack);
+        let range = r.bound(space);
+        mids[i] = if range.is_bounded() { range.mid() } else { 0.0 };
+        let r = &r.add_constant(-mids[i]);
+        let b = add_up((range - Interval::point(mids[i])).mag(), slack);
         if b == 0.0 {
             inv_d.push(None);
             right.push(TaylorModel::zero());
@@ -77,11 +85,14 @@ pub fn precondition(x: &[TaylorModel], extra: &[f64], kind: Precondition, ctx: &
     let delta = if q.is_identity(0.0) { 0.0 } else { inverse_defect(&q) };
     let row_abs: Vec<f64> = (0..n).map(|i| (0..n).fold(0.0, |s, l| add_up(s, q[(i, l)].abs()))).collect();
     let mut x0 = Vec::with_capacity(n);
+    // x = c + Q^{-T} (D^{-1} x̂ + mids) with Q^{-T} = Q (I + E), |E_lj| <= delta.
+    let mids_abs = mids.iter().fold(0.0, |s, m| add_up(s, m.abs()));
     for i in 0..n {
         let mut t = TaylorModel::constant(centre[i]);
-        let mut err = 0.0;
+        let constant = (0..n).fold(Interval::point(centre[i]), |acc, j| acc + Interval::point(q[(i, j)]) * Interval::point(mids[j]));
         let mut coef = vec![0.0; space.var_index(n) + 1];
-        coef[0] = centre[i];
+        coef[0] = constant.mid();
+        let mut err = add_up((constant - Interval::point(coef[0])).mag(), mul_up(mul_up(delta, row_abs[i]), mids_abs));
         for j in 0..n {
             let Some(id) = inv_d[j] else { continue };
             let m = Interval::point(q[(i, j)]) * id;
@@ -164,6 +175,29 @@ mod tests {
                     }
                 }
                 assert!(p.right[i].bound(&ctx.space).mag() <= 1.0 + 1e-12);
+            }
+        }
+    }
+
+    #[test]
+    fn a_lopsided_row_spans_its_range_not_more() {
+        // x = 1 + z1^2 + z2^2 / 2 has range [1, 2.5] and constant term 1: the box x0 spans
+        // must be that range, not 1 +- 1.5, and still reproduce the state.
+        let ctx = Ctx::new(Space::get(3, 4, 1).unwrap(), 4, 0.0);
+        let z1 = TaylorModel::var(&ctx, 1);
+        let z2 = TaylorModel::var(&ctx, 2);
+        let x = vec![z1.mul(&z1, &ctx).add(&z2.mul(&z2, &ctx).scale(0.5)).add_constant(1.0), z2.clone()];
+        let p = precondition(&x, &[0.0, 0.0], Precondition::Identity, &ctx);
+        let span = p.x0[0].bound(&ctx.space);
+        assert!(span.lo() >= 1.0 - 1e-9 && span.hi() <= 2.5 + 1e-9, "{span}");
+        let args = vec![TaylorModel::zero(), p.right[0].clone(), p.right[1].clone()];
+        let back = p.x0[0].compose(&args, &ctx);
+        for a in 0..=20 {
+            for b in 0..=20 {
+                let (u, v) = (-1.0 + a as f64 / 10.0, -1.0 + b as f64 / 10.0);
+                let pt = [Interval::ZERO, Interval::point(u), Interval::point(v)];
+                let truth = 1.0 + u * u + v * v / 2.0;
+                assert!(back.eval_interval(&ctx.space, &pt).inflate(1e-12).contains(truth), "({u}, {v})");
             }
         }
     }
