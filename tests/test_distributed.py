@@ -95,13 +95,13 @@ def test_process_pool_ships_the_problem_once_and_matches_rayon(tmp_path):
     # keeps it, and later batches carry only the fingerprint.
     prop = Property(loop, None, None, p >= 0.45, True, 150)
     safe, goal = prop.rust()
-    payload = dumps((loop, safe, goal, True, 150))
-    cells = [[(-0.5, -0.499), (0.0, 0.0)]]
+    payload = dumps((loop, prop, safe, goal, True, 150))
+    cells = [loop.initial_box({"p": (-0.5, -0.499), "v": (0, 0)})]
     options = {"order": 5, "method": "taylor", "timeout": None}
     with pool(1) as executor:
-        assert executor.submit(run_batch, "fp", None, cells, options).result() == MISSING
-        first = executor.submit(run_batch, "fp", payload, cells, options).result()
-        again = executor.submit(run_batch, "fp", None, cells, options).result()
+        assert executor.submit(run_batch, "fp", None, cells, options, (8, 0)).result() == MISSING
+        first = executor.submit(run_batch, "fp", payload, cells, options, (8, 0)).result()
+        again = executor.submit(run_batch, "fp", None, cells, options, (8, 0)).result()
     assert first[0]["verdict"] == again[0]["verdict"] == "verified"
 
 

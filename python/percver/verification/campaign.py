@@ -70,11 +70,28 @@ class Campaign:
                     if cex is None:
                         self.ready.append(cell)
                     else:
-                        c = Cell(
-                            cell.to_dict(), "falsified", counterexample=cex, reason=f"simulation violates {cex.violated} at step {cex.step}"
-                        )
-                        self.journal.write(c)
-                        self._place(cell, c, None)
+                        self._probed(cell, cex)
+
+    def _probed(self, cell: Box, cex: Counterexample):
+        """A cell whose probe (centre and corners) violates the property: falsified, no engine run."""
+        c = Cell(cell.to_dict(), "falsified", counterexample=cex, reason=f"simulation violates {cex.violated} at step {cex.step}")
+        self.journal.write(c)
+        self._place(cell, c, None)
+
+    def draw(self, n: int) -> list:
+        """Up to n cells for an executor, unprobed: its workers probe, run and sample them
+        (:func:`percver.executors.run_batch`), so the driver only journals and splits."""
+        with self.lock:
+            return self._draw(n)
+
+    def settle(self, cell: Box, outcome: dict):
+        """A cell's outcome from an executor's worker: falsified by its probe (no engine run), or
+        the engine's outcome with the counterexample its random runs found (or None)."""
+        with self.lock:
+            if outcome.get("probe") is not None:
+                self._probed(cell, outcome["probe"])
+            else:
+                self._record(cell, outcome, outcome["counterexample"])
 
     def _draw(self, want: int) -> list:
         """Up to ``want`` cells not in the journal (the journal's are settled on the way)."""

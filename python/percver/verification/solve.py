@@ -191,7 +191,7 @@ def verify_parts(
     Locally, all parts' cells share one pool of ``workers`` threads, each running one cell at a
     time and taking the next from the first part that has one: no core waits for the last cell
     of a batch or of a part (verifying the parts one after another left a core idle at each
-    part's end). On an executor the parts run one after another. The other keywords are
+    part's end). On an executor likewise: batches come from the first part that has cells. The other keywords are
     :func:`verify`'s, the same for every part."""
     started = time.time()
     if not isinstance(loop, ClosedLoop) and isinstance(getattr(loop, "loop", None), ClosedLoop):
@@ -235,7 +235,8 @@ def verify_parts(
     if executor is not None:
         from percver.executors import Runner
 
-        runner = Runner(executor, slots=workers, batch=batch)  # checked (and connected) before any work
+        # Checked, pickled and connected before any work.
+        runner = Runner(executor, (loop, prop, safe_r, goal_r, within, steps), slots=workers, batch=batch)
     jobs = []
     lock = threading.RLock()  # one for all parts: they share the progress bar
     bar = Progress(lock)
@@ -253,7 +254,6 @@ def verify_parts(
                 }
                 if state_symbols:  # only when on, so that journals written before the option still resume
                     settings["state_symbols"] = True
-                fingerprint = fingerprint_of(loop, prop, settings)
                 options = {
                     "order": p.order,
                     "method": method,
@@ -262,19 +262,18 @@ def verify_parts(
                     "rebox": bool(rebox),
                     "state_symbols": bool(state_symbols),
                 }
-                journal = Journal(p.journal, fingerprint)
+                journal = Journal(p.journal, fingerprint_of(loop, prop, settings))
                 journals.callback(journal.close)
                 campaign = Campaign(
                     loop, prop, box, part_splitter, cells, journal, bar, timeout=timeout_per_cell, falsify=falsify, seed=seed, lock=lock
                 )
-                jobs.append((campaign, settings, fingerprint, options))
+                jobs.append((campaign, settings, options))
             if progress:
                 bar.start(sum(campaign.left for campaign, *_ in jobs))
             if runner is None:
-                run_local([(campaign, problem, options) for campaign, _, _, options in jobs], workers, bar)
+                run_local([(campaign, problem, options) for campaign, _, options in jobs], workers, bar)
             else:
-                for campaign, _, fingerprint, options in jobs:
-                    runner.run(campaign, (loop, safe_r, goal_r, within, steps), fingerprint, options)
+                runner.run([(campaign, options) for campaign, _, options in jobs])
     finally:
         if runner is not None:
             runner.close()
@@ -282,7 +281,7 @@ def verify_parts(
     seconds = time.time() - started
     results = [
         Result(loop.states, box.to_dict(), campaign.cells, seconds, settings, domain_exits(checks, runs(campaign.cells, loop.states)))
-        for box, (campaign, settings, _, _) in zip(boxes, jobs)
+        for box, (campaign, settings, _) in zip(boxes, jobs)
     ]
     flagged = {(e["stage"], e["input"]) for e in initial_exits}
     flag_exits([e for r in results for e in r.domain_exits if (e["stage"], e["input"]) not in flagged], strict, results)
