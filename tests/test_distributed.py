@@ -172,6 +172,37 @@ def test_dask_worker_killed_mid_row_loses_nothing_counts_nothing_twice_and_resum
             pv.verify_parts(loop, parts, executor=client, **kwargs)
 
 
+def test_a_cluster_dying_mid_campaign_stops_it_with_the_fix_and_the_journal_resumes(tmp_path):
+    distributed = pytest.importorskip("distributed")
+    loop, p, v = mountain_car()
+    journal = tmp_path / "dead.jsonl"
+    kwargs = dict(MC, goal=p >= 0.45, split={"p": 400}, journal=str(journal))
+    cluster = distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None)
+    client = distributed.Client(cluster)
+
+    def close_when_started():
+        deadline = time.time() + 120
+        while time.time() < deadline and not (journal.exists() and len(journal_records(journal)) >= 3):
+            time.sleep(0.01)
+        cluster.close()
+
+    closer = threading.Thread(target=close_when_started)
+    closer.start()
+    try:
+        with pytest.raises(ExecutorError, match="rerun with a working executor to resume"):
+            pv.verify(loop, executor=client, **kwargs)
+    finally:
+        closer.join()
+        client.close()
+    done = journal_records(journal)
+    boxes = [tuple(r["box"]["p"]) for r in done]
+    assert 3 <= len(boxes) == len(set(boxes)) < 400
+    result = pv.verify(loop, **kwargs)  # resumed locally: the journaled cells are not run again
+    records = journal_records(journal)
+    assert records[: len(done)] == done and len({tuple(r["box"]["p"]) for r in records}) == len(records) == 400
+    assert result.verdict == "verified" and len(result.cells) == 400
+
+
 def test_a_loop_workers_cannot_get_is_refused_with_the_fix(tmp_path, monkeypatch):
     loop, p, v = mountain_car()
     net = loop.stages[0].component

@@ -34,6 +34,10 @@ from percver.networks import Network
 MISSING = "percver: the problem is not on this worker yet"
 RETRIES = 3  # resubmissions of a batch whose task failed (e.g. its worker died)
 TASK_SECONDS = 0.25  # batches are sized to run about this long: overhead per task stays small
+# Cells per batch at least while enough remain: a worker probes a batch's cells in one float
+# simulation, whose cost is mostly per step, not per run (Mountain Car's image loop: 8 cells
+# cost about twice 1, where a cell's engine run is a few probes' worth).
+PROBE_CELLS = 8
 MAX_BATCH = 512
 _PROBLEMS: OrderedDict = OrderedDict()  # in each worker process: fingerprint -> compiled loop
 _KEPT = 4
@@ -162,7 +166,7 @@ class Runner:
         by_time = TASK_SECONDS * cells / seconds if cells and seconds > 0 else 1
         # Near the end, smaller batches keep every worker busy.
         by_share = remaining // (2 * capacity)
-        return int(max(1, min(by_time, by_share, MAX_BATCH)))
+        return int(max(1, min(max(by_time, PROBE_CELLS), by_share, MAX_BATCH)))
 
     def run(self, jobs: list):
         """Runs every cell of ``jobs`` (campaign, engine options): batches come from the first part
@@ -173,7 +177,7 @@ class Runner:
             sampling = (campaign.falsify, campaign.seed)
             try:
                 future = self.pool.submit(run_batch, self.key, payload, cells, options, sampling)
-            except RuntimeError as error:  # BrokenProcessPool, or shut down
+            except Exception as error:  # BrokenProcessPool, a pool shut down, a Dask client closed (its cluster died)
                 raise ExecutorError(
                     f"the executor cannot take work ({error}); finished cells are in the journal: rerun with a working executor to resume"
                 ) from error
