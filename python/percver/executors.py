@@ -35,11 +35,11 @@ MISSING = "percver: the problem is not on this worker yet"
 RETRIES = 3  # resubmissions of a batch whose task failed (e.g. its worker died)
 TASK_SECONDS = 0.25  # batches are sized to run about this long: overhead per task stays small
 # Cells per batch at least while enough remain: a worker probes a batch's cells in one float
-# simulation, whose cost is mostly per step, not per run (Mountain Car's image loop: 8 cells
-# cost about twice 1, where a cell's engine run is a few probes' worth).
+# simulation, whose cost is mostly per step, not per run (Mountain Car's blur loop, measured:
+# 16 cells' probes cost 4 times 1 cell's, which is a tenth of the cell's engine run).
 PROBE_CELLS = 8
 MAX_BATCH = 512
-_PROBLEMS: OrderedDict = OrderedDict()  # in each worker process: fingerprint -> compiled loop
+_PROBLEMS: OrderedDict = OrderedDict()  # in each worker process: key -> (compiled problem, loop, property)
 _KEPT = 4
 
 
