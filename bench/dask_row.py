@@ -2,7 +2,7 @@
 (``workers=2``) and on a Dask ``LocalCluster(n_workers=2, threads_per_worker=1)``, back to back in
 one run, each with journals; the ratio of their wall times, whether their cells and verdicts are
 the same, and every journaled cell (refined attempts too, in each band's journal order) for
-``bench/scale.py --model``. Writes ``bench/results/dask_row.json`` (one entry per row, merged).
+``bench/scale.py --model``. Appends to ``bench/results/dask_row.json`` (a list of runs per row).
 
     python bench/dask_row.py [--rows blur contrast] [--first local|dask]
 """
@@ -10,6 +10,7 @@ the same, and every journaled cell (refined attempts too, in each band's journal
 import argparse
 import json
 import os
+import resource
 import sys
 import tempfile
 import time
@@ -39,17 +40,28 @@ def journaled(folder: Path) -> list:
     return out
 
 
+def cpu_seconds() -> float:
+    """CPU time of this process so far, all threads."""
+    use = resource.getrusage(resource.RUSAGE_SELF)
+    return use.ru_utime + use.ru_stime
+
+
 def one(noise: str, backend: str, client) -> dict:
     with tempfile.TemporaryDirectory() as tmp:
         journal = str(Path(tmp) / "row.jsonl")
         kwargs = {"executor": client} if backend == "dask" else {"workers": 2}
-        load, start, cpu = os.getloadavg(), time.perf_counter(), time.process_time()
+        workers = client.run(cpu_seconds)
+        load, start, cpu = os.getloadavg(), time.perf_counter(), cpu_seconds()
         result = verification.verify(noise, journal=journal, progress=False, **kwargs)
-        wall, driver_cpu = time.perf_counter() - start, time.process_time() - cpu
+        wall, driver_cpu = time.perf_counter() - start, cpu_seconds() - cpu
+        after = client.run(cpu_seconds)
         attempts = journaled(Path(tmp))
     return {
         "wall_seconds": wall,
-        "driver_cpu_seconds": driver_cpu,  # the calling process: locally it runs the cells too
+        # CPU of the calling process (locally it runs the cells too; it hosts the scheduler) and
+        # of the workers (idle in the local run); a worker that restarted is left out.
+        "driver_cpu_seconds": driver_cpu,
+        "workers_cpu_seconds": sum(after[w] - workers[w] for w in after if w in workers),
         "load_average_start": load,
         "load_average_end": os.getloadavg(),
         "coverage": verification.table_row(result)["coverage"],
@@ -75,21 +87,24 @@ def main() -> None:
         for noise in args.rows:
             runs = {}
             for backend in order:
-                runs[backend] = one(noise, backend, client if backend == "dask" else None)
+                runs[backend] = one(noise, backend, client)
                 print(f"{noise} {backend}: {runs[backend]['wall_seconds']:.1f} s, coverage {runs[backend]['coverage']:.4f}", flush=True)
             same = runs["local"]["final"] == runs["dask"]["final"]
             for r in runs.values():
                 del r["final"]
-            doc[noise] = {
-                "date": time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime()),
-                "cpu": _cpu(),
-                "cpu_count": os.cpu_count(),
-                "order": order,
-                "dask_over_local": runs["dask"]["wall_seconds"] / runs["local"]["wall_seconds"],
-                "same_cells_and_verdicts": same,
-                **runs,
-            }
-            print(f"{noise}: dask / local = {doc[noise]['dask_over_local']:.3f}, same cells and verdicts: {same}", flush=True)
+            doc.setdefault(noise, []).append(
+                {
+                    "date": time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime()),
+                    "cpu": _cpu(),
+                    "cpu_count": os.cpu_count(),
+                    "order": order,
+                    "dask_over_local": runs["dask"]["wall_seconds"] / runs["local"]["wall_seconds"],
+                    "same_cells_and_verdicts": same,
+                    **runs,
+                }
+            )
+            ratio = doc[noise][-1]["dask_over_local"]
+            print(f"{noise}: dask / local = {ratio:.3f}, same cells and verdicts: {same}", flush=True)
             OUT.write_text(json.dumps(doc, indent=1))
     print(f"wrote {OUT}")
 

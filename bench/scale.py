@@ -131,6 +131,9 @@ def resume(cells: int) -> dict:
     return {"cells": cells, "journal_mb": size / 2**20, "first_run_seconds": first, "resume_seconds_median_of_3": statistics.median(reruns)}
 
 
+IDLE_SECONDS = 10.0
+
+
 def noop(x):
     return x
 
@@ -138,7 +141,8 @@ def noop(x):
 def trivial_tasks(tasks: int) -> dict:
     """Dask's own cost per task, with tasks that do nothing, on a LocalCluster of 2 single-threaded
     workers: ``tasks`` submitted at once (the scheduler's throughput, and the CPU it and the client
-    spend per task: they share this process) and one at a time (a task's round trip)."""
+    spend per task: they share this process) and one at a time (a task's round trip); and the
+    CPU the client and scheduler spend while no task runs."""
     lc, client, _ = cluster(2)
     with lc, client:
         client.gather(client.map(noop, range(100), pure=False))  # warm: connections, function pickled
@@ -150,12 +154,17 @@ def trivial_tasks(tasks: int) -> dict:
             t = time.perf_counter()
             client.submit(noop, k, pure=False).result()
             trips.append(time.perf_counter() - t)
+        cpu, start = time.process_time(), time.perf_counter()
+        time.sleep(IDLE_SECONDS)
+        idle = (time.process_time() - cpu) / (time.perf_counter() - start)
     return {
         "tasks": tasks,
         "throughput_tasks_per_second": tasks / wall,
         "wall_ms_per_task": 1e3 * wall / tasks,
         "head_cpu_ms_per_task": 1e3 * head_cpu / tasks,
         "round_trip_ms_median": 1e3 * statistics.median(trips),
+        # The client and scheduler with nothing to do (heartbeats): CPU seconds per second.
+        "idle_head_cpu_per_second": idle,
         "load_average": os.getloadavg(),
     }
 
@@ -254,20 +263,26 @@ def model(trivial: int) -> dict:
     """Scale on paper: the measured cells of Mountain Car rows (every journaled attempt of
     ``bench/results/dask_row.json``, refined ones with their bisected halves as children; and the
     composite row's 3,282 final cells of ``bench/results/mountain_car.json``, refined attempts not
-    listed there) scheduled on 2, 64 and 1,000 cores, arrival order against longest first, with
-    Dask's cost per task measured here with trivial tasks and the head's measured CPU per cell."""
+    listed there; likewise its contrast and blur rows) scheduled on 2, 64 and 1,000 cores,
+    arrival order against longest first, with Dask's cost per task measured here with trivial
+    tasks and the head's measured CPU per cell."""
     over = trivial_tasks(trivial)
     rows = {}
     sources = {}
     dask_rows = json.loads((ROOT / "bench" / "results" / "dask_row.json").read_text())
-    for noise, entry in dask_rows.items():
+    for noise, runs in dask_rows.items():
+        entry = runs[-1]
         attempts = entry["local"]["attempts"]
-        head = entry["dask"]["driver_cpu_seconds"] / len(entry["dask"]["attempts"])
+        # The head's CPU per cell: the Dask run's client process less what it spends idle.
+        d = entry["dask"]
+        head = max(0.0, d["driver_cpu_seconds"] - over["idle_head_cpu_per_second"] * d["wall_seconds"]) / len(d["attempts"])
         sources[f"{noise} (all attempts, local run of {entry['date']})"] = (tree(attempts), head)
-    composite = json.loads((ROOT / "bench" / "results" / "mountain_car.json").read_text())["composite/paper"]
-    at = composite["cell_columns"].index("seconds")
-    costs = [c[at] for c in composite["cells"]]
-    sources["composite (final cells of mountain_car.json)"] = ((costs, [[] for _ in costs], list(range(len(costs)))), None)
+    rows_before = json.loads((ROOT / "bench" / "results" / "mountain_car.json").read_text())
+    for noise in ("contrast", "blur", "composite"):
+        entry = rows_before[f"{noise}/paper"]
+        at = entry["cell_columns"].index("seconds")
+        costs = [c[at] for c in entry["cells"]]
+        sources[f"{noise} (final cells of mountain_car.json)"] = ((costs, [[] for _ in costs], list(range(len(costs)))), None)
     task_s = 1e-3 * over["round_trip_ms_median"]
     measured_heads = [h for _, h in sources.values() if h is not None]
     for name, ((costs, children, roots), head) in sources.items():
