@@ -6,11 +6,13 @@ import multiprocessing
 import os
 import pickle
 import signal
+import sys
 import threading
 import time
 import tracemalloc
 import warnings
 from concurrent.futures import ProcessPoolExecutor
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -18,7 +20,7 @@ import pytest
 
 import percver as pv
 from percver import _core
-from percver.verification.executors import MISSING, dumps, run_batch
+from percver.verification.executors import MISSING, ExecutorError, dumps, run_batch
 from percver.networks import Layer, Network
 from percver.verification import JournalWarning
 from percver.verification.property import Property
@@ -95,24 +97,49 @@ def test_process_pool_ships_the_problem_once_and_matches_rayon(tmp_path):
     # keeps it, and later batches carry only the fingerprint.
     prop = Property(loop, None, None, p >= 0.45, True, 150)
     safe, goal = prop.rust()
-    payload = dumps((loop, safe, goal, True, 150))
-    cells = [[(-0.5, -0.499), (0.0, 0.0)]]
+    payload = dumps((loop, prop, safe, goal, True, 150))
+    cells = [loop.initial_box({"p": (-0.5, -0.499), "v": (0, 0)})]
     options = {"order": 5, "method": "taylor", "timeout": None}
     with pool(1) as executor:
-        assert executor.submit(run_batch, "fp", None, cells, options).result() == MISSING
-        first = executor.submit(run_batch, "fp", payload, cells, options).result()
-        again = executor.submit(run_batch, "fp", None, cells, options).result()
-    (outcome, rss), (repeated, _) = first[0], again[0]
-    assert outcome.verdict == repeated.verdict == "verified" and rss > 10
+        assert executor.submit(run_batch, "fp", None, cells, options, (8, 0)).result() == MISSING
+        first = executor.submit(run_batch, "fp", payload, cells, options, (8, 0)).result()
+        again = executor.submit(run_batch, "fp", None, cells, options, (8, 0)).result()
+    outcome, repeated = first[0]["outcome"], again[0]["outcome"]
+    assert outcome.verdict == repeated.verdict == "verified" and first[0]["rss"] > 10
     assert outcome.boxes == repeated.boxes and len(outcome.boxes) == outcome.steps_done + 1
 
 
-def test_dask_worker_killed_mid_campaign_loses_and_repeats_no_cell(tmp_path):
+def cell_for_cell(results):
+    """Per cell of all parts: its box, verdict, reason and counterexample (start and step)."""
+    out = []
+    for r in results:
+        for c in r.cells:
+            cex = None if c.counterexample is None else (c.counterexample.initial, c.counterexample.step)
+            out.append((json.dumps(c.box, sort_keys=True), c.verdict, c.reason, cex))
+    return sorted(out, key=lambda t: t[0])
+
+
+def test_dask_worker_killed_mid_row_loses_nothing_counts_nothing_twice_and_resumes(tmp_path):
+    """Three parts at once on a real LocalCluster (verified cells; cells falsified by their probe
+    or only by random runs; cells bisected by refine), one worker SIGKILLed while cells run: the
+    journals hold every cell once, the results equal the local run cell for cell, and a rerun on
+    the journals runs nothing."""
     distributed = pytest.importorskip("distributed")
     loop, p, v = mountain_car()
-    kwargs = dict(MC, goal=p >= 0.45, split={"p": 120})  # cells of ~10 ms: about a second of work
-    reference = pv.verify(loop, **kwargs)
-    journal = tmp_path / "dask.jsonl"
+    parts = [
+        pv.Part({"p": (-0.55, -0.45), "v": (0, 0)}, split={"p": 60}),
+        pv.Part({"p": (-0.62, -0.56), "v": (0, 0)}, split={"p": 30}),
+        pv.Part({"p": (-0.58, -0.40), "v": (0, 0)}, split={"p": 6}, order=3),
+    ]
+    # Starts in a thin band are unsafe: the cell [-0.46, -0.43] holds the band away from its
+    # centre and corners, so only its random runs can falsify it.
+    band = pv.during(pv.all_of(p >= -0.4575, p <= -0.4475), steps=(0, 0))
+    kwargs = dict(steps=150, goal=p >= 0.45, within=True, unsafe=band, refine=True, min_width={"p": 0.005}, progress=False)
+    local = pv.verify_parts(loop, parts, **kwargs)
+    verdicts = {c.verdict for r in local for c in r.cells}
+    assert {"verified", "falsified"} <= verdicts, verdicts
+    assert any(c.counterexample is not None and "the engine" in c.reason for r in local for c in r.cells), "random runs falsify some"
+    journaled = [replace(part, journal=str(tmp_path / f"part{k}.jsonl")) for k, part in enumerate(parts)]
     killed = {}
     with (
         distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None) as cluster,
@@ -123,7 +150,7 @@ def test_dask_worker_killed_mid_campaign_loses_and_repeats_no_cell(tmp_path):
         def kill_when_started():
             deadline = time.time() + 120
             while time.time() < deadline and killed.get("lines") is None:
-                lines = journal.read_bytes().count(b"\n") - 1 if journal.exists() else 0
+                lines = sum(len(journal_records(part.journal)) for part in journaled if Path(part.journal).exists())
                 if lines >= 5:
                     os.kill(pids[0], signal.SIGKILL)
                     killed["lines"] = lines
@@ -132,13 +159,82 @@ def test_dask_worker_killed_mid_campaign_loses_and_repeats_no_cell(tmp_path):
         killer = threading.Thread(target=kill_when_started)
         killer.start()
         # The scheduler's address: verify connects (and closes) a Client of its own.
-        result = pv.verify(loop, executor=cluster.scheduler_address, journal=str(journal), **kwargs)
+        remote = pv.verify_parts(loop, journaled, executor=cluster.scheduler_address, **kwargs)
         killer.join()
         assert pids[0] not in client.run(os.getpid).values()
-    assert 5 <= killed["lines"] < 120, "the worker must die mid-campaign"
-    boxes = [tuple(r["box"]["p"]) for r in journal_records(journal)]
-    assert len(boxes) == len(set(boxes)) == len(result.cells) == 120, "every cell journaled exactly once"
-    assert [c.verdict for c in by_box(result)] == [c.verdict for c in by_box(reference)]
+        total = sum(len(r.cells) for r in local)
+        assert 5 <= killed["lines"] < total, "the worker must die mid-row"
+        for part, r in zip(journaled, remote):
+            boxes = [json.dumps(rec["box"], sort_keys=True) for rec in journal_records(part.journal)]
+            assert len(boxes) == len(set(boxes)) >= len(r.cells), "every attempt journaled exactly once"
+        assert cell_for_cell(remote) == cell_for_cell(local)
+        sizes = [Path(part.journal).stat().st_size for part in journaled]
+        again = pv.verify_parts(loop, journaled, executor=client, **kwargs)
+        assert [Path(part.journal).stat().st_size for part in journaled] == sizes, "a rerun takes every cell from the journals"
+        assert cell_for_cell(again) == cell_for_cell(local)
+        client.close()
+        with pytest.raises(ExecutorError, match=r"client is closed: connect a new one"):
+            pv.verify_parts(loop, parts, executor=client, **kwargs)
+
+
+def test_a_cluster_dying_mid_campaign_stops_it_with_the_fix_and_the_journal_resumes(tmp_path):
+    distributed = pytest.importorskip("distributed")
+    loop, p, v = mountain_car()
+    journal = tmp_path / "dead.jsonl"
+    kwargs = dict(MC, goal=p >= 0.45, split={"p": 400}, journal=str(journal))
+    cluster = distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None)
+    client = distributed.Client(cluster)
+
+    def close_when_started():
+        deadline = time.time() + 120
+        while time.time() < deadline and not (journal.exists() and len(journal_records(journal)) >= 3):
+            time.sleep(0.01)
+        cluster.close()
+
+    closer = threading.Thread(target=close_when_started)
+    closer.start()
+    try:
+        with pytest.raises(ExecutorError, match="rerun with a working executor to resume"):
+            pv.verify(loop, executor=client, **kwargs)
+    finally:
+        closer.join()
+        client.close()
+    done = journal_records(journal)
+    boxes = [tuple(r["box"]["p"]) for r in done]
+    assert 3 <= len(boxes) == len(set(boxes)) < 400
+    result = pv.verify(loop, **kwargs)  # resumed locally: the journaled cells are not run again
+    records = journal_records(journal)
+    assert records[: len(done)] == done and len({tuple(r["box"]["p"]) for r in records}) == len(records) == 400
+    assert result.verdict == "verified" and len(result.cells) == 400
+
+
+def test_a_loop_workers_cannot_get_is_refused_with_the_fix(tmp_path, monkeypatch):
+    loop, p, v = mountain_car()
+    net = loop.stages[0].component
+
+    class Mine(Network):  # a local class pickles by reference, which no worker can follow
+        pass
+
+    mine = pv.ClosedLoop(loop.plant, [pv.Stage(Mine(net.layers), inputs=["p", "v"], output="u")])
+    kwargs = dict(MC, goal=p >= 0.45, split={"p": 2}, journal=str(tmp_path / "never.jsonl"))
+    with pool(1) as executor:
+        with pytest.raises(ExecutorError, match="cannot be sent to the executor's workers.*or verify without executor="):
+            pv.verify(mine, executor=executor, **kwargs)
+    assert not (tmp_path / "never.jsonl").exists()
+
+    # A class the client imports from a module the workers lack: the worker names the fix.
+    (tmp_path / "user_networks.py").write_text("from percver.networks import Network\n\nclass Theirs(Network):\n    pass\n")
+    monkeypatch.syspath_prepend(str(tmp_path))
+    import user_networks
+
+    theirs = pv.ClosedLoop(loop.plant, [pv.Stage(user_networks.Theirs(net.layers), inputs=["p", "v"], output="u")])
+    prop = Property(theirs, None, None, p >= 0.45, True, 150)
+    payload = dumps((theirs, prop, *prop.rust(), True, 150))
+    monkeypatch.delitem(sys.modules, "user_networks")
+    sys.path.remove(str(tmp_path))
+    cells = [theirs.initial_box({"p": (-0.5, -0.499), "v": (0, 0)})]
+    with pytest.raises(ExecutorError, match="must be importable on the workers"):
+        run_batch("theirs", payload, cells, {"order": 5}, (0, 0))
 
 
 def test_timed_out_cells_are_split_to_min_width_then_unknown_with_the_reason():

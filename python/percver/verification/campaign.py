@@ -85,16 +85,41 @@ class Campaign:
                         if options:
                             self.chosen[cell_key(cell.to_dict())] = options
                     else:
-                        c = Cell(
-                            cell.to_dict(),
-                            "falsified",
-                            counterexample=cex,
-                            reason=f"simulation violates {cex.violated} at step {cex.step}",
-                            options=options,
-                        )
-                        self.journal.write(c)
-                        self.splitter.learn(cell, c, self.init)
-                        self._place(cell, c, None)
+                        self._probed(cell, cex, options)
+
+    def _probed(self, cell: Box, cex: Counterexample, options: dict):
+        """A cell whose probe (centre and corners) violates the property: falsified, no engine run."""
+        c = Cell(
+            cell.to_dict(),
+            "falsified",
+            counterexample=cex,
+            reason=f"simulation violates {cex.violated} at step {cex.step}",
+            options=options,
+        )
+        self.journal.write(c)
+        self.splitter.learn(cell, c, self.init)
+        self._place(cell, c, None)
+
+    def draw(self, n: int) -> list:
+        """Up to n cells for an executor as ``(box, options)``, unprobed: its workers probe, run and
+        sample them (:func:`percver.verification.executors.run_batch`), so the driver only journals
+        and splits. ``options`` are the engine settings the splitter chose for the cell."""
+        with self.lock:
+            drawn = self._draw(n)
+            for cell, options in drawn:
+                if options:
+                    self.chosen[cell_key(cell.to_dict())] = options
+            return drawn
+
+    def settle(self, cell: Box, outcome: dict):
+        """A cell's outcome from an executor's worker: ``{"probe": cex}`` when its probe falsified it
+        (no engine run), else ``{"outcome", "rss", "counterexample"}``: the engine's outcome, the
+        worker's peak RSS and what its random runs found (or None)."""
+        with self.lock:
+            if outcome.get("probe") is not None:
+                self._probed(cell, outcome["probe"], self.chosen.pop(cell_key(cell.to_dict()), {}))
+            else:
+                self._record(cell, outcome["outcome"], outcome["rss"], outcome["counterexample"])
 
     def _draw(self, want: int) -> list:
         """Up to ``want`` cells ``(box, options)`` not in the journal (the journal's are settled on

@@ -6,17 +6,22 @@ MPIPoolExecutor runs exactly the same code; a scheduler address ``"tcp://host:87
 Client first.
 
 The problem (plant, networks, property) is pickled once on the client and reaches each worker
-process about once: a task carries the problem's fingerprint and a batch of cells; a worker that
-does not hold that problem yet answers MISSING and the batch goes again with the problem, which
-the worker compiles and keeps. So a worker restarted after a crash gets the problem with its
-first batch, without set-up hooks (Dask plugins, pool initializers) that only some executors have.
-Outcomes come back per batch, in completion order, into the journal and the progress bar.
+process about once: a task carries the problem's key (a hash of its pickle) and a batch of cells;
+a worker that does not hold that problem yet answers MISSING and the batch goes again with the
+problem, which the worker compiles and keeps. So a worker restarted after a crash gets the
+problem with its first batch, without set-up hooks (Dask plugins, pool initializers) that only
+some executors have. Workers do all of a cell's work (probe, engine, random runs); the client
+only draws cells, journals outcomes as each batch completes, and queues sub-cells, so one client
+keeps many workers busy. A batch whose task fails (its worker died) is sent again; its cells were
+not journaled, and each drawn cell is in exactly one batch in flight, so none is lost or counted
+twice.
 """
 
 from __future__ import annotations
 
 import concurrent.futures as cf
 import copyreg
+import hashlib
 import io
 import os
 import pickle
@@ -26,12 +31,17 @@ from typing import Optional
 from percver.errors import InputError, MissingDependencyError, PercverError
 from percver.networks import Network
 from percver.verification.campaign import run_cells
+from percver.verification.falsify import falsify
 
 MISSING = "percver: the problem is not on this worker yet"
 RETRIES = 3  # resubmissions of a batch whose task failed (e.g. its worker died)
 TASK_SECONDS = 0.25  # batches are sized to run about this long: overhead per task stays small
+# Cells per batch at least while enough remain: a worker probes a batch's cells in one float
+# simulation, whose cost is mostly per step, not per run (Mountain Car's blur loop, measured:
+# 16 cells' probes cost 4 times 1 cell's, which is a tenth of the cell's engine run).
+PROBE_CELLS = 8
 MAX_BATCH = 512
-_PROBLEMS: OrderedDict = OrderedDict()  # in each worker process: fingerprint -> compiled loop
+_PROBLEMS: OrderedDict = OrderedDict()  # in each worker process: key -> (compiled problem, loop, property)
 _KEPT = 4
 
 
@@ -48,29 +58,58 @@ def _reduce_network(net: Network):
     return _network, (net.layers, net.scale, net.offset, net.name, net.input_names)
 
 
+def run_batch(key: str, payload: Optional[bytes], cells: list, options: dict, sampling: tuple):
+    """On a worker: per cell (a :class:`~percver.Box`) what the local pool does with it, or
+    MISSING. A cell whose probe (centre and corners) violates the property gives
+    ``{"probe": counterexample}`` without an engine run; the others run the engine (``options``,
+    the same for the batch) and give ``{"outcome": CellOutcome, "rss": peak MB, "counterexample":
+    ...}``, those it does not verify simulated from ``sampling`` = (random runs per cell, seed)
+    points. The runs depend only on the cell and the seed, so verdicts and counterexamples equal
+    a local run's."""
+    held = _PROBLEMS.get(key)
+    if held is None:
+        if payload is None:
+            return MISSING
+        try:
+            loop, prop, safe, goal, within, steps = pickle.loads(payload)
+        except (AttributeError, ImportError) as error:
+            raise ExecutorError(
+                f"a worker cannot load the problem ({error}): classes and functions the loop uses must be importable "
+                "on the workers (define them in a module installed there, not in __main__ or a notebook)"
+            ) from None
+        held = _PROBLEMS[key] = (loop.compile(safe=safe, goal=goal, within=within, steps=steps), loop, prop)
+        while len(_PROBLEMS) > _KEPT:
+            _PROBLEMS.popitem(last=False)
+    problem, loop, prop = held
+    samples, seed = sampling
+    out = [{"probe": cex} if cex is not None else None for cex in falsify(loop, prop, cells, prop.steps, 0, seed)]
+    engine = [k for k, o in enumerate(out) if o is None]
+    if engine:
+
+        def done(i, outcome, rss):
+            out[engine[i]] = {"outcome": outcome, "rss": rss, "counterexample": None}
+
+        run_cells(problem, [cells[k].bounds for k in engine], done, options, workers=1)
+    unverified = [k for k in engine if out[k]["outcome"].verdict != "verified"]
+    found = falsify(loop, prop, [cells[k] for k in unverified], prop.steps, samples, seed, probe=False) if samples > 0 else []
+    for k, cex in zip(unverified, found):
+        out[k]["counterexample"] = cex
+    return out
+
+
 def dumps(problem) -> bytes:
-    """``problem`` pickled, networks by their arrays."""
+    """``problem`` pickled, networks by their arrays; a part that cannot be pickled is named."""
     buffer = io.BytesIO()
     pickler = pickle.Pickler(buffer, protocol=pickle.HIGHEST_PROTOCOL)
     pickler.dispatch_table = {**copyreg.dispatch_table, Network: _reduce_network}
-    pickler.dump(problem)
+    try:
+        pickler.dump(problem)
+    except (pickle.PicklingError, TypeError, AttributeError) as error:
+        raise ExecutorError(
+            f"the loop cannot be sent to the executor's workers: {error}. Build it from percver's parts (expressions, "
+            "pv.Network, stages) and module-level classes, without lambdas, open files or locks, or verify without executor="
+        ) from None
     return buffer.getvalue()
-
-
-def run_batch(fingerprint: str, payload: Optional[bytes], cells: list, options: dict):
-    """On a worker: (outcome, peak RSS in MB) of each of ``cells`` (lists of (lo, hi)), or MISSING."""
-    problem = _PROBLEMS.get(fingerprint)
-    if problem is None:
-        if payload is None:
-            return MISSING
-        loop, safe, goal, within, steps = pickle.loads(payload)
-        problem = loop.compile(safe=safe, goal=goal, within=within, steps=steps)
-        _PROBLEMS[fingerprint] = problem
-        while len(_PROBLEMS) > _KEPT:
-            _PROBLEMS.popitem(last=False)
-    out = [None] * len(cells)
-    run_cells(problem, cells, lambda i, outcome, rss: out.__setitem__(i, (outcome, rss)), options, workers=1)
-    return out
 
 
 def _is_dask_client(obj) -> bool:
@@ -78,10 +117,21 @@ def _is_dask_client(obj) -> bool:
 
 
 class Runner:
-    """Feeds a campaign's cells to an executor in batches, a bounded number in flight."""
+    """Feeds the cells of all parts of a call to an executor in batches, a bounded number in flight
+    (a row of 10^4 cells never sits in the scheduler at once), and settles each batch's outcomes
+    into its part's journal as it completes."""
 
-    def __init__(self, executor, slots: Optional[int] = None, batch: Optional[int] = None):
+    def __init__(self, executor, problem: tuple, slots: Optional[int] = None, batch: Optional[int] = None):
+        """``problem`` = (loop, property, safe, goal, within, steps), pickled here: before any work."""
         self.client = None
+        if slots is not None and slots < 1:
+            raise InputError(f"workers must be at least 1, got {slots}")
+        if batch is not None and batch < 1:
+            raise InputError(f"batch must be at least 1 cell, got {batch}")
+        self.slots, self.batch = slots, batch
+        self.payload = dumps(problem)
+        # Workers keep compiled problems by this key: all parts of a call share one.
+        self.key = hashlib.sha256(self.payload).hexdigest()[:16]
         if isinstance(executor, str):
             try:
                 from distributed import Client
@@ -92,6 +142,8 @@ class Runner:
             except (OSError, TimeoutError) as error:
                 raise InputError(f"could not connect to a Dask scheduler at '{executor}': {error}") from None
         if _is_dask_client(executor):
+            if executor.status in ("closing", "closed"):
+                raise ExecutorError(f"the Dask client is {executor.status}: connect a new one (distributed.Client(cluster)) and rerun")
             # Asked again (1 ms) as batches go out: an adaptive cluster (dask-jobqueue) grows and shrinks.
             self.capacity = lambda: max(1, executor.scheduler_info(n_workers=0).get("total_threads", 1))
             # pure=False: a batch sent again after a failure must run again, not reuse the failure.
@@ -105,55 +157,61 @@ class Runner:
                 f"executor must be a dask.distributed.Client, a scheduler address 'tcp://host:8786' or a "
                 f"concurrent.futures.Executor, got {type(executor).__name__}"
             )
-        if slots is not None and slots < 1:
-            raise InputError(f"workers must be at least 1, got {slots}")
-        if batch is not None and batch < 1:
-            raise InputError(f"batch must be at least 1 cell, got {batch}")
-        self.slots, self.batch = slots, batch
 
     def close(self):
         if self.client is not None:
             self.client.close()
 
-    def _batch_size(self, campaign, capacity: int) -> int:
+    def _batch_size(self, campaign, remaining: int, capacity: int) -> int:
         if self.batch:
             return self.batch
         seconds, cells = campaign.cell_seconds
         by_time = TASK_SECONDS * cells / seconds if cells and seconds > 0 else 1
         # Near the end, smaller batches keep every worker busy.
-        by_share = campaign.remaining() // (2 * capacity)
-        return int(max(1, min(by_time, by_share, MAX_BATCH)))
+        by_share = remaining // (2 * capacity)
+        return int(max(1, min(max(by_time, PROBE_CELLS), by_share, MAX_BATCH)))
 
-    def run(self, campaign, problem: tuple, fingerprint: str, options: dict):
-        """Runs every cell of ``campaign``; ``problem`` = (loop, safe, goal, within, steps)."""
-        inflight: dict = {}
-        payload = None
+    def run(self, jobs: list):
+        """Runs every cell of ``jobs`` (campaign, engine options): batches come from the first part
+        that has cells, so the next part's cells fill the workers while a part's last ones run."""
+        inflight: dict = {}  # future -> (campaign, options, cells, tries); each drawn cell is in one
 
-        def submit(cells, data, tries):
+        def submit(campaign, options, cells, payload, tries):
+            sampling = (campaign.falsify, campaign.seed)
             try:
-                future = self.pool.submit(
-                    run_batch, fingerprint, data, [c.bounds for c in cells], {**options, **campaign.options_of(cells[0])}
-                )
-            except RuntimeError as error:  # BrokenProcessPool, or shut down
+                future = self.pool.submit(run_batch, self.key, payload, cells, options, sampling)
+            except Exception as error:  # BrokenProcessPool, a pool shut down, a Dask client closed (its cluster died)
                 raise ExecutorError(
                     f"the executor cannot take work ({error}); finished cells are in the journal: rerun with a working executor to resume"
                 ) from error
-            inflight[future] = (cells, tries)
+            inflight[future] = (campaign, options, cells, tries)
+
+        def fill():
+            capacity = self.capacity()
+            remaining = sum(campaign.remaining() for campaign, _ in jobs)
+            # Two batches per worker by default: the next one is queued while one runs.
+            while len(inflight) < (self.slots or 2 * capacity):
+                for campaign, options in jobs:
+                    drawn = campaign.draw(self._batch_size(campaign, remaining, capacity))
+                    # One batch per set of engine settings the splitter chose (e.g. rebox).
+                    groups: dict = {}
+                    for cell, chosen in drawn:
+                        groups.setdefault(tuple(sorted(chosen.items())), []).append(cell)
+                    for chosen, cells in groups.items():
+                        submit(campaign, {**options, **dict(chosen)}, cells, None, 0)
+                    if drawn:
+                        break
+                else:
+                    return
 
         try:
             while True:
-                capacity = self.capacity()
-                # Two batches per worker by default: the next one is queued while one runs.
-                while len(inflight) < (self.slots or 2 * capacity):
-                    cells = campaign.take(self._batch_size(campaign, capacity))
-                    if not cells:
-                        break
-                    submit(cells, None, 0)
+                fill()
                 if not inflight:
                     return
                 done, _ = cf.wait(inflight, return_when=cf.FIRST_COMPLETED)
                 for future in done:
-                    cells, tries = inflight.pop(future)
+                    campaign, options, cells, tries = inflight.pop(future)
                     try:
                         outcomes = future.result()
                     except PercverError:
@@ -162,17 +220,15 @@ class Runner:
                         if tries >= RETRIES:
                             raise ExecutorError(
                                 f"a batch of {len(cells)} cells failed {tries + 1} times on the executor "
-                                f"(last: {error!r}); finished cells are in the journal: rerun to resume"
+                                f"(last: {error!r}); finished cells are in the journal: rerun with a working executor to resume"
                             ) from error
-                        payload = payload or dumps(problem)
-                        submit(cells, payload, tries + 1)
+                        submit(campaign, options, cells, self.payload, tries + 1)
                         continue
                     if isinstance(outcomes, str):  # MISSING
-                        payload = payload or dumps(problem)
-                        submit(cells, payload, tries)
+                        submit(campaign, options, cells, self.payload, tries)
                         continue
-                    for cell, (outcome, rss) in zip(cells, outcomes):
-                        campaign.record(cell, outcome, rss)
+                    for cell, outcome in zip(cells, outcomes):
+                        campaign.settle(cell, outcome)
         finally:
             for future in inflight:
                 future.cancel()

@@ -144,8 +144,9 @@ def verify_parts(loop: ClosedLoop, parts: Sequence[Part], **options) -> list:
     Locally, all parts' cells share one pool of ``workers`` threads, each running one cell at a
     time and taking the next from the first part that has one: no core waits for the last cell
     of a batch or of a part (verifying the parts one after another left a core idle at each
-    part's end). On an executor the parts run one after another. ``options`` are :func:`verify`'s
-    keywords but a part's own (init, split, order, max_splits, journal), the same for every part."""
+    part's end). On an executor likewise: batches come from the first part that has cells.
+    ``options`` are :func:`verify`'s keywords but a part's own (init, split, order, max_splits,
+    journal), the same for every part."""
     unknown = sorted(set(options) - set(SHARED_KEYWORDS))
     if unknown:
         raise TypeError(f"verify_parts() got unexpected keyword arguments {unknown}; it takes {', '.join(SHARED_KEYWORDS)}")
@@ -202,7 +203,8 @@ def _verify_parts(loop, parts: Sequence[Part], keywords: dict) -> list:
     if o.executor is not None:
         from percver.verification.executors import Runner
 
-        runner = Runner(o.executor, slots=o.workers, batch=o.batch)  # checked (and connected) before any work
+        # Checked, pickled and connected before any work.
+        runner = Runner(o.executor, (loop, prop, safe_r, goal_r, o.within, o.steps), slots=o.workers, batch=o.batch)
     jobs = []
     lock = threading.RLock()  # one for all parts: they share the progress bar
     bar = Progress(lock)
@@ -220,7 +222,6 @@ def _verify_parts(loop, parts: Sequence[Part], keywords: dict) -> list:
                 }
                 if o.state_symbols:  # only when on, so that journals written before the option still resume
                     settings["state_symbols"] = True
-                fingerprint = fingerprint_of(loop, prop, settings)
                 options = {
                     "order": p.order,
                     "method": o.method,
@@ -229,19 +230,18 @@ def _verify_parts(loop, parts: Sequence[Part], keywords: dict) -> list:
                     "rebox": bool(o.rebox),
                     "state_symbols": bool(o.state_symbols),
                 }
-                journal = Journal(p.journal, fingerprint)
+                journal = Journal(p.journal, fingerprint_of(loop, prop, settings))
                 journals.callback(journal.close)
                 campaign = Campaign(
                     loop, prop, box, splitter, cells, journal, bar, timeout=o.timeout_per_cell, falsify=o.falsify, seed=o.seed, lock=lock
                 )
-                jobs.append((campaign, settings, fingerprint, options))
+                jobs.append((campaign, settings, options))
             if o.progress:
                 bar.start(sum(campaign.left for campaign, *_ in jobs))
             if runner is None:
-                run_local([(campaign, problem, options) for campaign, _, _, options in jobs], o.workers, bar)
+                run_local([(campaign, problem, options) for campaign, _, options in jobs], o.workers, bar)
             else:
-                for campaign, _, fingerprint, options in jobs:
-                    runner.run(campaign, (loop, safe_r, goal_r, o.within, o.steps), fingerprint, options)
+                runner.run([(campaign, options) for campaign, _, options in jobs])
     finally:
         if runner is not None:
             runner.close()
@@ -249,7 +249,7 @@ def _verify_parts(loop, parts: Sequence[Part], keywords: dict) -> list:
     seconds = time.time() - started
     results = [
         Result(loop.states, box.to_dict(), campaign.cells, seconds, settings, domain_exits(checks, runs(campaign.cells, loop.states)))
-        for box, (campaign, settings, _, _) in zip(boxes, jobs)
+        for box, (campaign, settings, _) in zip(boxes, jobs)
     ]
     for result in results:
         _record_held(loop, result)
