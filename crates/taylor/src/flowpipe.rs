@@ -114,7 +114,8 @@ impl Settings {
         }
         Ok(())
     }
-    fn max_order(&self) -> usize {
+    /// The highest order a step may use (the space's order must reach it).
+    pub fn max_order(&self) -> usize {
         match self.order {
             OrderPolicy::Fixed(k) => k,
             OrderPolicy::Adaptive { max, .. } => max,
@@ -176,7 +177,7 @@ impl Flowpipe {
 }
 
 /// x = c + r z maps z in [-1, 1] onto a box side (r rounded up, so the image covers it).
-fn initial_affine(iv: &Interval) -> (f64, f64) {
+pub(crate) fn initial_affine(iv: &Interval) -> (f64, f64) {
     let m = iv.mid();
     (m, (iv.hi() - m).max(m - iv.lo()).next_up())
 }
