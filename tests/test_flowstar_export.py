@@ -30,7 +30,7 @@ def samples(box: list, seed: int = 0) -> np.ndarray:
 def exported_outputs(network: pv.Network, box: list, tmp_path: Path) -> list:
     path = network.to_flowstar(tmp_path / "network.model", box)
     model = pv.formats.load_flowstar(str(path))
-    assert isinstance(model, pv.formats.HybridModel)
+    assert isinstance(model, pv.formats.FlowstarHybrid)
     final = model.run().final_box("_out")
     return [final[f"y{k + 1}"] for k in range(network.n_out)]
 

@@ -251,7 +251,9 @@ pub fn reach_from(
 
 /// [`reach_from`] that hands `on_step(t, segment, state)` the state at time t (the end of the
 /// step, as Taylor models with the symbolic remainder folded in) after every step: hybrid
-/// automata take jumps from the states between the segments.
+/// automata take jumps from the states between the segments. Its `final_box` is the naive
+/// bound: hybrid runs go on from `final_state` (the dominated bounder there cost most of a run
+/// at order 4).
 pub fn reach_from_steps(
     ode: &Ode,
     state: Vec<TaylorModel>,
@@ -259,7 +261,7 @@ pub fn reach_from_steps(
     settings: &Settings,
     on_step: &mut dyn FnMut(f64, &Segment, Vec<TaylorModel>) -> bool,
 ) -> Result<Flowpipe> {
-    flow_from(ode, state, space, settings, &mut |t, seg, state| on_step(t, seg, state()), crate::bound::range)
+    flow_from(ode, state, space, settings, &mut |t, seg, state| on_step(t, seg, state()), TaylorModel::bound)
 }
 
 /// [`reach_from`] with `final_box` the naive bound of each final model (monomial by monomial,
