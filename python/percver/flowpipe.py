@@ -339,12 +339,15 @@ class HybridFlowpipe:
         full = np.column_stack([np.atleast_2d(np.asarray(states, dtype=float)), t])
         if full.shape != (len(t), len(self.names)):
             raise InputError(f"contains needs one state of {len(self.names) - 1} values per time, got {full.shape[1] - 1}")
-        inside = np.all(
-            (full[:, None, :] >= self.array[None, :, :, 0] - tol) & (full[:, None, :] <= self.array[None, :, :, 1] + tol), axis=2
-        )
-        if modes is not None:
-            inside &= np.asarray(modes)[:, None] == np.asarray(self.modes)[None, :]
-        return inside.any(axis=1)
+        out = np.zeros(len(t), dtype=bool)
+        lo, hi = self.array[None, :, :, 0] - tol, self.array[None, :, :, 1] + tol
+        for a in range(0, len(t), 256):  # rows x steps x variables at a time: bounded memory
+            part = full[a : a + 256, None, :]
+            inside = np.all((part >= lo) & (part <= hi), axis=2)
+            if modes is not None:
+                inside &= np.asarray(modes)[a : a + 256, None] == np.asarray(self.modes)[None, :]
+            out[a : a + 256] = inside.any(axis=1)
+        return out
 
 
 def hybrid_flowpipe(

@@ -257,6 +257,13 @@ pub fn reach(aut: &Automaton, start: usize, init: &[Interval], t_end: f64, flow:
     if aut.names.iter().any(|v| v == TIME) {
         return Err(TaylorError::input(format!("'{TIME}' is the clock reachability adds; rename the automaton's variable")));
     }
+    if n + 2 > crate::space::MAX_VARS {
+        return Err(TaylorError::input(format!(
+            "the automaton has {n} variables; its Taylor models (over them, the clock '{TIME}' and the step time) hold at most {}: \
+             drop the variables no mode or jump changes, or split the automaton",
+            crate::space::MAX_VARS - 2
+        )));
+    }
     let timed = with_horizon(aut, t_end)?;
     let order = flow.max_order();
     let space = Space::get(n + 2, order, 1)?;
@@ -265,9 +272,14 @@ pub fn reach(aut: &Automaton, start: usize, init: &[Interval], t_end: f64, flow:
     let mut remainder = flow.remainder_estimate.clone();
     remainder.push(remainder.iter().copied().fold(f64::MIN_POSITIVE, f64::min));
     let flow = Settings { remainder_estimate: remainder, ..flow.clone() };
-    // Long enough for every run to reach the horizon: a branch's runs may have entered its
-    // mode up to t_end earlier than its latest one.
-    let limits = Limits { contract: (1..=n).collect(), max_time: 2.0 * t_end, ..limits.clone() };
+    // Never the reason a run stops (the clock is): a visit flows at most t_end and a step past
+    // it, and a branch's latest entry time sums its visits' latest jump times.
+    let step = match flow.step {
+        crate::StepSize::Fixed(h) => h,
+        crate::StepSize::Adaptive { max, .. } => max,
+    };
+    let max_time = (t_end + step) * (limits.max_jumps as f64 + 2.0);
+    let limits = Limits { contract: (1..=n).collect(), max_time, ..limits.clone() };
     Ok((run(&timed, start, state, &space, &flow, &limits)?, space))
 }
 
