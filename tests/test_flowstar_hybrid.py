@@ -161,7 +161,10 @@ def test_two_nonlinear_modes(tmp_path, jumps):
     x0 = rng.uniform([0.9, 0.9], [1.0, 1.0], (1000, 2))
     x0[:4] = [[0.9, 0.9], [0.9, 1.0], [1.0, 0.9], [1.0, 1.0]]
     cross = (lambda _rng: lambda y: y[0] - 1.2, 1, "damped", lambda y: np.array([y[0], 0.5 * y[1]]))
-    automaton = {"vdp": (lambda y: [y[1], (1 - y[0] ** 2) * y[1] - y[0]], [cross]), "damped": (lambda y: [y[1], -np.sin(y[0]) - 0.5 * y[1]], [])}
+    automaton = {
+        "vdp": (lambda y: [y[1], (1 - y[0] ** 2) * y[1] - y[0]], [cross]),
+        "damped": (lambda y: [y[1], -np.sin(y[0]) - 0.5 * y[1]], []),
+    }
     times = np.linspace(0, 2.0, 81)
     states, where, finals = simulate(x0, 2.0, automaton, "vdp", times, rng)
     assert (where[:, -1] == "damped").all()

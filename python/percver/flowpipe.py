@@ -355,7 +355,7 @@ def hybrid_flowpipe(
     init: BoxLike,
     t_end: float,
     *,
-    order: int = 6,
+    order: Union[int, Sequence[int]] = 6,
     step: Union[None, float, Sequence[float]] = None,
     cutoff: float = 1e-10,
     remainder: Union[None, float, Sequence[float]] = None,
@@ -367,7 +367,8 @@ def hybrid_flowpipe(
     box ``init`` in its start mode, up to ``t_end``: Flow*'s hybrid reachability. The runs with
     more than ``max_jumps`` jumps (default: the plant's) are not followed, as in Flow*.
 
-    ``step`` is a float (fixed; default the plant's) or (min, max) (adaptive); ``remainder`` one
+    ``step`` is a float (fixed; default the plant's) or (min, max) (adaptive), ``order`` an int or
+    (min, max) (adaptive); ``remainder`` one
     estimate for all variables or one per variable. ``jumps="box"`` boxes the state at every jump
     instead of carrying its Taylor models (sound, wider: for comparison). ``max_branches`` bounds
     the branches followed at once (beyond, states of one jump are aggregated).
