@@ -1,8 +1,10 @@
-"""Flow* hybrid models of our own, read by pv.formats.load_flowstar and run with Taylor models
+"""Flow* hybrid models of our own (examples/flowstar), read by pv.formats.load_flowstar and run with Taylor models
 carried through the jumps (and boxed at the jumps, for comparison): thousands of runs simulated
 in floats by scipy (DOP853, tight tolerances, the guards as events), written from the physics
 and not from the parsed model, must lie in the computed step boxes at their times and in the
 boxes at the horizon."""
+
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -10,33 +12,7 @@ from scipy.integrate import solve_ivp
 
 import percver as pv
 
-SETTING = """
- setting
- {{
-  fixed steps {step}
-  time {time}
-  remainder estimation 1e-4
-  identity precondition
-  gnuplot octagon x, y
-  fixed orders {order}
-  cutoff 1e-12
-  precision 53
-  output out
-  max jumps {jumps}
-  print off
- }}
-"""
-
-
-def model(tmp_path, name: str, variables: str, setting: dict, modes: str, jumps: str, init: str) -> str:
-    path = tmp_path / f"{name}.model"
-    text = f"hybrid reachability\n{{\n state var {variables}\n{SETTING.format(**setting)}\n modes\n {{\n{modes}\n }}\n jumps\n {{\n{jumps}\n }}\n init\n {{\n{init}\n }}\n}}\n"
-    path.write_text(text)
-    return str(path)
-
-
-def ode(rhs, t_end, y0, events, max_step=np.inf):
-    return solve_ivp(lambda _t, y: rhs(y), (0.0, t_end), y0, method="DOP853", rtol=1e-12, atol=1e-13, events=events, max_step=max_step)
+EXAMPLES = Path(__file__).resolve().parents[1] / "examples" / "flowstar"
 
 
 def event(g, direction):
@@ -93,17 +69,9 @@ def check(run, times, states, where, finals, names):
     return hi - lo
 
 
-BALL = dict(
-    variables="x, y",
-    modes="  fly\n  {\n   poly ode 1\n   {\n    x' = y\n    y' = -9.81\n   }\n   inv\n   {\n    x >= 0\n   }\n  }",
-    jumps="  fly -> fly\n  guard { x <= 0 y <= 0 }\n  reset { y' := -0.8 * y }\n  interval aggregation",
-    init="  fly\n  {\n   x in [1, 1.1]\n   y in [0, 0]\n  }",
-)
-
-
 @pytest.mark.parametrize("jumps", ["taylor", "box"])
-def test_bouncing_ball(tmp_path, jumps):
-    path = model(tmp_path, "ball", setting=dict(step=0.01, time=1.5, order=5, jumps=5), **BALL)
+def test_bouncing_ball(jumps):
+    path = str(EXAMPLES / "bouncing_ball.model")
     run = pv.formats.load_flowstar(path).run(jumps=jumps)
     assert run.failure is None and run.jumps == jumps
     rng = np.random.default_rng(1)
@@ -117,18 +85,9 @@ def test_bouncing_ball(tmp_path, jumps):
     assert widths[0] < 1.0 and widths[1] < 1.5, widths  # the sampled spread is about 0.12 and 0.8
 
 
-THERMOSTAT = dict(
-    variables="x",
-    modes="  on\n  {\n   nonpoly ode\n   {\n    x' = -0.5 * x + 15\n   }\n   inv\n   {\n    x <= 22\n   }\n  }\n"
-    "  off\n  {\n   nonpoly ode\n   {\n    x' = -0.5 * x\n   }\n   inv\n   {\n    x >= 18\n   }\n  }",
-    jumps="  on -> off\n  guard { x >= 21 }\n  interval aggregation\n  off -> on\n  guard { x <= 19 }\n  interval aggregation",
-    init="  on\n  {\n   x in [18.5, 19]\n  }",
-)
-
-
-def test_thermostat_switching_anywhere_in_its_guards(tmp_path):
+def test_thermostat_switching_anywhere_in_its_guards():
     # Each jump may fire anywhere between its guard and the invariant: the runs draw the point.
-    path = model(tmp_path, "thermostat", setting=dict(step=0.02, time=2.0, order=4, jumps=20), **THERMOSTAT)
+    path = str(EXAMPLES / "thermostat.model")
     run = pv.formats.load_flowstar(path).run()
     assert run.failure is None
     rng = np.random.default_rng(2)
@@ -143,18 +102,9 @@ def test_thermostat_switching_anywhere_in_its_guards(tmp_path):
     assert {m for m, _ in run.finals} == {"on", "off"}
 
 
-TWO_MODES = dict(
-    variables="x, y",
-    modes="  vdp\n  {\n   nonpoly ode\n   {\n    x' = y\n    y' = (1 - x^2) * y - x\n   }\n   inv\n   {\n    x <= 1.2\n   }\n  }\n"
-    "  damped\n  {\n   nonpoly ode\n   {\n    x' = y\n    y' = -sin(x) - 0.5 * y\n   }\n  }",
-    jumps="  vdp -> damped\n  guard { x >= 1.2 }\n  reset { y' := 0.5 * y }\n  interval aggregation",
-    init="  vdp\n  {\n   x in [0.9, 1]\n   y in [0.9, 1]\n  }",
-)
-
-
 @pytest.mark.parametrize("jumps", ["taylor", "box"])
-def test_two_nonlinear_modes(tmp_path, jumps):
-    path = model(tmp_path, "two", setting=dict(step=0.02, time=2.0, order=5, jumps=2), **TWO_MODES)
+def test_two_nonlinear_modes(jumps):
+    path = str(EXAMPLES / "two_modes.model")
     run = pv.formats.load_flowstar(path).run(jumps=jumps)
     assert run.failure is None
     rng = np.random.default_rng(3)
@@ -171,8 +121,8 @@ def test_two_nonlinear_modes(tmp_path, jumps):
     check(run, times, states, where, finals, ["x", "y"])
 
 
-def test_taylor_models_through_jumps_are_tighter_than_boxes(tmp_path):
-    path = model(tmp_path, "two", setting=dict(step=0.02, time=2.0, order=5, jumps=2), **TWO_MODES)
+def test_taylor_models_through_jumps_are_tighter_than_boxes():
+    path = str(EXAMPLES / "two_modes.model")
     spec = pv.formats.load_flowstar(path)
     widths = {j: sum(hi - lo for lo, hi in list(spec.run(jumps=j).final_box().values())[:2]) for j in ("taylor", "box")}
     assert widths["taylor"] < widths["box"], widths
@@ -180,18 +130,19 @@ def test_taylor_models_through_jumps_are_tighter_than_boxes(tmp_path):
 
 class TestBadInput:
     def test_undeclared_variables_name_file_and_line(self, tmp_path):
-        bad = dict(BALL, jumps=BALL["jumps"].replace("y <= 0", "z <= 0"))
-        path = model(tmp_path, "bad", setting=dict(step=0.01, time=1, order=4, jumps=5), **bad)
-        line = open(path).read().split("\n").index("  guard { x <= 0 z <= 0 }") + 1
+        text = (EXAMPLES / "bouncing_ball.model").read_text()
+        path = tmp_path / "bad.model"
+        path.write_text(text.replace("guard { x <= 0 y <= 0 }", "guard { x <= 0 z <= 0 }"))
+        line = text.split("\n").index("  guard { x <= 0 y <= 0 }") + 1
         with pytest.raises(pv.ParseError, match=rf"bad.model, line {line}: .*'z' not declared in 'state var'"):
-            pv.formats.load_flowstar(path)
+            pv.formats.load_flowstar(str(path))
 
     def test_automata_wider_than_taylor_models_name_the_limit(self, tmp_path):
         names = ", ".join(f"v{i}" for i in range(40))
-        wide = dict(BALL, variables=f"x, y, {names}")
-        path = model(tmp_path, "wide", setting=dict(step=0.01, time=1, order=4, jumps=5), **wide)
+        path = tmp_path / "wide.model"
+        path.write_text((EXAMPLES / "bouncing_ball.model").read_text().replace("state var x, y", f"state var x, y, {names}"))
         with pytest.raises(pv.InputError, match="42 variables"):
-            pv.formats.load_flowstar(path).run()
+            pv.formats.load_flowstar(str(path)).run()
 
     def test_hybrid_flowpipe_needs_an_automaton_without_inputs(self):
         x, u = pv.variables("x u")
