@@ -91,7 +91,7 @@ def test_thermostat_switching_anywhere_in_its_guards():
     run = pv.formats.load_flowstar(path).run()
     assert run.failure is None
     rng = np.random.default_rng(2)
-    x0 = rng.uniform(18.5, 19.0, (400, 1))
+    x0 = rng.uniform(18.5, 19.0, (200, 1))
     up = (lambda rng: (lambda c: lambda y: y[0] - c)(rng.uniform(21, 22)), 1, "off", np.array)
     down = (lambda rng: (lambda c: lambda y: y[0] - c)(rng.uniform(18, 19)), -1, "on", np.array)
     automaton = {"on": (lambda y: [-0.5 * y[0] + 15], [up]), "off": (lambda y: [-0.5 * y[0]], [down])}
