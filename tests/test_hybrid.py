@@ -89,7 +89,7 @@ def test_bouncing_ball_in_a_closed_loop_encloses_every_simulated_run():
 def test_hybrid_plant_errors_name_the_fix():
     fly = pv.Mode({x: v, v: -G})
     with pytest.raises(pv.InputError, match="no jump returns to the controller"):
-        pv.Hybrid({"fly": fly}, [pv.Jump("fly", "fly", guard=[x <= 0])], max_time=1, step=0.1)
+        pv.ClosedLoop(pv.Hybrid({"fly": fly}, [pv.Jump("fly", "fly", guard=[x <= 0])], max_time=1, step=0.1))
     with pytest.raises(pv.InputError, match="names mode"):
         pv.Hybrid({"fly": fly}, [pv.Jump("fly", "land", guard=[x <= 0]), pv.Jump("fly", None)], max_time=1, step=0.1)
     with pytest.raises(pv.InputError, match="not states"):

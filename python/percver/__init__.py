@@ -39,7 +39,7 @@ from percver.expr import (
     variables,
     where,
 )
-from percver.flowpipe import Flowpipe, flowpipe
+from percver.flowpipe import Flowpipe, HybridFlowpipe, flowpipe, hybrid_flowpipe
 from percver.sets import Box
 from percver.properties import all_of, any_of, during
 from percver.systems import ClosedLoop, Continuous, Discrete, Hybrid, Jump, Mode, Stage

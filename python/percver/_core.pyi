@@ -258,6 +258,39 @@ def flowpipe(
     """A validated flowpipe of ``d names / dt = rhs`` from ``init`` to ``t_end``; ``step`` fixed or
     (min, max) adaptive, ``order`` fixed or (min, max) adaptive."""
 
+class HybridRun:
+    """A hybrid automaton's reach set: its segments per mode and its states at the horizon, over
+    the automaton's variables and the clock ``time`` (the last)."""
+
+    @property
+    def names(self) -> list[str]: ...
+    def segments(self) -> list[Tuple[int, float, float, list[Tuple[float, float]]]]:
+        """Per segment: (mode index, t0, t1, [(lo, hi) per variable])."""
+    def finals(self) -> list[Tuple[int, list[Tuple[float, float]]]]:
+        """Per state at the horizon: (mode index, [(lo, hi) per variable])."""
+    @property
+    def failure(self) -> Optional[str]: ...
+    @property
+    def aggregations(self) -> int: ...
+
+def hybrid_reach(
+    names: Sequence[str],
+    modes: Sequence[Tuple[str, Sequence[Expr], Sequence[Tuple[Expr, str]]]],
+    jumps: Sequence[Tuple[int, Optional[int], Sequence[Tuple[Expr, str]], Optional[Sequence[Expr]], bool]],
+    start: int,
+    init: Bounds,
+    t_end: float,
+    step: Union[float, Tuple[float, float]],
+    order: Union[int, Tuple[int, int]],
+    cutoff: float,
+    remainder: Sequence[float],
+    max_jumps: int,
+    max_branches: int,
+    box_at_jumps: bool,
+) -> HybridRun:
+    """The reach set of the automaton from the box ``init`` in mode ``start`` up to ``t_end`` and
+    ``max_jumps`` jumps, Flow*'s way; with ``box_at_jumps`` the state is boxed at every jump."""
+
 class CellSettings:
     """How each cell is verified; every keyword left out takes the engine's default (Rust's
     ``CellSettings::default()``, the one source of them)."""

@@ -80,6 +80,15 @@ class Flowpipe:
             tuple(self.names), tuple((float(self.array[:, j, 0].min()), float(self.array[:, j, 1].max())) for j in range(len(self.names)))
         )
 
+    def reach_box(self, mode: Optional[str] = None) -> dict:
+        """Hull of the step boxes (of those in ``mode``, if given): every state the runs reach
+        there, e.g. the outputs of a network's last, zero-dwell mode."""
+        keep = [i for i, m in enumerate(self.modes) if mode is None or m == mode]
+        if not keep:
+            raise InputError(f"no run reaches mode '{mode}' (modes reached: {sorted(set(self.modes))})")
+        part = self.array[keep]
+        return {v: (float(part[:, j, 0].min()), float(part[:, j, 1].max())) for j, v in enumerate(self.names)}
+
     def contains(self, t: np.ndarray, states: np.ndarray, tol: float = 0.0) -> np.ndarray:
         """Whether states (N x n) at times t (N) lie in the box of a step whose closed time interval holds their time.
 
@@ -282,3 +291,113 @@ def flowpipe(
         error.partial = result
         raise error
     return result
+
+
+class HybridFlowpipe:
+    """The reach set of a hybrid automaton up to a time horizon: one box per integration step
+    of every mode visit (``modes[i]`` the mode, ``times[i]`` the step's time span, ``array[i]``
+    its box), and the boxes of the states at the horizon (``finals``, with their modes).
+
+    The boxes cover the automaton's states and the clock ``time`` (the last column), the time
+    since the start, exact for every run: a run at time t is in a step box whose ``time``
+    interval holds t. ``jumps`` says how the state crossed the jumps: ``"taylor"`` (Taylor
+    models carried through, Flow*'s way) or ``"box"`` (boxed at every jump).
+    """
+
+    def __init__(self, raw, mode_names: list, jumps: str):
+        self.names = list(raw.names)
+        segments = raw.segments()
+        n = len(self.names)
+        self.modes = [mode_names[m] for m, *_ in segments]
+        self.times = np.array([(t0, t1) for _, t0, t1, _ in segments], dtype=float).reshape(-1, 2)
+        self.array = np.array([b for *_, b in segments], dtype=float).reshape(-1, n, 2)
+        self.finals = [(mode_names[m], {v: tuple(b) for v, b in zip(self.names, box)}) for m, box in raw.finals()]
+        self.failure: Optional[str] = raw.failure
+        self.aggregations = raw.aggregations
+        self.jumps = jumps
+
+    def final_box(self, mode: Optional[str] = None) -> dict:
+        """Hull of the boxes at the horizon (of the runs in ``mode``, if given): ``{variable: (lo, hi)}``."""
+        boxes = [b for m, b in self.finals if mode is None or m == mode]
+        if not boxes:
+            raise InputError(f"no run is in mode '{mode}' at the horizon (final modes: {sorted({m for m, _ in self.finals})})")
+        return {v: (min(b[v][0] for b in boxes), max(b[v][1] for b in boxes)) for v in self.names}
+
+    def reach_box(self, mode: Optional[str] = None) -> dict:
+        """Hull of the step boxes (of those in ``mode``, if given): every state the runs reach
+        there, e.g. the outputs of a network's last, zero-dwell mode."""
+        keep = [i for i, m in enumerate(self.modes) if mode is None or m == mode]
+        if not keep:
+            raise InputError(f"no run reaches mode '{mode}' (modes reached: {sorted(set(self.modes))})")
+        part = self.array[keep]
+        return {v: (float(part[:, j, 0].min()), float(part[:, j, 1].max())) for j, v in enumerate(self.names)}
+
+    def contains(self, t: np.ndarray, states: np.ndarray, modes: Optional[Sequence[str]] = None, tol: float = 0.0) -> np.ndarray:
+        """Whether states (N x n, the automaton's variables without the clock) at times t (N), in
+        ``modes`` (N names, if given), lie in a step box of their mode whose clock holds t."""
+        t = np.asarray(t, dtype=float).reshape(-1)
+        full = np.column_stack([np.atleast_2d(np.asarray(states, dtype=float)), t])
+        if full.shape != (len(t), len(self.names)):
+            raise InputError(f"contains needs one state of {len(self.names) - 1} values per time, got {full.shape[1] - 1}")
+        out = np.zeros(len(t), dtype=bool)
+        lo, hi = self.array[None, :, :, 0] - tol, self.array[None, :, :, 1] + tol
+        for a in range(0, len(t), 256):  # rows x steps x variables at a time: bounded memory
+            part = full[a : a + 256, None, :]
+            inside = np.all((part >= lo) & (part <= hi), axis=2)
+            if modes is not None:
+                inside &= np.asarray(modes)[a : a + 256, None] == np.asarray(self.modes)[None, :]
+            out[a : a + 256] = inside.any(axis=1)
+        return out
+
+
+def hybrid_flowpipe(
+    plant,
+    init: BoxLike,
+    t_end: float,
+    *,
+    order: Union[int, Sequence[int]] = 6,
+    step: Union[None, float, Sequence[float]] = None,
+    cutoff: float = 1e-10,
+    remainder: Union[None, float, Sequence[float]] = None,
+    max_jumps: Optional[int] = None,
+    max_branches: int = 64,
+    jumps: str = "taylor",
+) -> HybridFlowpipe:
+    """Sound reach set of the :class:`percver.Hybrid` automaton ``plant`` (without inputs) from the
+    box ``init`` in its start mode, up to ``t_end``: Flow*'s hybrid reachability. The runs with
+    more than ``max_jumps`` jumps (default: the plant's) are not followed, as in Flow*.
+
+    ``step`` is a float (fixed; default the plant's) or (min, max) (adaptive), ``order`` an int or
+    (min, max) (adaptive); ``remainder`` one
+    estimate for all variables or one per variable. ``jumps="box"`` boxes the state at every jump
+    instead of carrying its Taylor models (sound, wider: for comparison). ``max_branches`` bounds
+    the branches followed at once (beyond, states of one jump are aggregated).
+    """
+    if plant.inputs:
+        raise InputError(f"the hybrid plant reads inputs {plant.inputs}: give it a controller (pv.ClosedLoop) or write them as states")
+    if jumps not in ("taylor", "box"):
+        raise InputError(f"jumps must be 'taylor' (Taylor models through the jumps) or 'box' (boxed at each jump), got {jumps!r}")
+    if not (isinstance(t_end, (int, float)) and t_end > 0 and np.isfinite(t_end)):
+        raise InputError(f"t_end must be a finite positive number, got {t_end!r}")
+    names, modes, jump_args, start, *_ = plant._core([])
+    box = Box.coerce(init, names)
+    step = plant.step if step is None else step
+    step_arg = (float(step[0]), float(step[1])) if isinstance(step, (list, tuple)) else float(step)
+    remainder = plant.remainder if remainder is None else remainder
+    rem = [float(r) for r in remainder] if isinstance(remainder, (list, tuple)) else [float(remainder)] * len(names)
+    raw = _core.hybrid_reach(
+        names,
+        modes,
+        jump_args,
+        start,
+        list(box.bounds),
+        float(t_end),
+        step_arg,
+        int(order),
+        float(cutoff),
+        rem,
+        plant.max_jumps if max_jumps is None else int(max_jumps),
+        int(max_branches),
+        jumps == "box",
+    )
+    return HybridFlowpipe(raw, list(plant.modes), jumps)

@@ -155,7 +155,8 @@ class Jump:
 class Hybrid:
     """A hybrid plant: each control period starts in mode ``start`` with the inputs held, flows
     through modes and jumps, and ends at a jump whose target is ``None``; the states then are the
-    next step's. Verification carries Taylor models through the jumps and follows every mode
+    next step's. On its own (without a controller), :func:`percver.flowpipe.hybrid_flowpipe`
+    computes its reach set up to a time horizon. Verification carries Taylor models through the jumps and follows every mode
     sequence the set may take (``max_splits`` bounds the branches; beyond, they are aggregated).
     A period fails if a run flows longer than ``max_time`` or jumps more than ``max_jumps`` times.
     """
@@ -193,8 +194,6 @@ class Hybrid:
                 raise InputError(f"jump {j.source} -> {j.target} resets {sorted(unknown)}, which are not states ({self.states})")
         if self.start not in self.modes:
             raise InputError(f"start mode '{self.start}' is not one of {list(self.modes)}")
-        if not any(j.target is None for j in self.jumps):
-            raise InputError("no jump returns to the controller: give one with target None, e.g. pv.Jump('fly', None, guard=['c >= 0.1'])")
         clash = set(self.states) & set(self.inputs)
         if clash:
             raise InputError(f"{sorted(clash)} are declared both as states and as inputs")
@@ -463,6 +462,10 @@ class ClosedLoop:
                     f"the plant uses {sorted(unknown)}, which are neither states nor its declared inputs{self._vector_hint(unknown)}"
                 )
         if isinstance(plant, Hybrid):
+            if not any(j.target is None for j in plant.jumps):
+                raise InputError(
+                    "no jump returns to the controller: give one with target None, e.g. pv.Jump('fly', None, guard=['c >= 0.1'])"
+                )
             wide = [u for u in plant.inputs if len(self.signals.get(u, [0])) != 1]
             if wide:
                 raise InputError(f"hybrid plant inputs must be scalar signals; {wide} are vectors")

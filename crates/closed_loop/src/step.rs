@@ -298,6 +298,8 @@ pub(crate) fn one_step(
                     max_branches: crate::hybrid::BRANCHES,
                     max_exits: most,
                     contract,
+                    drop_past_max_jumps: false,
+                    box_at_jumps: false,
                 };
                 match crate::hybrid::run_period(lp, step, automaton, *start, flow, limits, state, &held, ctx, hulls)? {
                     Ok(next) => next,

@@ -30,10 +30,11 @@ pub enum PlantArg {
 /// most jumps per period). A mode: (name, right-hand sides, invariant); a jump: (source index,
 /// target index or None for "back to the controller", guard, reset of every variable or None,
 /// urgent); a constraint: (margin, op) meaning `margin op 0`.
-type HybridArg = (Vec<String>, Vec<(String, Vec<PyExpr>, Vec<(PyExpr, String)>)>, Vec<JumpArg>, usize, Vec<usize>, f64, f64, f64, usize);
-type JumpArg = (usize, Option<usize>, Vec<(PyExpr, String)>, Option<Vec<PyExpr>>, bool);
+type HybridArg = (Vec<String>, Vec<ModeArg>, Vec<JumpArg>, usize, Vec<usize>, f64, f64, f64, usize);
+pub type ModeArg = (String, Vec<PyExpr>, Vec<(PyExpr, String)>);
+pub type JumpArg = (usize, Option<usize>, Vec<(PyExpr, String)>, Option<Vec<PyExpr>>, bool);
 
-fn automaton(names: Vec<String>, modes: Vec<(String, Vec<PyExpr>, Vec<(PyExpr, String)>)>, jumps: Vec<JumpArg>) -> PyResult<Automaton> {
+pub fn automaton(names: Vec<String>, modes: Vec<ModeArg>, jumps: Vec<JumpArg>) -> PyResult<Automaton> {
     let constraints = |list: Vec<(PyExpr, String)>| -> PyResult<Vec<Constraint>> {
         list.into_iter().map(|(margin, op)| Ok(Constraint { margin: Arc::new(compile(&[margin], &names)?), cmp: cmp(&op)? })).collect()
     };

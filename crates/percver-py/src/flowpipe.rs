@@ -1,12 +1,16 @@
-//! `percver._core.flowpipe`: ODE reachability, the GIL released while integrating.
+//! `percver._core.flowpipe` and `hybrid_reach`: ODE and hybrid-automaton reachability, the GIL
+//! released while integrating.
+use crate::closed_loop::{automaton, JumpArg, ModeArg};
 use crate::error::IntoPy;
 use crate::expr::{to_intervals, PyExpr};
 use numpy::{PyArray2, PyArray3, ToPyArray};
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
+use std::sync::Arc;
 use taylor::bound::Bounder;
 use taylor::flowpipe::normalise_initial_point;
-use taylor::{reach, Flowpipe, Interval, Ode, OrderPolicy, Precondition, Settings, StepSize};
+use taylor::hybrid::{self, Limits, Run};
+use taylor::{reach, Flowpipe, Interval, Ode, OrderPolicy, Precondition, Settings, Space, StepSize, TaylorModel};
 
 #[pyclass(name = "FlowpipeResult", module = "percver._core", frozen)]
 /// The flowpipe and the initial box its final models are normalised over.
@@ -23,6 +27,20 @@ pub enum StepArg {
 pub enum OrderArg {
     Fixed(usize),
     Adaptive((usize, usize)),
+}
+
+fn step_size(step: StepArg) -> StepSize {
+    match step {
+        StepArg::Fixed(h) => StepSize::Fixed(h),
+        StepArg::Adaptive((min, max)) => StepSize::Adaptive { min, max },
+    }
+}
+
+fn order_policy(order: OrderArg) -> OrderPolicy {
+    match order {
+        OrderArg::Fixed(k) => OrderPolicy::Fixed(k),
+        OrderArg::Adaptive((min, max)) => OrderPolicy::Adaptive { min, max },
+    }
 }
 
 #[pyfunction]
@@ -53,14 +71,8 @@ pub fn flowpipe(
         }
     };
     let settings = Settings {
-        step: match step {
-            StepArg::Fixed(h) => StepSize::Fixed(h),
-            StepArg::Adaptive((min, max)) => StepSize::Adaptive { min, max },
-        },
-        order: match order {
-            OrderArg::Fixed(k) => OrderPolicy::Fixed(k),
-            OrderArg::Adaptive((min, max)) => OrderPolicy::Adaptive { min, max },
-        },
+        step: step_size(step),
+        order: order_policy(order),
         t_end,
         cutoff,
         remainder_estimate: remainder.unwrap_or_else(|| vec![1e-4; names.len()]),
@@ -221,5 +233,83 @@ impl PyFlowpipe {
             }
         }
         Ok(out.to_pyarray(py))
+    }
+}
+
+#[pyclass(name = "HybridRun", module = "percver._core", frozen)]
+/// A hybrid automaton's reach set: its segments per mode and its states at the horizon, over
+/// the automaton's variables and the clock `time` (the last).
+pub struct PyHybridRun(pub Run, pub Arc<Space>, pub Vec<String>);
+
+/// The reach set of the automaton (names, modes, jumps: as for a hybrid plant) from the box
+/// `init` in mode `start`, up to `t_end` and `max_jumps` jumps, Flow*'s way; with
+/// `box_at_jumps` the state is boxed at every jump.
+#[pyfunction]
+#[pyo3(signature = (names, modes, jumps, start, init, t_end, step, order, cutoff, remainder, max_jumps, max_branches, box_at_jumps))]
+#[allow(clippy::too_many_arguments)]
+pub fn hybrid_reach(
+    py: Python<'_>,
+    names: Vec<String>,
+    modes: Vec<ModeArg>,
+    jumps: Vec<JumpArg>,
+    start: usize,
+    init: Vec<(f64, f64)>,
+    t_end: f64,
+    step: StepArg,
+    order: OrderArg,
+    cutoff: f64,
+    remainder: Vec<f64>,
+    max_jumps: usize,
+    max_branches: usize,
+    box_at_jumps: bool,
+) -> PyResult<PyHybridRun> {
+    let aut = automaton(names.clone(), modes, jumps)?;
+    let init = to_intervals(&init, &names)?;
+    let flow = Settings {
+        step: step_size(step),
+        order: order_policy(order),
+        t_end: 0.0,
+        cutoff,
+        remainder_estimate: remainder,
+        precondition: Precondition::Identity,
+        refinements: 30,
+        symbolic_queue: 100,
+    };
+    let limits = Limits {
+        max_time: t_end,
+        max_jumps,
+        max_branches,
+        max_exits: usize::MAX,
+        contract: vec![],
+        drop_past_max_jumps: true,
+        box_at_jumps,
+    };
+    let (run, space) = py.allow_threads(|| hybrid::reach(&aut, start, &init, t_end, &flow, &limits)).py_err()?;
+    Ok(PyHybridRun(run, space, names.into_iter().chain([hybrid::TIME.to_string()]).collect()))
+}
+
+#[pymethods]
+impl PyHybridRun {
+    /// The variables of every box: the automaton's, then the clock.
+    #[getter]
+    fn names(&self) -> Vec<String> {
+        self.2.clone()
+    }
+    /// Per segment: (mode index, t0, t1, [(lo, hi) per variable]).
+    fn segments(&self) -> Vec<(usize, f64, f64, Vec<(f64, f64)>)> {
+        self.0.segments.iter().map(|(m, s)| (*m, s.t0, s.t1, s.bounds.iter().map(|b| (b.lo(), b.hi())).collect())).collect()
+    }
+    /// Per state at the horizon: (mode index, [(lo, hi) per variable]).
+    fn finals(&self) -> Vec<(usize, Vec<(f64, f64)>)> {
+        let bounds = |state: &Vec<TaylorModel>| state.iter().map(|t| taylor::bound::range(t, &self.1)).map(|b| (b.lo(), b.hi())).collect();
+        self.0.exit_modes.iter().zip(&self.0.exits).map(|(m, state)| (*m, bounds(state))).collect()
+    }
+    #[getter]
+    fn failure(&self) -> Option<String> {
+        self.0.failure.clone()
+    }
+    #[getter]
+    fn aggregations(&self) -> usize {
+        self.0.aggregations
     }
 }

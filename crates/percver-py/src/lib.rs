@@ -22,6 +22,8 @@ fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(expr::taylor_models, m)?)?;
     m.add_function(wrap_pyfunction!(expr::parse_condition, m)?)?;
     m.add_function(wrap_pyfunction!(flowpipe::flowpipe, m)?)?;
+    m.add_class::<flowpipe::PyHybridRun>()?;
+    m.add_function(wrap_pyfunction!(flowpipe::hybrid_reach, m)?)?;
     m.add_class::<network::PyNetwork>()?;
     m.add_class::<network::PyNetworkModels>()?;
     m.add_class::<closed_loop::PyClosedLoop>()?;

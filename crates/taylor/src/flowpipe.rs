@@ -114,7 +114,8 @@ impl Settings {
         }
         Ok(())
     }
-    fn max_order(&self) -> usize {
+    /// The highest order a step may use (the space's order must reach it).
+    pub fn max_order(&self) -> usize {
         match self.order {
             OrderPolicy::Fixed(k) => k,
             OrderPolicy::Adaptive { max, .. } => max,
@@ -176,7 +177,7 @@ impl Flowpipe {
 }
 
 /// x = c + r z maps z in [-1, 1] onto a box side (r rounded up, so the image covers it).
-fn initial_affine(iv: &Interval) -> (f64, f64) {
+pub(crate) fn initial_affine(iv: &Interval) -> (f64, f64) {
     let m = iv.mid();
     (m, (iv.hi() - m).max(m - iv.lo()).next_up())
 }
@@ -250,7 +251,9 @@ pub fn reach_from(
 
 /// [`reach_from`] that hands `on_step(t, segment, state)` the state at time t (the end of the
 /// step, as Taylor models with the symbolic remainder folded in) after every step: hybrid
-/// automata take jumps from the states between the segments.
+/// automata take jumps from the states between the segments. Its `final_box` is the naive
+/// bound: hybrid runs go on from `final_state` (the dominated bounder there cost most of a run
+/// at order 4).
 pub fn reach_from_steps(
     ode: &Ode,
     state: Vec<TaylorModel>,
@@ -258,7 +261,7 @@ pub fn reach_from_steps(
     settings: &Settings,
     on_step: &mut dyn FnMut(f64, &Segment, Vec<TaylorModel>) -> bool,
 ) -> Result<Flowpipe> {
-    flow_from(ode, state, space, settings, &mut |t, seg, state| on_step(t, seg, state()), crate::bound::range)
+    flow_from(ode, state, space, settings, &mut |t, seg, state| on_step(t, seg, state()), TaylorModel::bound)
 }
 
 /// [`reach_from`] with `final_box` the naive bound of each final model (monomial by monomial,

@@ -5,9 +5,10 @@
 //! gets from one visit of its mode are aggregated into one model (one branch per mode
 //! sequence), reset by Taylor-model composition and continued in the target mode. A run ends
 //! on the jumps that leave the automaton ([`Target::Exit`]): in a closed loop, the jumps that
-//! return control to the controller.
+//! return control to the controller. [`reach`] runs an automaton on its own as Flow*'s hybrid
+//! reachability does: from a box, up to a time horizon and a number of jumps.
 use crate::error::{Result, TaylorError};
-use crate::expr::{Cmp, Intervals, Program, TaylorModels};
+use crate::expr::{BinOp, Cmp, Expr, Intervals, Op, Program, TaylorModels};
 use crate::flowpipe::{reach_from_steps, Ode, Segment, Settings};
 use crate::interval::Interval;
 use crate::space::Space;
@@ -25,7 +26,12 @@ pub struct Constraint {
 impl Constraint {
     fn on_models(&self, state: &[TaylorModel], ctx: &Ctx) -> Result<Option<bool>> {
         let m = self.margin.eval(&TaylorModels { ctx }, state)?;
-        Ok(self.cmp.decide(crate::bound::range(&m[0], &ctx.space)))
+        // The naive bound decides most constraints (a clock's) at a fraction of the cost of
+        // the dominated bounder, which is asked only when it cannot.
+        match self.cmp.decide(m[0].bound(&ctx.space)) {
+            Some(decided) => Ok(Some(decided)),
+            None => Ok(self.cmp.decide(crate::bound::range(&m[0], &ctx.space))),
+        }
     }
     fn on_box(&self, b: &[Interval]) -> Result<Option<bool>> {
         Ok(self.cmp.decide(self.margin.eval(&Intervals, b)?[0]))
@@ -123,6 +129,12 @@ pub struct Limits {
     /// The variables of the space whose range the jumps may contract (Flow*'s domain
     /// contraction): those of the initial set, not ones shared with anything outside the run.
     pub contract: Vec<usize>,
+    /// Drop the runs past `max_jumps` jumps (Flow*'s `max jumps`: the reach set of the runs with
+    /// at most that many) instead of failing on them.
+    pub drop_past_max_jumps: bool,
+    /// Box the state at every jump (each variable a fresh symbol over its range) instead of
+    /// carrying its Taylor models: what box-based runners do, kept to measure what it loses.
+    pub box_at_jumps: bool,
 }
 
 #[derive(Clone, Debug, Default)]
@@ -135,12 +147,15 @@ pub struct Run {
     pub failure: Option<String>,
     /// How many times several states were aggregated into one.
     pub aggregations: usize,
+    /// The mode each exit state left, while the exits are not aggregated (empty after).
+    pub exit_modes: Vec<usize>,
 }
 
 struct Branch {
     mode: usize,
     state: Vec<TaylorModel>,
-    elapsed: f64,
+    /// Earliest and latest time (since the start) at which the runs of the branch entered.
+    elapsed: (f64, f64),
     jumps: usize,
 }
 
@@ -153,10 +168,13 @@ pub fn run(aut: &Automaton, start: usize, state: Vec<TaylorModel>, space: &Arc<S
     }
     let ctx = Ctx::new(space.clone(), space.order, flow.cutoff);
     let mut out = Run::default();
-    let mut queue = VecDeque::from([Branch { mode: start, state, elapsed: 0.0, jumps: 0 }]);
+    let mut queue = VecDeque::from([Branch { mode: start, state, elapsed: (0.0, 0.0), jumps: 0 }]);
     while let Some(branch) = queue.pop_front() {
         let name = &aut.modes[branch.mode].name;
         if branch.jumps > limits.max_jumps {
+            if limits.drop_past_max_jumps {
+                continue;
+            }
             out.failure =
                 Some(format!("more than {} jumps (last into mode '{name}'); a Zeno run or a cycle that never exits", limits.max_jumps));
             return Ok(out);
@@ -169,7 +187,7 @@ pub fn run(aut: &Automaton, start: usize, state: Vec<TaylorModel>, space: &Arc<S
                 return Ok(out);
             }
         };
-        for (jump, (found, at)) in outgoing.iter().zip(visit) {
+        for (jump, (found, earliest, latest)) in outgoing.iter().zip(visit) {
             if found.is_empty() {
                 continue;
             }
@@ -181,28 +199,156 @@ pub fn run(aut: &Automaton, start: usize, state: Vec<TaylorModel>, space: &Arc<S
             let found = merge_alike(found, &ctx.space);
             for taken in groups(&found, room, &ctx.space, &mut out.aggregations) {
                 let Some(taken) = contract(taken, &holds, &limits.contract, &ctx)? else { continue };
-                let next = match &jump.reset {
+                let mut next = match &jump.reset {
                     Some(r) => r.eval(&TaylorModels { ctx: &ctx }, &taken)?,
                     None => taken,
                 };
+                if limits.box_at_jumps {
+                    next = boxed(&next, &ctx);
+                }
                 match jump.target {
-                    Target::Exit => out.exits.push(next),
+                    Target::Exit => {
+                        out.exits.push(next);
+                        out.exit_modes.push(branch.mode);
+                    }
                     Target::Mode(m) => {
                         // A state outside the target's invariant has no run to continue.
                         if conjunction(&aut.modes[m].invariant, |c| c.on_models(&next, &ctx))? != Some(false) {
-                            queue.push_back(Branch { mode: m, state: next, elapsed: branch.elapsed + at, jumps: branch.jumps + 1 });
+                            queue.push_back(Branch {
+                                mode: m,
+                                state: next,
+                                elapsed: (branch.elapsed.0 + earliest, branch.elapsed.1 + latest),
+                                jumps: branch.jumps + 1,
+                            });
                         }
                     }
                 }
             }
         }
     }
-    out.exits = groups(&out.exits, limits.max_exits, &ctx.space, &mut out.aggregations);
+    if out.exits.len() > limits.max_exits {
+        out.exits = groups(&out.exits, limits.max_exits, &ctx.space, &mut out.aggregations);
+        out.exit_modes.clear();
+    }
     Ok(out)
 }
 
-/// Per outgoing jump: the states it may be taken from during this visit, and the latest time
-/// (since the mode was entered) it may be taken at. Ok(Err(reason)) when the flow fails.
+/// The name of the clock [`reach`] adds: the time since the start, in every segment's box.
+pub const TIME: &str = "time";
+
+/// Runs the automaton from the box `init` in mode `start` up to the horizon `t_end`, as Flow*'s
+/// hybrid reachability does: Taylor models over the box's normalised variables (1..=n of a
+/// space with time as variable 0). The horizon is a clock [`TIME`] added as the last variable:
+/// every mode gets the invariant `time <= t_end` and an exit jump `time >= t_end`, so the
+/// exits are the states at the horizon, found as any jump's are (a branch's runs entered its
+/// mode at different times; the clock tells them apart exactly). Returns the run and the space
+/// of its models.
+pub fn reach(aut: &Automaton, start: usize, init: &[Interval], t_end: f64, flow: &Settings, limits: &Limits) -> Result<(Run, Arc<Space>)> {
+    let n = aut.names.len();
+    if init.len() != n || init.iter().any(|iv| iv.is_empty() || !iv.is_bounded()) {
+        return Err(TaylorError::input(format!(
+            "the initial set needs one bounded, non-empty interval per variable ({})",
+            aut.names.join(", ")
+        )));
+    }
+    if !(t_end > 0.0 && t_end.is_finite()) {
+        return Err(TaylorError::input(format!("the time horizon must be positive and finite, got {t_end}")));
+    }
+    if aut.names.iter().any(|v| v == TIME) {
+        return Err(TaylorError::input(format!("'{TIME}' is the clock reachability adds; rename the automaton's variable")));
+    }
+    if n + 2 > crate::space::MAX_VARS {
+        return Err(TaylorError::input(format!(
+            "the automaton has {n} variables; its Taylor models (over them, the clock '{TIME}' and the step time) hold at most {}: \
+             drop the variables no mode or jump changes, or split the automaton",
+            crate::space::MAX_VARS - 2
+        )));
+    }
+    let timed = with_horizon(aut, t_end)?;
+    let order = flow.max_order();
+    let space = Space::get(n + 2, order, 1)?;
+    let ctx = Ctx::new(space.clone(), order, flow.cutoff);
+    let state = init.iter().chain([&Interval::ZERO]).enumerate().map(|(i, iv)| symbol(&ctx, iv, i + 1)).collect();
+    let mut remainder = flow.remainder_estimate.clone();
+    remainder.push(remainder.iter().copied().fold(f64::MIN_POSITIVE, f64::min));
+    let flow = Settings { remainder_estimate: remainder, ..flow.clone() };
+    // Never the reason a run stops (the clock is): a visit flows at most t_end and a step past
+    // it, and a branch's latest entry time sums its visits' latest jump times.
+    let step = match flow.step {
+        crate::StepSize::Fixed(h) => h,
+        crate::StepSize::Adaptive { max, .. } => max,
+    };
+    let max_time = (t_end + step) * (limits.max_jumps as f64 + 2.0);
+    let limits = Limits { contract: (1..=n).collect(), max_time, ..limits.clone() };
+    Ok((run(&timed, start, state, &space, &flow, &limits)?, space))
+}
+
+/// The automaton with the clock [`TIME`] appended, its invariants `time <= t_end` and its exits
+/// `time >= t_end` (the automaton's own exits are kept).
+fn with_horizon(aut: &Automaton, t_end: f64) -> Result<Automaton> {
+    let n = aut.names.len();
+    let names: Vec<String> = aut.names.iter().cloned().chain([TIME.to_string()]).collect();
+    // A program over the longer list: its inputs keep their places, the clock comes last; `extra`
+    // is one more output.
+    let widen = |p: &Program, extra: Option<Op>| -> Program {
+        let mut p = Program { inputs: names.clone(), ..p.clone() };
+        if let Some(op) = extra {
+            p.ops.push(op);
+            p.outputs.push(p.ops.len() - 1);
+        }
+        p
+    };
+    let widen_all = |cs: &[Constraint]| -> Vec<Constraint> {
+        cs.iter().map(|c| Constraint { margin: Arc::new(widen(&c.margin, None)), cmp: c.cmp }).collect()
+    };
+    let clock = Expr::binary(BinOp::Sub, &Expr::var(TIME), &Expr::constant(t_end));
+    let margin = Arc::new(Program::compile(&[clock], &names)?);
+    let mut modes = Vec::with_capacity(aut.modes.len());
+    let mut jumps = Vec::with_capacity(aut.jumps.len() + aut.modes.len());
+    for (m, mode) in aut.modes.iter().enumerate() {
+        let mut invariant = widen_all(&mode.invariant);
+        invariant.push(Constraint { margin: margin.clone(), cmp: Cmp::Le });
+        let ode = Ode { names: names.clone(), program: widen(&mode.ode.program, Some(Op::Const(1.0))) };
+        modes.push(Mode { name: mode.name.clone(), ode, invariant });
+        jumps.push(Jump {
+            source: m,
+            target: Target::Exit,
+            guard: vec![Constraint { margin: margin.clone(), cmp: Cmp::Ge }],
+            reset: None,
+            urgent: false,
+        });
+    }
+    for j in &aut.jumps {
+        let reset = j.reset.as_ref().map(|r| Arc::new(widen(r, Some(Op::Input(n)))));
+        jumps.push(Jump { source: j.source, target: j.target, guard: widen_all(&j.guard), reset, urgent: j.urgent });
+    }
+    let timed = Automaton { names, modes, jumps };
+    timed.validate()?;
+    Ok(timed)
+}
+
+/// The interval as a model of one variable v of the space (range [-1, 1]): c + r x_v with r
+/// rounded up, so that it encloses the interval; a point stays a constant.
+fn symbol(ctx: &Ctx, iv: &Interval, v: usize) -> TaylorModel {
+    if iv.lo() == iv.hi() {
+        return TaylorModel::constant(iv.lo());
+    }
+    let (c, r) = crate::flowpipe::initial_affine(iv);
+    TaylorModel::affine(ctx, c, v, r)
+}
+
+/// The state's box, each variable i a fresh symbol (variable i + 1 of the space): the
+/// dependence on the initial set and between the variables is forgotten.
+fn boxed(state: &[TaylorModel], ctx: &Ctx) -> Vec<TaylorModel> {
+    state.iter().enumerate().map(|(i, m)| symbol(ctx, &crate::bound::range(m, &ctx.space), i + 1)).collect()
+}
+
+/// The states a jump may be taken from during one visit of its mode, and the earliest and latest
+/// time (since the mode was entered) it may be taken at.
+type Found = (Vec<Vec<TaylorModel>>, f64, f64);
+
+/// Per outgoing jump, what it may be taken from during this visit. Ok(Err(reason)) when the
+/// flow fails.
 #[allow(clippy::too_many_arguments, clippy::type_complexity)]
 fn visit(
     aut: &Automaton,
@@ -213,22 +359,22 @@ fn visit(
     flow: &Settings,
     limits: &Limits,
     segments: &mut Vec<(usize, Segment)>,
-) -> Result<std::result::Result<Vec<(Vec<Vec<TaylorModel>>, f64)>, String>> {
+) -> Result<std::result::Result<Vec<Found>, String>> {
     let mode = &aut.modes[branch.mode];
-    let mut found: Vec<(Vec<Vec<TaylorModel>>, f64)> = vec![(Vec::new(), 0.0); outgoing.len()];
+    let mut found: Vec<Found> = vec![(Vec::new(), f64::INFINITY, 0.0); outgoing.len()];
     // The entry itself: jumps enabled at once, and a flow that never starts if an urgent one holds.
     let mut stopped = false;
     for (k, j) in outgoing.iter().enumerate() {
         let enabled = conjunction(&j.guard, |c| c.on_models(&branch.state, ctx))?;
         if enabled != Some(false) {
-            found[k].0.push(branch.state.clone());
+            found[k] = (vec![branch.state.clone()], 0.0, 0.0);
         }
         stopped |= j.urgent && enabled == Some(true);
     }
     if stopped {
         return Ok(Ok(found));
     }
-    let remaining = limits.max_time - branch.elapsed;
+    let remaining = limits.max_time - branch.elapsed.1;
     if !(remaining > 0.0) {
         return Ok(Err(format!("the run is still in mode '{}' after {} time units", mode.name, limits.max_time)));
     }
@@ -251,13 +397,14 @@ fn visit(
             let step = (|| -> Result<bool> {
                 // The runs in the segment satisfy the invariant: what violates it is cut off.
                 if let Some(bounds) = contract_box(&seg.bounds, &mode.invariant)? {
-                    let (t0, t1) = (seg.t0 + branch.elapsed + t_base, seg.t1 + branch.elapsed + t_base);
+                    let (t0, t1) = (seg.t0 + branch.elapsed.0 + t_base, seg.t1 + branch.elapsed.1 + t_base);
                     segments.push((branch.mode, Segment { t0, t1, bounds, order: seg.order }));
                 }
                 for (k, j) in outgoing.iter().enumerate() {
                     if let Some(state) = window.jump_state(&j.guard)? {
                         found[k].0.push(state);
-                        found[k].1 = t_base + t;
+                        found[k].1 = found[k].1.min(t_base + t_prev);
+                        found[k].2 = t_base + t;
                     }
                 }
                 // All runs have left the invariant, or have all taken an urgent jump by now.
@@ -353,8 +500,10 @@ impl Window<'_> {
     fn jump_state(&self, guard: &[Constraint]) -> Result<Option<Vec<TaylorModel>>> {
         let b = &self.seg.bounds;
         let f = self.ode.program.eval(&Intervals, b)?;
-        let sb: Vec<Interval> = self.start.iter().map(|m| crate::bound::range(m, self.space)).collect();
-        let eb: Vec<Interval> = self.end.iter().map(|m| crate::bound::range(m, self.space)).collect();
+        // Naive bounds: they only bracket the times, and the dominated bounder on every
+        // variable at every step cost most of a run's time.
+        let sb: Vec<Interval> = self.start.iter().map(|m| m.bound(self.space)).collect();
+        let eb: Vec<Interval> = self.end.iter().map(|m| m.bound(self.space)).collect();
         // Float step lengths may be off by an ulp; the slack keeps the time intervals enclosing.
         let slack = 1e-12 * self.h + f64::MIN_POSITIVE;
         let since = |a: f64, b: f64| Interval::new((a - slack).max(0.0), b + slack).expect("a <= b");
@@ -470,7 +619,7 @@ fn contract(state: Vec<TaylorModel>, constraints: &[&Constraint], vars: &[usize]
             }
         })
         .collect();
-    Ok(Some(state.iter().map(|m| m.compose(&args, ctx)).collect()))
+    Ok(Some(crate::flowpipe::compose_all(&state, &args, ctx)))
 }
 
 /// The box shrunk, variable by variable, to where `constraints` may hold (interval evaluation,
@@ -506,9 +655,10 @@ fn contract_box(b: &[Interval], constraints: &[Constraint]) -> Result<Option<Vec
 
 /// Consecutive states merged where their aggregate is hardly wider than the wider of them (a
 /// time-triggered jump found at the end of one step and the start of the next): a branch
-/// less for nothing lost.
+/// less for nothing lost. Widths are naive bounds here and in [`aggregate`]: the dominated
+/// bounder on every variable of every jump state cost most of a run's time at order 4.
 fn merge_alike(states: Vec<Vec<TaylorModel>>, space: &Space) -> Vec<Vec<TaylorModel>> {
-    let widths = |s: &[TaylorModel]| -> Vec<f64> { s.iter().map(|m| crate::bound::range(m, space).width()).collect() };
+    let widths = |s: &[TaylorModel]| -> Vec<f64> { s.iter().map(|m| m.bound(space).width()).collect() };
     let mut out: Vec<Vec<TaylorModel>> = Vec::with_capacity(states.len());
     for s in states {
         if let Some(last) = out.last_mut() {
@@ -544,11 +694,10 @@ pub fn aggregate(states: &[Vec<TaylorModel>], space: &Space) -> Vec<TaylorModel>
             // s = ref.poly + (s.poly - ref.poly) + s.rem for every state s, the reference too.
             let poly = |m: &TaylorModel| TaylorModel { coef: m.coef.clone(), rem: Interval::ZERO };
             let base = poly(&reference[i]);
-            let rem =
-                states.iter().fold(Interval::EMPTY, |acc, s| acc.hull(&(crate::bound::range(&poly(&s[i]).sub(&base), space) + s[i].rem)));
+            let rem = states.iter().fold(Interval::EMPTY, |acc, s| acc.hull(&(poly(&s[i]).sub(&base).bound(space) + s[i].rem)));
             let kept = base.add_interval(rem);
-            let hull = states.iter().fold(Interval::EMPTY, |acc, s| acc.hull(&crate::bound::range(&s[i], space)));
-            if hull.width() < crate::bound::range(&kept, space).width() {
+            let hull = states.iter().fold(Interval::EMPTY, |acc, s| acc.hull(&s[i].bound(space)));
+            if hull.width() < kept.bound(space).width() {
                 TaylorModel::from_interval(hull)
             } else {
                 kept
@@ -606,7 +755,15 @@ mod tests {
         let space = Space::get(4, 5, 1).unwrap();
         let ctx = Ctx::new(space.clone(), 5, 1e-12);
         let init = vec![TaylorModel::affine(&ctx, 1.05, 1, 0.05), TaylorModel::constant(0.0), TaylorModel::constant(0.0)];
-        let limits = Limits { max_time: 1.0, max_jumps: 10, max_branches: 8, max_exits: 8, contract: vec![1] };
+        let limits = Limits {
+            max_time: 1.0,
+            max_jumps: 10,
+            max_branches: 8,
+            max_exits: 8,
+            contract: vec![1],
+            drop_past_max_jumps: false,
+            box_at_jumps: false,
+        };
         let run = run(&ball(), 0, init, &space, &settings(5), &limits).unwrap();
         assert!(run.failure.is_none(), "{:?}", run.failure);
         assert!(!run.exits.is_empty());
@@ -657,8 +814,23 @@ mod tests {
         let mut s = settings(5);
         s.step = StepSize::Fixed(0.07); // does not divide 0.3 or 0.2
         s.remainder_estimate = vec![1e-3; 2];
-        let run = run(&aut, 0, init, &space, &s, &Limits { max_time: 1.0, max_jumps: 4, max_branches: 1, max_exits: 1, contract: vec![1] })
-            .unwrap();
+        let run = run(
+            &aut,
+            0,
+            init,
+            &space,
+            &s,
+            &Limits {
+                max_time: 1.0,
+                max_jumps: 4,
+                max_branches: 1,
+                max_exits: 1,
+                contract: vec![1],
+                drop_past_max_jumps: false,
+                box_at_jumps: false,
+            },
+        )
+        .unwrap();
         assert!(run.failure.is_none(), "{:?}", run.failure);
         assert_eq!(run.exits.len(), 1);
         let x = run.exits[0][0].bound(&space);
@@ -690,7 +862,15 @@ mod tests {
                 init.clone(),
                 &space,
                 &s,
-                &Limits { max_time: 2.0, max_jumps: 2, max_branches: 4, max_exits: 1, contract: vec![1] },
+                &Limits {
+                    max_time: 2.0,
+                    max_jumps: 2,
+                    max_branches: 4,
+                    max_exits: 1,
+                    contract: vec![1],
+                    drop_past_max_jumps: false,
+                    box_at_jumps: false,
+                },
             )
             .unwrap();
             if !urgent {
@@ -702,5 +882,101 @@ mod tests {
             // Sound (holds 0.5); each candidate carries its step's time spread, so not tight.
             assert!(x.contains(0.5) && x.lo() >= 0.4 && x.hi() <= 0.62, "{x}");
         }
+    }
+
+    #[test]
+    fn horizon_runs_end_at_the_horizon_with_every_sampled_run() {
+        // The ball without its exit: the runs bounce once before t = 1 and end there.
+        let mut aut = ball();
+        aut.jumps.truncate(1);
+        aut.modes[0].invariant.truncate(1);
+        let init = [Interval::new(1.0, 1.1).unwrap(), Interval::ZERO, Interval::ZERO];
+        let g = 9.81;
+        let exact = |x0: f64, t: f64| {
+            let hit = (2.0 * x0 / g).sqrt();
+            let (vb, s) = (0.8 * g * hit, t - hit);
+            (vb * s - 0.5 * g * s * s, vb - g * s)
+        };
+        for box_at_jumps in [false, true] {
+            let (run, space) = reach(&aut, 0, &init, 1.0, &settings(5), &horizon_limits(box_at_jumps)).unwrap();
+            assert!(run.failure.is_none(), "{:?}", run.failure);
+            assert!(!run.exits.is_empty() && run.exit_modes.len() == run.exits.len());
+            let boxes: Vec<Vec<Interval>> = run.exits.iter().map(|s| s.iter().map(|m| crate::bound::range(m, &space)).collect()).collect();
+            for k in 0..=200 {
+                let (x, v) = exact(1.0 + 0.1 * k as f64 / 200.0, 1.0);
+                assert!(boxes.iter().any(|b| b[0].contains(x) && b[1].contains(v) && b[3].contains(1.0)), "({x}, {v}) not in {boxes:?}");
+            }
+            // Every segment holds the sampled runs at its times.
+            for k in 0..=20 {
+                let x0 = 1.0 + 0.1 * k as f64 / 20.0;
+                // The segments' time labels and the clock both hold the time.
+                let covered = |t: f64, x: f64, v: f64| {
+                    run.segments.iter().any(|(_, s)| {
+                        s.t0 <= t && t <= s.t1 && s.bounds[3].contains(t) && s.bounds[0].contains(x) && s.bounds[1].contains(v)
+                    })
+                };
+                for i in 0..=50 {
+                    let t = i as f64 / 50.0;
+                    let hit = (2.0 * x0 / g).sqrt();
+                    let (x, v) = if t < hit { (x0 - 0.5 * g * t * t, -g * t) } else { exact(x0, t) };
+                    assert!(covered(t, x, v), "x0 {x0}, t {t}: ({x}, {v}) in no segment");
+                }
+            }
+        }
+    }
+
+    fn horizon_limits(box_at_jumps: bool) -> Limits {
+        Limits {
+            max_time: 0.0,
+            max_jumps: 10,
+            max_branches: 8,
+            max_exits: usize::MAX,
+            contract: vec![],
+            drop_past_max_jumps: true,
+            box_at_jumps,
+        }
+    }
+
+    #[test]
+    fn taylor_models_through_jumps_keep_what_boxes_lose() {
+        // A rotation whose clock is reset every quarter turn: boxing at each jump wraps the
+        // rotated box (about sqrt 2 wider per jump); the models rotate it exactly.
+        let names: Vec<String> = ["x", "y", "c"].iter().map(|s| s.to_string()).collect();
+        let quarter = std::f64::consts::FRAC_PI_4;
+        let c = |e: &str, cmp| Constraint { margin: program(&[e], &names), cmp };
+        let aut = Automaton {
+            modes: vec![Mode {
+                name: "turn".into(),
+                ode: Ode::new(names.clone(), ["-y", "x", "1"].iter().map(|e| parse_expr(e).unwrap()).collect()).unwrap(),
+                invariant: vec![c(&format!("c - {quarter}"), Cmp::Le)],
+            }],
+            jumps: vec![Jump {
+                source: 0,
+                target: Target::Mode(0),
+                guard: vec![c(&format!("c - {quarter}"), Cmp::Ge)],
+                reset: Some(program(&["x", "y", "0"], &names)),
+                urgent: false,
+            }],
+            names,
+        };
+        let init = [Interval::new(0.9, 1.1).unwrap(), Interval::new(-0.1, 0.1).unwrap(), Interval::ZERO];
+        let t_end = 3.0;
+        let mut widths = vec![];
+        for box_at_jumps in [false, true] {
+            let (run, space) = reach(&aut, 0, &init, t_end, &settings(5), &horizon_limits(box_at_jumps)).unwrap();
+            assert!(run.failure.is_none(), "{:?}", run.failure);
+            let boxes: Vec<Vec<Interval>> = run.exits.iter().map(|s| s.iter().map(|m| crate::bound::range(m, &space)).collect()).collect();
+            for i in 0..=20 {
+                for j in 0..=20 {
+                    let (x0, y0) = (0.9 + 0.01 * i as f64, -0.1 + 0.01 * j as f64);
+                    let (x, y) = (x0 * t_end.cos() - y0 * t_end.sin(), x0 * t_end.sin() + y0 * t_end.cos());
+                    assert!(boxes.iter().any(|b| b[0].contains(x) && b[1].contains(y)), "({x}, {y}) not in {boxes:?}");
+                }
+            }
+            let hull = |i: usize| boxes.iter().fold(Interval::EMPTY, |a, b| a.hull(&b[i]));
+            widths.push(hull(0).width() + hull(1).width());
+        }
+        // The exact set is a rotated square of side 0.2: its box is at most 0.57 wide in all.
+        assert!(widths[0] < 0.6 && widths[1] > 1.5 * widths[0], "models {}, boxes {}", widths[0], widths[1]);
     }
 }

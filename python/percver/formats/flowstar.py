@@ -7,14 +7,10 @@ ode`` / ``nonpoly ode { N }`` (all integrated by the same Taylor-model Picard en
 ``init``. Anything else is refused with the file name, line and what is supported.
 
 ``hybrid reachability`` (read with the Verisig model parser, :mod:`percver.formats.verisig`):
-time-triggered automata, as Verisig 1.0 and :func:`percver.formats.to_flowstar` write them. Every
-mode dwells a fixed time set by a clock (``clock' = 1``, ``inv { clock <= c }``); jumps fire at
-the end of the dwell when their guard can hold, all of them (branching), and reset variables
-simultaneously. :meth:`HybridModel.run` computes the reach set with boxes: each mode's flow by
-the flowpipe engine, one flowpipe per group of variables whose equations couple them (a layer of
-neuron ODEs is one small flowpipe per neuron), resets and guards by interval evaluation. Boxing
-at every jump loses the correlations Flow* keeps in its Taylor models, so the sets are sound but
-wider (for a network, like interval propagation with exact activations).
+modes with ODEs and invariants, jumps with guards and resets, the initial mode and box, the
+horizon ``time`` and ``max jumps``. The reader gives a :class:`FlowstarHybrid`: the automaton as a
+:class:`percver.Hybrid`, whose reach set :func:`percver.flowpipe.hybrid_flowpipe` computes with
+Taylor models carried through the jumps (Flow*'s way; ``run(jumps="box")`` boxes them instead).
 """
 
 from __future__ import annotations
@@ -25,8 +21,10 @@ from pathlib import Path
 from typing import Optional, Union
 
 from percver import _core
-from percver.errors import BlowUpError, InputError, MissingFileError, ParseError
+from percver.errors import MissingFileError, ParseError
+from percver.flowpipe import HybridFlowpipe, hybrid_flowpipe
 from percver.formats.verisig import _block
+from percver.systems import Hybrid, Jump, Mode
 
 
 @dataclass
@@ -128,8 +126,8 @@ def _integration_settings(lines: list, variables: list, name: str, text: str) ->
     return dict(step=step, order=order, t_end=t_end, remainder=remainder, precondition=precondition, cutoff=cutoff, ignored=ignored)
 
 
-def load_flowstar(path: str) -> Union[FlowstarModel, "HybridModel"]:
-    """Parses a Flow* model file: a :class:`FlowstarModel` (continuous) or a :class:`HybridModel`."""
+def load_flowstar(path: str) -> Union[FlowstarModel, FlowstarHybrid]:
+    """Parses a Flow* model file: a :class:`FlowstarModel` (continuous) or a :class:`FlowstarHybrid`."""
     p = Path(path)
     if not p.exists():
         raise MissingFileError(f"Flow* model '{path}' does not exist")
@@ -223,204 +221,49 @@ def load_flowstar(path: str) -> Union[FlowstarModel, "HybridModel"]:
 # ----------------------------------------------------------------------------- hybrid models
 
 
-# Bisections of a flowpipe's initial box before a flow counts as not enclosable (2^6 pieces).
-MAX_SPLITS = 6
-
-
 @dataclass
-class HybridMode:
-    name: str
-    ode: dict  # variable -> Expr (variables not listed stay constant)
-    dwell_atoms: list  # (clock, c): the mode is left when clock reaches c
-
-
-@dataclass
-class HybridJump:
-    source: str
-    target: str
-    guard: list  # (variable or None, margin Expr, op, constant or None): margin op 0
-    reset: dict  # variable -> Expr, applied simultaneously
-
-
-@dataclass
-class HybridVisit:
-    """One stay in a mode: the box on entry, the box at the end of the dwell, the time span."""
-
-    mode: str
-    start: float
-    end: float
-    entry: dict
-    exit: dict
-
-
-@dataclass
-class HybridRun:
-    """Reach set of a hybrid model: every stay, and the stays no jump leaves (``finals``)."""
-
-    visits: list
-    finals: list
-    notes: list
-
-    def final_box(self, mode: Optional[str] = None) -> dict:
-        """Hull of the final boxes (of those in ``mode``, if given): ``{variable: (lo, hi)}``."""
-        boxes = [v.exit for v in self.finals if mode is None or v.mode == mode]
-        if not boxes:
-            raise InputError(f"no run ends in mode '{mode}' (final modes: {sorted({v.mode for v in self.finals})})")
-        return {k: (min(b[k][0] for b in boxes), max(b[k][1] for b in boxes)) for k in boxes[0]}
-
-
-@dataclass
-class HybridModel:
-    """A time-triggered Flow* hybrid model; :meth:`run` computes its reach set (see the module doc)."""
+class FlowstarHybrid:
+    """A Flow* ``hybrid reachability`` model as read: the automaton (``plant``, a
+    :class:`percver.Hybrid` starting in the file's initial mode), the initial box and the file's
+    settings. :meth:`run` hands them to :func:`percver.flowpipe.hybrid_flowpipe`."""
 
     path: str
-    variables: list
-    modes: dict  # name -> HybridMode
-    jumps: list
-    init_mode: str
+    plant: Hybrid
     init: dict
     t_end: float
     max_jumps: int
-    step: object
-    order: int
+    step: object  # float or (min, max)
+    order: object  # int or (min, max)
     remainder: list
     cutoff: float
     ignored: list = field(default_factory=list)
 
-    def run(self, *, max_stays: int = 100_000) -> HybridRun:
-        """Follows every run from the initial box until no jump fires, up to the file's time
-        horizon and jump count; a flow that cannot be enclosed raises :class:`BlowUpError`."""
-        notes: list = []
-        box = {v: self.init.get(v, (0.0, 0.0)) for v in self.variables}
-        pending = [(self.init_mode, box, 0.0, 0)]
-        visits, finals = [], []
-        while pending:
-            mode, box, time, jumps = pending.pop()
-            dwell = self._dwell(self.modes[mode], box)
-            end = self._flow(self.modes[mode], box, dwell)
-            visit = HybridVisit(mode, time, time + dwell, box, end)
-            visits.append(visit)
-            if len(visits) > max_stays:
-                raise BlowUpError(f"{self.path}: more than {max_stays} mode stays (branching jumps); give run(max_stays=...)")
-            fired = False
-            for jump in self.jumps:
-                if jump.source != mode or (guarded := self._guard(jump, end)) is None:
-                    continue
-                if jumps >= self.max_jumps or time + dwell > self.t_end:
-                    notes.append(f"stopped in {mode} at t = {time + dwell:g} after {jumps} jumps (the file's limits)")
-                    break
-                pending.append((jump.target, self._reset(jump, guarded), time + dwell, jumps + 1))
-                fired = True
-            if not fired:
-                finals.append(visit)
-        return HybridRun(visits, finals, notes)
+    @property
+    def variables(self) -> list:
+        return self.plant.states
 
-    def _dwell(self, mode: HybridMode, box: dict) -> float:
-        dwells = []
-        for clock, c in mode.dwell_atoms:
-            lo, hi = box[clock]
-            if lo != hi:
-                raise ParseError(
-                    f"{self.path}: mode {mode.name} is entered with {clock} in [{lo}, {hi}]; the runner needs a clock reset to one value"
-                )
-            dwells.append(max(0.0, c - lo))
-        return min(dwells)
+    @property
+    def modes(self) -> dict:
+        return self.plant.modes
 
-    def _flow(self, mode: HybridMode, box: dict, dwell: float) -> dict:
-        """The box after `dwell` time units: each group of coupled variables by its own flowpipe
-        from the box (the groups are independent, so nothing is lost by splitting a box)."""
-        end = dict(box)
-        if dwell == 0.0:
-            return end
-        moving = dict(mode.ode)
-        group = {v: v for v in moving}
+    @property
+    def jumps(self) -> list:
+        return self.plant.jumps
 
-        def root(v):
-            while group[v] != v:
-                group[v] = group[group[v]]
-                v = group[v]
-            return v
-
-        for v, e in moving.items():
-            for w in e.variables():
-                if w in moving:
-                    group[root(v)] = root(w)
-        members: dict = {}
-        for v in moving:
-            members.setdefault(root(v), []).append(v)
-        for names in members.values():
-            parameters = sorted({w for v in names for w in moving[v].variables()} - set(names))
-            if not parameters and all(not moving[v].variables() for v in names):
-                # Constant rates (clocks, counters): x + rate * dwell in interval arithmetic.
-                for v in names:
-                    rate = _core.eval_interval([moving[v]], [], [])[0]
-                    moved = _core.Interval(*box[v]) + _core.Interval(*rate) * _core.Interval(dwell, dwell)
-                    end[v] = (moved.lo, moved.hi)
-                continue
-            ode = {v: moving[v] for v in names}
-            ode.update({w: _core.Expr.constant(0.0) for w in parameters})
-            final = self._integrate(ode, {v: box[v] for v in ode}, dwell, MAX_SPLITS)
-            end.update({v: final[v] for v in names})
-        return end
-
-    def _integrate(self, ode: dict, box: dict, dwell: float, splits: int) -> dict:
-        """The final box of a flowpipe from `box`; if it cannot be enclosed, the hull of those of
-        the two halves of the widest side (a neuron whose pre-activation spans [-5, 5] needs a
-        few: tanh(a t) over such a range is too steep for one Taylor model at moderate order)."""
-        from percver.flowpipe import flowpipe
-
-        adaptive = self.step if isinstance(self.step, tuple) else None
-        remainder = {v: self.remainder[self.variables.index(v)] for v in ode}
-        try:
-            fp = flowpipe(
-                ode,
-                box,
-                dwell,
-                order=self.order,
-                step=0.0 if adaptive else self.step,
-                adaptive=adaptive,
-                cutoff=self.cutoff,
-                remainder=remainder,
-            )
-            return fp.final_box()
-        except BlowUpError:
-            widest = max(box, key=lambda v: box[v][1] - box[v][0])
-            lo, hi = box[widest]
-            if splits == 0 or not lo < hi:
-                raise
-        mid = 0.5 * (lo + hi)
-        halves = [self._integrate(ode, {**box, widest: side}, dwell, splits - 1) for side in ((lo, mid), (mid, hi))]
-        return {v: (min(h[v][0] for h in halves), max(h[v][1] for h in halves)) for v in halves[0]}
-
-    def _guard(self, jump: HybridJump, box: dict) -> Optional[dict]:
-        """The box where the guard can hold (bounds of single variables applied), or None."""
-        box = dict(box)
-        for variable, margin, op, constant in jump.guard:
-            if op == "=" and variable is not None and constant is not None:
-                lo, hi = box[variable]
-                tol = 1e-9 * max(1.0, abs(constant))
-                if not lo - tol <= constant <= hi + tol:
-                    return None
-                continue
-            lo, hi = _core.eval_interval([margin], self.variables, [box[v] for v in self.variables])[0]
-            if (op in ("<=", "<") and lo > 0) or (op in (">=", ">") and hi < 0) or (op == "=" and (lo > 0 or hi < 0)):
-                return None
-            if variable is not None and constant is not None:
-                vlo, vhi = box[variable]
-                vlo, vhi = (
-                    (vlo, min(vhi, constant)) if op in ("<=", "<") else (max(vlo, constant), vhi) if op in (">=", ">") else (vlo, vhi)
-                )
-                if vlo > vhi:
-                    return None
-                box[variable] = (vlo, vhi)
-        return box
-
-    def _reset(self, jump: HybridJump, box: dict) -> dict:
-        if not jump.reset:
-            return dict(box)
-        names = list(jump.reset)
-        values = _core.eval_interval([jump.reset[v] for v in names], self.variables, [box[v] for v in self.variables])
-        return {**box, **dict(zip(names, (tuple(v) for v in values)))}
+    def run(self, *, jumps: str = "taylor", max_branches: int = 64) -> HybridFlowpipe:
+        """The reach set with the file's settings (see :func:`percver.flowpipe.hybrid_flowpipe`)."""
+        return hybrid_flowpipe(
+            self.plant,
+            self.init,
+            self.t_end,
+            order=self.order,
+            step=self.step,
+            cutoff=self.cutoff,
+            remainder=self.remainder,
+            max_jumps=self.max_jumps,
+            max_branches=max_branches,
+            jumps=jumps,
+        )
 
 
 def _expr(ast) -> "_core.Expr":
@@ -449,22 +292,20 @@ def _expr(ast) -> "_core.Expr":
     return value
 
 
-def _atom(src, atom, variables: set) -> tuple:
-    """(variable, margin, op, constant) of `lhs op rhs`: variable and constant when the atom
-    bounds a single variable by a constant (so a guard can cut the box)."""
-    lhs, op, rhs, pos = atom
-    variable = lhs[1] if lhs[0] == "var" else None
-    constant = None
-    if rhs[0] == "num" or (rhs[0] == "neg" and rhs[1][0] == "num"):
-        constant = rhs[1] if rhs[0] == "num" else -rhs[1][1]
-    margin = _expr(("bin", "-", lhs, rhs))
-    unknown = sorted(set(margin.variables()) - variables)
-    if unknown:
-        raise src.error(pos, f"undeclared variables {unknown} in a constraint")
-    return variable, margin, op, constant
+def _conditions(src, atoms: list, variables: set, where: str) -> list:
+    """Conditions of ``lhs op rhs`` atoms (``=`` as both ``<=`` and ``>=``)."""
+    out = []
+    for lhs, op, rhs, pos in atoms:
+        margin = _expr(("bin", "-", lhs, rhs))
+        unknown = sorted(set(margin.variables()) - variables)
+        if unknown:
+            raise src.error(pos, f"{where}: {', '.join(map(repr, unknown))} not declared in 'state var'")
+        out += [margin <= 0] if op in ("<=", "<", "=") else []
+        out += [margin >= 0] if op in (">=", ">", "=") else []
+    return out
 
 
-def _load_hybrid(path: str) -> HybridModel:
+def _load_hybrid(path: str) -> FlowstarHybrid:
     from percver.formats.verisig import _parse
 
     aut = _parse(path)
@@ -479,46 +320,35 @@ def _load_hybrid(path: str) -> HybridModel:
     for what, value in (("a step size", found["step"]), ("an order", found["order"])):
         if value is None:
             raise ParseError(f"{path}: the setting block gives no {what}")
-    order = found["order"] if isinstance(found["order"], int) else max(found["order"])
+    known = set(variables)
     modes = {}
     for name, mode in aut.modes.items():
-        ode = {v: _expr(ast) for v, ast in mode.ode.items() if not (ast[0] == "num" and ast[1] == 0.0)}
-        atoms = []
-        for lhs, op, rhs, _ in mode.inv:
-            clock, rate = (lhs[1], ode.get(lhs[1])) if lhs[0] == "var" else (None, None)
-            if clock and op in ("<=", "<") and rhs[0] == "num" and rate is not None and not rate.variables():
-                if _core.eval_interval([rate], [], [])[0] == (1.0, 1.0):
-                    atoms.append((clock, rhs[1]))
-        if not atoms:
-            raise src.error(
-                mode.pos,
-                f"mode {name} has no invariant 'clock <= c' with clock' = 1: the runner reads time-triggered models (each mode dwells a fixed time), as Verisig writes them",
-            )
-        modes[name] = HybridMode(name, ode, atoms)
-    jumps = []
-    for j in aut.jumps:
-        guard = [_atom(src, a, set(variables)) for a in j.guard]
-        # The runner fires jumps at the end of the dwell only: out of a flowing mode, a jump must
-        # say so (guard clock = c), or it could fire earlier, from states the runner never sees.
-        for clock, c in modes[j.src].dwell_atoms:
-            if c > 0 and not any(g[0] == clock and g[2] == "=" and g[3] == c for g in guard):
-                raise src.error(
-                    j.pos,
-                    f"jump {j.src} -> {j.dst} can fire during the flow of {j.src}; the runner reads jumps at the end of a mode's dwell: add '{clock} = {c:g}' to the guard",
-                )
-        jumps.append(HybridJump(j.src, j.dst, guard, {v: _expr(ast) for v, ast in j.reset.items()}))
+        rhs = {v: _expr(mode.ode[v]) if v in mode.ode else 0.0 for v in variables}
+        modes[name] = Mode(rhs, invariant=_conditions(src, mode.inv, known, f"invariant of mode {name}"))
+    jumps = [
+        Jump(
+            j.src,
+            j.dst,
+            guard=_conditions(src, j.guard, known, f"guard of jump {j.src} -> {j.dst}"),
+            reset={v: _expr(ast) for v, ast in j.reset.items()},
+        )
+        for j in aut.jumps
+    ]
+    t_end = aut.settings["time"]
+    step = found["step"]
+    first = step[1] if isinstance(step, tuple) else step
+    plant = Hybrid(
+        modes, jumps, start=aut.init_mode, max_time=t_end, step=min(first, t_end), max_jumps=aut.settings.get("max_jumps", 10**6)
+    )
     ignored = found["ignored"] + ([f"unsafe sets of {sorted(aut.unsafe)} (run() computes reach sets only)"] if aut.unsafe else [])
-    return HybridModel(
+    return FlowstarHybrid(
         path,
-        variables,
-        modes,
-        jumps,
-        aut.init_mode,
-        dict(aut.init),
-        aut.settings["time"],
-        aut.settings.get("max_jumps", 10**9),
-        found["step"],
-        order,
+        plant,
+        {v: aut.init.get(v, (0.0, 0.0)) for v in variables},
+        t_end,
+        plant.max_jumps,
+        step,
+        found["order"],
         found["remainder"],
         found["cutoff"],
         ignored,
