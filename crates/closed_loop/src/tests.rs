@@ -67,6 +67,16 @@ fn assert_runs_inside(out: &CellOutcome, net: &Network, cell: &[Interval], steps
     }
 }
 
+/// The float run of a plant whose update reads only the states (evaluated at points, each step's
+/// midpoint the next state) lies in every step's box.
+fn assert_float_run_inside(boxes: &[Vec<Interval>], plant: &Program, mut state: Vec<f64>) {
+    for (step, bx) in boxes.iter().enumerate() {
+        assert!(bx.iter().zip(&state).all(|(iv, &x)| iv.contains(x)), "step {step}: {state:?} outside {bx:?}");
+        let point: Vec<Interval> = state.iter().map(|&x| Interval::point(x)).collect();
+        state = plant.eval(&Intervals, &point).unwrap().iter().map(|iv| iv.mid()).collect();
+    }
+}
+
 #[test]
 fn discrete_loop_encloses_simulations() {
     let (lp, net) = feedback_loop(1.0, 40);
@@ -196,12 +206,7 @@ fn a_sum_of_renewed_errors_encloses_simulations() {
     assert_eq!(out.steps_done, steps);
     for a in 0..=60 {
         for b in 0..=60 {
-            let mut state = vec![0.3 + 0.1 * a as f64 / 60.0, 0.1 + 0.1 * b as f64 / 60.0, 0.0];
-            for (step, bx) in out.boxes.iter().enumerate() {
-                assert!(bx.iter().zip(&state).all(|(iv, &x)| iv.contains(x)), "step {step}: {state:?} outside {bx:?}");
-                let point: Vec<Interval> = state.iter().map(|&x| Interval::point(x)).collect();
-                state = plant.eval(&Intervals, &point).unwrap().iter().map(|iv| iv.mid()).collect();
-            }
+            assert_float_run_inside(&out.boxes, &plant, vec![0.3 + 0.1 * a as f64 / 60.0, 0.1 + 0.1 * b as f64 / 60.0, 0.0]);
         }
     }
 }
@@ -235,12 +240,7 @@ fn pieces_that_hit_a_wall_at_different_steps_replay_one_climb_inside_the_simulat
     assert_eq!(out.verdict, Verdict::Verified, "{:?}", out.reason);
     assert!(out.replayed >= steps / 2, "{} steps replayed", out.replayed);
     for a in 0..=1000 {
-        let mut state = vec![0.5 + 0.7 * a as f64 / 1000.0, -0.3, 0.0];
-        for (step, bx) in out.boxes.iter().enumerate() {
-            assert!(bx.iter().zip(&state).all(|(iv, &x)| iv.contains(x)), "step {step}: {state:?} outside {bx:?}");
-            let point: Vec<Interval> = state.iter().map(|&x| Interval::point(x)).collect();
-            state = plant.eval(&Intervals, &point).unwrap().iter().map(|iv| iv.mid()).collect();
-        }
+        assert_float_run_inside(&out.boxes, &plant, vec![0.5 + 0.7 * a as f64 / 1000.0, -0.3, 0.0]);
     }
 }
 
