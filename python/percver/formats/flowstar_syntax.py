@@ -77,6 +77,7 @@ _COMPARISONS = ("<=", ">=", "<", ">")
 _NUMBER = r"(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?"
 _TOKEN = re.compile(rf"\s*(?:(?P<num>{_NUMBER})|(?P<id>[A-Za-z_][A-Za-z0-9_]*)|(?P<op>:=|->|<=|>=|==|[-+*/^()\[\],:'=<>{{}}]))", re.ASCII)
 _END = "the end of the block"
+_SPACE = re.compile(r"\s*")
 
 
 class Source:
@@ -119,17 +120,16 @@ class Parser:
         self.src = src
         self._scan = start
         self._ahead: list = []  # (kind, text, position) read but not consumed
-        self.consumed = start  # where the last token read ends
+        self.consumed = self.before = start  # where the last token read ends, and the one before it
 
     def _fill(self, n: int) -> bool:
         text = self.src.text
         while len(self._ahead) < n:
             m = _TOKEN.match(text, self._scan)
             if m is None:
-                rest = text[self._scan :]
-                if not rest.strip():
+                bad = _SPACE.match(text, self._scan).end()
+                if bad == len(text):
                     return False
-                bad = self._scan + len(rest) - len(rest.lstrip())
                 raise self.src.error(bad, f"unexpected character '{text[bad]}'")
             kind = m.lastgroup
             self._ahead.append((kind, m.group(kind), m.start(kind)))
@@ -137,13 +137,13 @@ class Parser:
         return True
 
     def peek(self, k: int = 0) -> tuple:
-        return self._ahead[k] if self._fill(k + 1) else ("end", "", len(self.src.text.rstrip()))
+        return self._ahead[k] if self._fill(k + 1) else ("end", "", self._scan)
 
     def next(self) -> tuple:
         tok = self.peek()
         if self._ahead:
             self._ahead.pop(0)
-            self.consumed = tok[2] + len(tok[1])
+            self.before, self.consumed = self.consumed, tok[2] + len(tok[1])
         return tok
 
     def at_end(self) -> bool:
@@ -165,7 +165,11 @@ class Parser:
         return self.peek()[2]
 
     def fail(self, tok: tuple, expected: str) -> ParseError:
-        return self.src.error(tok[2], f"expected {expected}, found '{tok[1] or _END}'")
+        """``expected ..., found ...`` at ``tok``, or where the line before it ends when ``tok``
+        starts a later line (``x' = -x +`` is wrong at its end, not at the next line's brace)."""
+        prior = self.before if tok[2] < self.consumed else self.consumed
+        pos = prior if self.src.line(tok[2]) > self.src.line(prior) else tok[2]
+        return self.src.error(pos, f"expected {expected}, found '{tok[1] or _END}'")
 
     def expect(self, value: str, what: str = "") -> tuple:
         tok = self.next()
@@ -186,7 +190,7 @@ class Parser:
             self.accept("+")
         tok = self.next()
         if tok[0] != "num":
-            raise self.src.error(tok[2], f"expected a number for {what}, found '{tok[1] or _END}'")
+            raise self.fail(tok, f"a number for {what}")
         return sign * self._float(tok)
 
     def integer(self, what: str) -> int:
@@ -210,7 +214,7 @@ class Parser:
         """The text from the next token to the end of its line or a closing brace, skipped; and
         where it starts (settings Flow* reads and percver does not need are kept as text)."""
         text = self.src.text
-        start = self._ahead[0][2] if self._ahead else len(text) - len(text[self._scan :].lstrip())
+        start = self._ahead[0][2] if self._ahead else _SPACE.match(text, self._scan).end()
         end = min(i for i in (text.find("\n", start), text.find("}", start), len(text)) if i >= 0)
         self._ahead, self._scan = [], end
         return text[start:end].strip(), start
@@ -730,7 +734,9 @@ def _trailing(p: Parser) -> list:
         return []
     at = p.offset()
     rest = " ".join(p.src.text[at:].split())
-    msg = f"{p.src.where(at)}: ignoring '{rest[:40]}...' after the model (Flow* ignores it too: a stray '}}' closed the unsafe block early?)"
+    msg = (
+        f"{p.src.where(at)}: ignoring '{rest[:40]}...' after the model (Flow* ignores it too: a stray '}}' closed the unsafe block early?)"
+    )
     warnings.warn(msg, stacklevel=4)
     return [msg]
 
