@@ -12,8 +12,7 @@ from typing import Optional
 
 from percver.errors import ParseError
 from percver.expr import Expr
-from percver.formats.flowstar_syntax import Automaton, AutomatonMode
-from percver.formats.flowstar_syntax import ast_variables
+from percver.formats.flowstar_syntax import Automaton, AutomatonMode, ast_variables
 from percver.translation.values import TOL, NeedAbsolute, Relative, build_value, is_num
 
 

@@ -12,10 +12,9 @@ from dataclasses import dataclass
 from typing import Optional
 
 from percver.expr import Expr
-from percver.formats.flowstar_syntax import AutomatonJump
+from percver.formats.flowstar_syntax import AutomatonJump, ast_variables
 from percver.translation.analysis import Analysis
 from percver.translation.branches import post_dominators
-from percver.formats.flowstar_syntax import ast_variables
 from percver.translation.values import (
     TOL,
     NeedAbsolute,

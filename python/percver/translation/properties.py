@@ -7,11 +7,10 @@ from typing import Optional
 
 from percver.errors import ParseError
 from percver.expr import Expr
-from percver.formats.flowstar_syntax import AutomatonJump
+from percver.formats.flowstar_syntax import AutomatonJump, ast_variables
 from percver.translation.conditions import all_of, atom_text, complementary, dedupe, dedupe_atoms, implies, negate
 from percver.translation.execution import RunState
 from percver.translation.timing import classify_trigger
-from percver.formats.flowstar_syntax import ast_variables
 from percver.translation.values import build_value, condition_of
 
 
