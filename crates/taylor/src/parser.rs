@@ -203,6 +203,17 @@ impl Parser<'_> {
         }
     }
 
+    /// `lhs cmp rhs`; `what` ends the message when there is no comparison.
+    fn comparison(&mut self, what: &str) -> Result<(Expr, Cmp, Expr)> {
+        let lhs = self.sum()?;
+        let cmp = match self.peek() {
+            Some(Token::Cmp(c)) => *c,
+            _ => return self.fail(&format!("expected a comparison (<, <=, >, >=){what}")),
+        };
+        self.pos += 1;
+        Ok((lhs, cmp, self.sum()?))
+    }
+
     /// A number with an optional sign; `what` ends the message when there is none.
     fn signed_number(&mut self, what: &str) -> Result<f64> {
         let negative = match self.peek() {
@@ -224,13 +235,7 @@ impl Parser<'_> {
 
     /// `where(lhs cmp rhs, then, otherwise)` after its '(' (the printed form of [`Expr::select`]).
     fn select(&mut self) -> Result<Expr> {
-        let lhs = self.sum()?;
-        let cmp = match self.peek() {
-            Some(Token::Cmp(c)) => *c,
-            _ => return self.fail("expected a comparison (<, <=, >, >=) in where(lhs cmp rhs, then, otherwise)"),
-        };
-        self.pos += 1;
-        let rhs = self.sum()?;
+        let (lhs, cmp, rhs) = self.comparison(" in where(lhs cmp rhs, then, otherwise)")?;
         self.expect(',')?;
         let then = self.sum()?;
         self.expect(',')?;
@@ -284,13 +289,7 @@ pub fn parse_expr(src: &str) -> Result<Expr> {
 /// Parses a constraint `lhs <= rhs` (or <, >=, >) into (lhs, cmp, rhs).
 pub fn parse_constraint(src: &str) -> Result<(Expr, Cmp, Expr)> {
     let mut p = Parser { src, tokens: lex(src)?, pos: 0 };
-    let lhs = p.sum()?;
-    let cmp = match p.peek() {
-        Some(Token::Cmp(c)) => *c,
-        _ => return p.fail("expected a comparison (<, <=, >, >=)"),
-    };
-    p.pos += 1;
-    let rhs = p.sum()?;
+    let (lhs, cmp, rhs) = p.comparison("")?;
     if p.pos != p.tokens.len() {
         return p.fail("unexpected text after the constraint");
     }

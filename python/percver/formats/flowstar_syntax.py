@@ -226,17 +226,17 @@ class Parser:
         return value
 
     def expression(self) -> tuple:
-        node = self._term()
-        while self.peek()[0] == "op" and self.peek()[1] in ("+", "-"):
-            op = self.next()[1]
-            node = ("bin", op, node, self._term())
-        return node
+        return self._left(("+", "-"), self._term)
 
     def _term(self) -> tuple:
-        node = self._unary()
-        while self.peek()[0] == "op" and self.peek()[1] in ("*", "/"):
+        return self._left(("*", "/"), self._unary)
+
+    def _left(self, ops: tuple, operand) -> tuple:
+        """``operand (op operand)*`` for ``ops``, nested to the left (``x - y - 1`` is ``(x - y) - 1``)."""
+        node = operand()
+        while self.peek()[0] == "op" and self.peek()[1] in ops:
             op = self.next()[1]
-            node = ("bin", op, node, self._unary())
+            node = ("bin", op, node, operand())
         return node
 
     def _unary(self) -> tuple:
