@@ -20,7 +20,7 @@ from dataclasses import dataclass, field
 from typing import Union
 
 from percver.flowpipe import HybridFlowpipe, hybrid_flowpipe
-from percver.formats.flowstar_syntax import Automaton, Settings, Source, ast_variables, parse, to_expr
+from percver.formats.flowstar_syntax import Automaton, Settings, Source, ast_variables, parse, position_of, to_expr
 from percver.systems import Hybrid, Jump, Mode
 
 
@@ -99,7 +99,7 @@ def load_flowstar(path: str) -> Union[FlowstarModel, FlowstarHybrid]:
         unknown = sorted(ast_variables(ast) - set(variables))
         if unknown:
             raise src.error(
-                model.ode_pos,
+                position_of(ast, unknown[0]),
                 f'the ODE "{v}\' = {rhs}" uses {", ".join(map(repr, unknown))}, which is not a state variable '
                 f"(state var: {', '.join(variables)}); declare it or fix the name",
             )
@@ -179,10 +179,12 @@ class FlowstarHybrid:
 def _conditions(src, atoms: list, variables: set, where: str) -> list:
     """Conditions of ``lhs op rhs`` atoms (``=`` as both ``<=`` and ``>=``)."""
     out = []
-    for lhs, op, rhs, pos in atoms:
+    for lhs, op, rhs, _ in atoms:
         unknown = sorted((ast_variables(lhs) | ast_variables(rhs)) - variables)
         if unknown:
-            raise src.error(pos, f"{where}: {', '.join(map(repr, unknown))} not declared in 'state var'")
+            raise src.error(
+                position_of(("bin", "-", lhs, rhs), unknown[0]), f"{where}: {', '.join(map(repr, unknown))} not declared in 'state var'"
+            )
         margin = to_expr(("bin", "-", lhs, rhs))
         out += [margin <= 0] if op in ("<=", "<", "=") else []
         out += [margin >= 0] if op in (">=", ">", "=") else []

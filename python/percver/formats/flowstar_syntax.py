@@ -47,6 +47,7 @@ __all__ = [
     "Parser",
     "Settings",
     "ast_variables",
+    "position_of",
     "AutomatonMode",
     "AutomatonJump",
     "Automaton",
@@ -800,3 +801,10 @@ def ast_variables(ast: tuple) -> set:
     if ast[0] == "var":
         return {ast[1]}
     return set().union(*(ast_variables(a) for a in ast[1:] if isinstance(a, tuple)))
+
+
+def position_of(ast: tuple, name: str) -> Optional[int]:
+    """Where the AST first reads the variable ``name`` (None if it does not)."""
+    if ast[0] == "var":
+        return ast[2] if ast[1] == name else None
+    return next((p for a in ast[1:] if isinstance(a, tuple) and (p := position_of(a, name)) is not None), None)
