@@ -186,13 +186,13 @@ class Parser:
 
     def number(self, what: str) -> float:
         """A number with an optional sign."""
-        sign = -1.0 if self.accept("-") else 1.0
-        if sign > 0:
+        negative = self.accept("-")
+        if not negative:
             self.accept("+")
         tok = self.next()
         if tok[0] != "num":
             raise self.fail(tok, f"a number for {what}")
-        return sign * self._float(tok)
+        return -self._float(tok) if negative else self._float(tok)
 
     def integer(self, what: str) -> int:
         tok = self.next()
@@ -211,14 +211,14 @@ class Parser:
             raise self.src.error(at, f"empty interval [{lo}, {hi}] for {what}: write the smaller bound first")
         return lo, hi
 
-    def rest_of_line(self) -> tuple:
-        """The text from the next token to the end of its line or a closing brace, skipped; and
-        where it starts (settings Flow* reads and percver does not need are kept as text)."""
+    def rest_of_line(self) -> str:
+        """The text from the next token to the end of its line or a closing brace, skipped
+        (settings Flow* reads and percver does not need are kept as text)."""
         text = self.src.text
         start = self._ahead[0][2] if self._ahead else _SPACE.match(text, self._scan).end()
         end = min(i for i in (text.find("\n", start), text.find("}", start), len(text)) if i >= 0)
         self._ahead, self._scan = [], end
-        return text[start:end].strip(), start
+        return text[start:end].strip()
 
     def _float(self, tok: tuple) -> float:
         value = float(tok[1])
@@ -257,6 +257,8 @@ class Parser:
         return ("pow", base, ("num", exponent))
 
     def _atom(self) -> tuple:
+        if self.at("["):
+            return ("interval", *self.bounds("an interval constant"))
         tok = self.next()
         kind, name, pos = tok
         if kind == "num":
@@ -267,9 +269,6 @@ class Parser:
             inner = self.expression()
             self.expect(")", "closing '('")
             return inner
-        if name == "[" and kind == "op":
-            self._ahead.insert(0, tok)
-            return ("interval", *self.bounds("an interval constant"))
         raise self.fail(tok, "an expression")
 
     def _call(self, name: str, pos: int) -> tuple:
@@ -507,7 +506,7 @@ def _settings(p: Parser) -> Settings:
         start = p.offset()
         key = _setting(p, s)
         if key in ("display", None):
-            line, _ = p.rest_of_line()
+            line = p.rest_of_line()
         else:
             line = p.src.text[start : p.consumed]
         s.lines.append((key, line, start))
