@@ -65,22 +65,19 @@ class FlowstarModel:
         )
 
 
-def _required(found: Settings) -> tuple:
-    return (
-        ("step: add 'fixed steps h' or 'adaptive steps { min a, max b }'", found.step),
-        ("order: add 'fixed orders k' or 'adaptive orders { min k, max m }'", found.order),
-        ("time horizon: add 'time T'", found.time),
-    )
-
-
-def _integration(src, settings: Settings, required: tuple) -> None:
-    """Refuses settings percver does not know and checks the ``required`` ones are given."""
+def _integration(src, settings: Settings) -> None:
+    """Refuses settings percver does not know and checks the step, order and horizon are given."""
     for key, line, pos in settings.lines:
         if key is None:
             raise src.error(
                 pos,
                 f"unsupported setting '{line}' (percver reads steps, orders, time, remainder estimation, precondition, cutoff, max jumps)",
             )
+    required = (
+        ("step: add 'fixed steps h' or 'adaptive steps { min a, max b }'", settings.step),
+        ("order: add 'fixed orders k' or 'adaptive orders { min k, max m }'", settings.order),
+        ("time horizon: add 'time T'", settings.time),
+    )
     for what, value in required:
         if value is None:
             raise src.error(settings.pos, f"the setting block gives no {what}")
@@ -92,9 +89,7 @@ def load_flowstar(path: str) -> Union[FlowstarModel, FlowstarHybrid]:
     if isinstance(model, Automaton):
         return _hybrid(model)
     src, variables, found = model.src, model.variables, model.settings
-    _integration(src, found, _required(found))
-    if model.ode_kind.startswith("linear"):
-        raise src.error(model.ode_pos, "'linear ode' models are not supported yet; rewrite them as 'nonpoly ode'")
+    _integration(src, found)
     for v, (ast, rhs) in model.odes.items():
         unknown = sorted(ast_variables(ast) - set(variables))
         if unknown:
@@ -199,7 +194,7 @@ def _hybrid(aut: Automaton) -> FlowstarHybrid:
             aut.modes[dnn[0]].pos,
             f"mode {dnn[0]} is a Verisig 2.0 network mode (evaluated by the tool from a network file): read the model with pv.load_verisig(model, networks=[...])",
         )
-    _integration(src, found, _required(found))
+    _integration(src, found)
     known = set(variables)
     modes = {}
     for name, mode in aut.modes.items():
