@@ -189,5 +189,5 @@ class TestBadInput:
             pv.formats.to_flowstar(network.with_input_names(["clock", "v"]), tmp_path / "x.model", [(0, 1), (0, 1)])
 
     def test_verisig_2_models_point_to_load_verisig(self):
-        with pytest.raises(pv.ParseError, match=r"MC_small_sig_verisig.model, line \d+: mode DNNm1 .*load_verisig"):
+        with pytest.raises(pv.ParseError, match=r"MC_small_sig_verisig.model, line \d+, column \d+: mode DNNm1 .*load_verisig"):
             pv.formats.load_flowstar(str(DATA / "verisig2_suite" / "mountain_car_small" / "MC_small_sig_verisig.model"))

@@ -134,7 +134,7 @@ class TestBadInput:
         path = tmp_path / "bad.model"
         path.write_text(text.replace("guard { x <= 0 y <= 0 }", "guard { x <= 0 z <= 0 }"))
         line = text.split("\n").index("  guard { x <= 0 y <= 0 }") + 1
-        with pytest.raises(pv.ParseError, match=rf"bad.model, line {line}: .*'z' not declared in 'state var'"):
+        with pytest.raises(pv.ParseError, match=rf"bad.model, line {line}, column \d+: .*'z' not declared in 'state var'"):
             pv.formats.load_flowstar(str(path))
 
     def test_automata_wider_than_taylor_models_name_the_limit(self, tmp_path):

@@ -155,7 +155,7 @@ def test_example_verified_as_verisig_did(name):
 
 def test_f1tenth_loads_as_a_continuous_loop_with_lidar_stage():
     model = SUITE / "f1tenth" / "f1tenth_tanh_verisig.model"
-    with pytest.warns(UserWarning, match=r"line 45578: ignoring 'm_end_sr"):
+    with pytest.warns(UserWarning, match=r"line 45578, column 3: ignoring 'm_end_sr"):
         problem = pv.load_verisig(str(model), networks=[str(SUITE / "f1tenth" / "tanh64x64.yml")])
     assert problem.kind == "continuous" and problem.period == pytest.approx(0.1) and problem.steps == 50
     assert problem.states == ["y1", "y2", "y3", "y4"] and problem.loop.plant.inputs == ["u"]
@@ -235,16 +235,18 @@ class TestBadFiles:
         with pytest.raises(FileNotFoundError, match="does not exist"):
             pv.load_verisig(str(tmp_path / "nope.model"), MC_NET)
         path = write(tmp_path, "continuous reachability\n{\n state var x\n}\n")
-        with pytest.raises(pv.ParseError, match=r"bad.model, line 1: .*load_flowstar"):
+        with pytest.raises(pv.ParseError, match=r"bad.model, line 1, column 1: .*load_flowstar"):
             pv.load_verisig(path, MC_NET)
 
     def test_syntax_errors_name_the_line(self, tmp_path):
         text = mc_text().replace("guard { clock = 1.0 x2 + temp >= 0.07 }", "guard { clock = 1.0 x2 + temp => 0.07 }")
         line = line_of(text, "x2 + temp => 0.07")
-        with pytest.raises(pv.ParseError, match=rf"line {line}: expected an expression, found '>'"):
+        with pytest.raises(pv.ParseError, match=rf"line {line}, column \d+: expected an expression, found '>'"):
             pv.load_verisig(write(tmp_path, text), MC_NET)
         text = mc_text().replace("mode2 -> mode3", "mode2 -> mode9")
-        with pytest.raises(pv.ParseError, match=rf"line {line_of(text, 'mode2 -> mode9')}: jump mode2 -> mode9: no mode named 'mode9'"):
+        with pytest.raises(
+            pv.ParseError, match=rf"line {line_of(text, 'mode2 -> mode9')}, column \d+: jump mode2 -> mode9: no mode named 'mode9'"
+        ):
             pv.load_verisig(write(tmp_path, text), MC_NET)
         text = mc_text().replace("reset { clock' := 0 }", "reset { speed' := 0 }", 1)
         with pytest.raises(pv.ParseError, match=r"reset of undeclared variable 'speed'"):
@@ -261,7 +263,7 @@ class TestBadFiles:
             pv.load_verisig(write(tmp_path, text), MC_NET)
         # A jump mixing a counter and a state in one constraint.
         text = mc_text().replace("guard { k >= 150.0 x1 <= 0.45 }", "guard { k + x1 >= 150.0 }")
-        with pytest.raises(pv.ParseError, match=rf"line {line_of(text, 'k + x1')}: .*mixing clocks/counters"):
+        with pytest.raises(pv.ParseError, match=rf"line {line_of(text, 'k + x1')}, column \d+: .*mixing clocks/counters"):
             pv.load_verisig(write(tmp_path, text), MC_NET)
         # The network evaluated on one branch only.
         text = mc_text().replace(
@@ -273,18 +275,21 @@ class TestBadFiles:
         text = mc_text().replace("guard { clock = 1.0 x2 + temp >= 0.07 }", "guard { x2 + temp >= 0.07 }")
         line = line_of(text, "guard { x2 + temp >= 0.07 }") - 1  # the jump's 'A -> B' line
         with pytest.raises(
-            pv.ParseError, match=rf"line {line}: jump _reset_mode1 -> mode2 leaves the flowing mode .*without a 'clock = c' guard"
+            pv.ParseError,
+            match=rf"line {line}, column \d+: jump _reset_mode1 -> mode2 leaves the flowing mode .*without a 'clock = c' guard",
         ):
             pv.load_verisig(write(tmp_path, text), MC_NET)
         # Linear-time-invariant dynamics blocks.
         text = mc_text().replace("nonpoly ode", "lti ode", 1)
-        with pytest.raises(pv.ParseError, match=rf"line {line_of(text, 'lti ode')}: mode 'm0': 'lti ode' dynamics are not supported"):
+        with pytest.raises(
+            pv.ParseError, match=rf"line {line_of(text, 'lti ode')}, column \d+: mode 'm0': 'lti ode' dynamics are not supported"
+        ):
             pv.load_verisig(write(tmp_path, text), MC_NET)
         # An unsafe jump from somewhere other than the step boundary.
         text = mc_text().replace("mode2 -> unsafe1", "m0 -> unsafe1")
         with pytest.raises(
             pv.ParseError,
-            match=rf"line {line_of(text, 'm0 -> unsafe1')}: jump m0 -> unsafe1 ends the run from 'm0', but jump mode2 -> mode3",
+            match=rf"line {line_of(text, 'm0 -> unsafe1')}, column \d+: jump m0 -> unsafe1 ends the run from 'm0', but jump mode2 -> mode3",
         ):
             pv.load_verisig(write(tmp_path, text), MC_NET)
 

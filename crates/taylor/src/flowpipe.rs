@@ -21,6 +21,8 @@ use crate::interval::Interval;
 use crate::precondition::{precondition, Precondition};
 use crate::space::Space;
 use crate::symbolic::{mat_mul, mat_vec, SymbolicRemainder};
+// hybrid.rs and bound.rs reach the shared monomial builder here.
+pub(crate) use crate::tm::compose_all;
 use crate::tm::{Ctx, TaylorModel};
 use std::sync::Arc;
 use std::time::Instant;
@@ -403,40 +405,6 @@ fn flow_from(
     let final_box = state.iter().map(|m| bounder(m, &space)).collect();
     stats.seconds = started.elapsed().as_secs_f64();
     Ok(Flowpipe { names: ode.names.clone(), segments, final_state: state, final_box, time_reached: t, failure, stats, space })
-}
-
-/// `models[i](args)` for every i, as [`TaylorModel::compose`] computes it, but building the
-/// monomials of the arguments once for all models (they share them; composing each model on
-/// its own rebuilt every monomial n times, most of a step's time on Laub-Loomis).
-pub(crate) fn compose_all(models: &[TaylorModel], args: &[TaylorModel], ctx: &Ctx) -> Vec<TaylorModel> {
-    let space = &ctx.space;
-    let len = models.iter().map(|m| m.coef.len()).max().unwrap_or(0);
-    let mut acc = vec![TaylorModel::zero(); models.len()];
-    let mut monomials: Vec<TaylorModel> = Vec::with_capacity(len);
-    for i in 0..len {
-        let m = if i == 0 {
-            TaylorModel::constant(1.0)
-        } else {
-            let (j, v) = space.parent(i);
-            if j == 0 {
-                args[v].clone()
-            } else {
-                monomials[j].mul(&args[v], ctx)
-            }
-        };
-        for (a, model) in acc.iter_mut().zip(models) {
-            let ci = model.coef.get(i).copied().unwrap_or(0.0);
-            if ci != 0.0 {
-                *a = a.add(&m.scale(ci));
-            }
-        }
-        monomials.push(m);
-    }
-    for (a, model) in acc.iter_mut().zip(models) {
-        a.rem = a.rem + model.rem;
-        a.sweep(ctx);
-    }
-    acc
 }
 
 /// The time grid of a flowpipe to `t_end`: the float spacing just below t_end. Multiples of it

@@ -1,6 +1,9 @@
 //! A parser for Flow*'s expression syntax: `(1 - x^2)*y - x`, `sin(theta)`, `[0.1, 0.2]*u`,
-//! and the comparisons of guards and invariants (`x <= 0.5`). Precedence, loosest first:
-//! `+ -`, `* /`, unary minus, `^` (right-associative), so `-x^2` is `-(x^2)` as in Flow*.
+//! `min`, `max`, `clip` and `where(lhs cmp rhs, then, otherwise)` (so [`Expr`]'s printed form
+//! reads back), and the comparisons of guards and invariants (`x <= 0.5`). Precedence, loosest
+//! first: `+ -`, `* /`, unary minus, `^` with a signed number (no chains), so `-x^2` is `-(x^2)`
+//! as in Flow*. Python's `percver.formats.flowstar_syntax` reads model files with this grammar;
+//! its tests check the two agree on random expressions.
 use crate::error::{Result, TaylorError};
 use crate::expr::{BinOp, Cmp, Expr};
 use crate::functions::Func;
@@ -29,9 +32,17 @@ fn lex(src: &str) -> Result<Vec<(Token, usize)>> {
         if c.is_whitespace() {
             i += 1;
         } else if c.is_ascii_digit() || (c == '.' && i + 1 < bytes.len() && (bytes[i + 1] as char).is_ascii_digit()) {
+            // digits ['.' digits] or '.' digits: a second '.' starts the next token
             let start = i;
-            while i < bytes.len() && ((bytes[i] as char).is_ascii_digit() || bytes[i] == b'.') {
-                i += 1;
+            let digits = |mut i: usize| {
+                while i < bytes.len() && (bytes[i] as char).is_ascii_digit() {
+                    i += 1;
+                }
+                i
+            };
+            i = digits(i);
+            if i < bytes.len() && bytes[i] == b'.' {
+                i = digits(i + 1);
             }
             if i < bytes.len() && (bytes[i] == b'e' || bytes[i] == b'E') {
                 let mut j = i + 1;
@@ -140,23 +151,7 @@ impl Parser<'_> {
         let base = self.atom()?;
         if self.peek() == Some(&Token::Sym('^')) {
             self.pos += 1;
-            let negative = if self.peek() == Some(&Token::Sym('-')) {
-                self.pos += 1;
-                true
-            } else {
-                false
-            };
-            let exponent = match self.peek().cloned() {
-                Some(Token::Num(v)) => {
-                    self.pos += 1;
-                    if negative {
-                        -v
-                    } else {
-                        v
-                    }
-                }
-                _ => return self.fail("expected a number after '^' (exponents must be constants)"),
-            };
+            let exponent = self.signed_number("after '^' (exponents must be constants)")?;
             // Right-associative: x^2^3 = x^(2^3) is rare; reject to avoid surprises.
             if self.peek() == Some(&Token::Sym('^')) {
                 return self.fail("chained '^' is ambiguous; add parentheses");
@@ -180,9 +175,9 @@ impl Parser<'_> {
             }
             Some(Token::Sym('[')) => {
                 self.pos += 1;
-                let lo = self.signed_number()?;
+                let lo = self.signed_number("for an interval bound")?;
                 self.expect(',')?;
-                let hi = self.signed_number()?;
+                let hi = self.signed_number("for an interval bound")?;
                 self.expect(']')?;
                 let iv = Interval::new(lo, hi).map_err(|e| err(self.src, self.column(), &e.to_string()))?;
                 Ok(Expr::uncertain(iv, false))
@@ -191,6 +186,9 @@ impl Parser<'_> {
                 self.pos += 1;
                 if self.peek() == Some(&Token::Sym('(')) {
                     self.pos += 1;
+                    if name == "where" {
+                        return self.select();
+                    }
                     let mut args = vec![self.sum()?];
                     while self.peek() == Some(&Token::Sym(',')) {
                         self.pos += 1;
@@ -205,20 +203,45 @@ impl Parser<'_> {
         }
     }
 
-    fn signed_number(&mut self) -> Result<f64> {
-        let negative = if self.peek() == Some(&Token::Sym('-')) {
-            self.pos += 1;
-            true
-        } else {
-            false
+    /// `lhs cmp rhs`; `what` ends the message when there is no comparison.
+    fn comparison(&mut self, what: &str) -> Result<(Expr, Cmp, Expr)> {
+        let lhs = self.sum()?;
+        let cmp = match self.peek() {
+            Some(Token::Cmp(c)) => *c,
+            _ => return self.fail(&format!("expected a comparison (<, <=, >, >=){what}")),
+        };
+        self.pos += 1;
+        Ok((lhs, cmp, self.sum()?))
+    }
+
+    /// A number with an optional sign; `what` ends the message when there is none.
+    fn signed_number(&mut self, what: &str) -> Result<f64> {
+        let negative = match self.peek() {
+            Some(Token::Sym(c @ ('-' | '+'))) => {
+                let negative = *c == '-';
+                self.pos += 1;
+                negative
+            }
+            _ => false,
         };
         match self.peek().cloned() {
             Some(Token::Num(v)) => {
                 self.pos += 1;
                 Ok(if negative { -v } else { v })
             }
-            _ => self.fail("expected a number"),
+            _ => self.fail(&format!("expected a number {what}")),
         }
+    }
+
+    /// `where(lhs cmp rhs, then, otherwise)` after its '(' (the printed form of [`Expr::select`]).
+    fn select(&mut self) -> Result<Expr> {
+        let (lhs, cmp, rhs) = self.comparison(" in where(lhs cmp rhs, then, otherwise)")?;
+        self.expect(',')?;
+        let then = self.sum()?;
+        self.expect(',')?;
+        let otherwise = self.sum()?;
+        self.expect(')')?;
+        Ok(Expr::select(&lhs, cmp, &rhs, &then, &otherwise))
     }
 
     fn call(&self, name: &str, args: Vec<Expr>) -> Result<Expr> {
@@ -243,9 +266,8 @@ impl Parser<'_> {
                     arity(1)?;
                     Ok(Expr::func(f, &args[0]))
                 }
-                None => {
-                    self.fail(&format!("unknown function '{name}' (known: exp log sqrt sin cos tan atan tanh sigmoid abs min max clip)"))
-                }
+                None => self
+                    .fail(&format!("unknown function '{name}' (known: exp log sqrt sin cos tan atan tanh sigmoid abs min max clip where)")),
             },
         }
     }
@@ -267,13 +289,7 @@ pub fn parse_expr(src: &str) -> Result<Expr> {
 /// Parses a constraint `lhs <= rhs` (or <, >=, >) into (lhs, cmp, rhs).
 pub fn parse_constraint(src: &str) -> Result<(Expr, Cmp, Expr)> {
     let mut p = Parser { src, tokens: lex(src)?, pos: 0 };
-    let lhs = p.sum()?;
-    let cmp = match p.peek() {
-        Some(Token::Cmp(c)) => *c,
-        _ => return p.fail("expected a comparison (<, <=, >, >=)"),
-    };
-    p.pos += 1;
-    let rhs = p.sum()?;
+    let (lhs, cmp, rhs) = p.comparison("")?;
     if p.pos != p.tokens.len() {
         return p.fail("unexpected text after the constraint");
     }
@@ -301,6 +317,18 @@ mod tests {
         assert!((eval("sin(x)^2 + cos(x)^2", 0.7, 0.0) - 1.0).abs() < 1e-15);
         assert_eq!(eval("x^-1", 4.0, 0.0), 0.25);
         assert_eq!(eval("clip(x, -1, 1)", 4.0, 0.0), 1.0);
+        assert_eq!(eval("where(x >= y, x, y) + x^+2", 2.0, 3.0), 7.0);
+        assert_eq!(eval("[+1, 1] * x", 2.0, 0.0), 2.0);
+    }
+
+    #[test]
+    fn printed_expressions_read_back() {
+        for src in ["where(x >= 0.5, min(x, -1.5e-7), max(y, 2.0))", "((x^-2) * [-1.0, 2.0])", "(-(x + (y^0.5)))"] {
+            let e = parse_expr(src).unwrap();
+            assert_eq!(parse_expr(&e.to_string()).unwrap().to_string(), e.to_string());
+        }
+        // a second '.' starts a new token, which cannot follow a number
+        assert!(parse_expr("1.2.3").unwrap_err().to_string().contains("unexpected text"));
     }
 
     #[test]

@@ -33,7 +33,7 @@ from typing import Optional, Sequence
 import numpy as np
 
 from percver.errors import InputError, ParseError
-from percver.formats.verisig import _FUNCTIONS, _Source, _Tokens
+from percver.formats.flowstar_syntax import parse_expression, text as _text
 from percver.networks import Network, chain
 from percver.sets import Box
 from percver.systems import Discrete
@@ -42,7 +42,6 @@ __all__ = ["to_flowstar"]
 
 _IDENTIFIER = re.compile(r"[A-Za-z][A-Za-z0-9_]*")
 _FLOWSTAR_FUNCTIONS = {"sin", "cos", "exp", "log", "sqrt"}
-_PIECEWISE = ("min", "max", "where", "abs")
 # Branch combinations of a piecewise plant update written as jumps: 2^8.
 _MAX_PIECEWISE = 8
 
@@ -316,7 +315,7 @@ class _PlantUpdate:
                 if atom is not True:
                     guard.append(atom)
             else:
-                reset = {s: self._value(_choose(ast, chosen)) for s, ast in asts.items() if _key(ast) != s}
+                reset = {s: self._value(_choose(ast, chosen)) for s, ast in asts.items() if _text(ast) != s}
                 self.branches.append((guard, reset))
 
     @property
@@ -339,8 +338,8 @@ class _PlantUpdate:
         kind = node[0]
         if kind == "where":
             lhs, op, rhs = node[1], node[2], node[3]
-        elif kind == "abs":
-            lhs, op, rhs = node[1], ">=", ("num", 0.0)
+        elif kind == "call":  # abs(x) = x where x >= 0
+            lhs, op, rhs = node[2], ">=", ("num", 0.0)
         else:  # min(a, b) = a where a <= b; max(a, b) = a where a >= b
             lhs, op, rhs = node[1], "<=" if kind == "min" else ">=", node[2]
         margin = _choose(("bin", "-", lhs, rhs), chosen)
@@ -352,106 +351,58 @@ class _PlantUpdate:
         return f"{self._value(margin)} {'<=' if op in ('<=', '<') else '>='} 0"
 
 
-class _PiecewiseTokens(_Tokens):
-    """Flow* expressions plus the printed forms of percver's piecewise functions."""
-
-    def atom(self):
-        kind, text, pos = self.peek()
-        if kind == "id" and self.peek(1)[1] == "(":
-            if text in _PIECEWISE:
-                self.next(), self.next()
-                node = (text, self.expr())
-                if text == "where":  # where(lhs op rhs, then, otherwise)
-                    node += (self.next()[1], self.expr())
-                    self.expect(",")
-                    node += (self.expr(),)
-                if text in ("min", "max", "where"):
-                    self.expect(",")
-                    node += (self.expr(),)
-                self.expect(")", f"closing {text}(")
-                return node
-            if text in _FUNCTIONS and text not in _FLOWSTAR_FUNCTIONS:
-                raise self.src.error(pos, f"Flow* has no {text}(); it knows {', '.join(sorted(_FLOWSTAR_FUNCTIONS))}")
-        return super().atom()
-
-    def power(self):
-        node = super().power()
-        if node[0] == "pow":
-            exponent = _constant(node[2])
-            if exponent is None or exponent != int(exponent) or exponent < 0:
-                raise self.src.error(0, f"Flow* powers need a non-negative integer exponent, got {_text(node[2])}")
-        return node
-
-
 def _parse_expr(expr, what: str):
-    """The AST (as the Verisig parser builds it, plus piecewise nodes) of an expression's text."""
+    """The AST of an expression's printed form, checked to be Flow*: its functions Flow*'s
+    (``abs`` and percver's ``min``, ``max``, ``where`` become branches), its powers whole."""
     text = repr(expr)
     if text.endswith(" ..."):
         raise InputError(f"{what} is too large to write out (its text exceeds the printer's limit)")
-    src = _Source(what, text)
     try:
-        tokens = _PiecewiseTokens(src, text, 0)
-        ast = tokens.expr()
-        if not tokens.at_end():
-            raise src.error(tokens.peek()[2], f"unexpected '{tokens.peek()[1]}'")
+        ast = parse_expression(text, what)
     except ParseError as error:
         raise InputError(f"{what} cannot be written in Flow* syntax: {error}") from None
+    _check_flowstar(ast, what)
     return ast
 
 
-def _key(ast) -> str:
-    """Structural text of an AST (piecewise nodes included): equal for equal subexpressions."""
+def _check_flowstar(ast, what: str) -> None:
     kind = ast[0]
-    if kind in _PIECEWISE:
-        parts = [_key(a) if isinstance(a, tuple) else a for a in ast[1:]]
-        return f"{kind}({', '.join(parts)})"
-    if kind == "var":
-        return ast[1]
-    return _text(ast, _key)
+    if kind == "call" and ast[1] not in _FLOWSTAR_FUNCTIONS and ast[1] != "abs":
+        raise InputError(
+            f"{what} cannot be written in Flow* syntax: Flow* has no {ast[1]}(); it knows {', '.join(sorted(_FLOWSTAR_FUNCTIONS))}"
+        )
+    if kind == "pow" and (ast[2][1] != int(ast[2][1]) or ast[2][1] < 0):
+        raise InputError(f"{what} cannot be written in Flow* syntax: Flow* powers need a non-negative integer exponent, got {ast[2][1]!r}")
+    for part in ast[1:]:
+        if isinstance(part, tuple):
+            _check_flowstar(part, what)
+
+
+def _piecewise(ast) -> bool:
+    return ast[0] in ("min", "max", "where") or (ast[0] == "call" and ast[1] == "abs")
 
 
 def _collect_piecewise(ast, nodes: dict) -> None:
-    """Every piecewise node of the AST, innermost first, by structural key."""
+    """Every piecewise node of the AST, innermost first, by its text (equal for equal subexpressions)."""
     for part in ast[1:]:
         if isinstance(part, tuple):
             _collect_piecewise(part, nodes)
-    if ast[0] in _PIECEWISE:
-        nodes.setdefault(_key(ast), ast)
+    if _piecewise(ast):
+        nodes.setdefault(_text(ast), ast)
 
 
 def _choose(ast, chosen: dict):
     """The AST with every piecewise node replaced by its chosen branch."""
-    kind = ast[0]
-    if kind in _PIECEWISE:
-        holds = chosen[_key(ast)]
+    if _piecewise(ast):
+        holds = chosen[_text(ast)]
+        kind = ast[0]
         if kind == "where":
             return _choose(ast[4] if holds else ast[5], chosen)
-        if kind == "abs":
-            inner = _choose(ast[1], chosen)
+        if kind == "call":  # abs
+            inner = _choose(ast[2], chosen)
             return inner if holds else ("neg", inner)
         return _choose(ast[1] if holds else ast[2], chosen)
     return tuple(_choose(a, chosen) if isinstance(a, tuple) else a for a in ast)
-
-
-def _text(ast, inner=None) -> str:
-    """Flow* text of a branch-free AST (fully parenthesised)."""
-    inner = inner or _text
-    kind = ast[0]
-    if kind == "num":
-        return _num(ast[1]) if ast[1] >= 0 else f"({_num(ast[1])})"
-    if kind == "var":
-        return ast[1]
-    if kind == "neg":
-        return f"(-{inner(ast[1])})"
-    if kind == "bin":
-        return f"({inner(ast[2])} {ast[1]} {inner(ast[3])})"
-    if kind == "pow":
-        return f"({inner(ast[1])}^{int(_constant(ast[2]))})"
-    if kind == "call":
-        return f"{ast[1]}({inner(ast[2])})"
-    if kind == "interval":
-        return f"[{_num(ast[1])}, {_num(ast[2])}]"
-    raise AssertionError(kind)
 
 
 def _constant(ast) -> Optional[float]:

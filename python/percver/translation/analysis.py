@@ -12,8 +12,8 @@ from typing import Optional
 
 from percver.errors import ParseError
 from percver.expr import Expr
-from percver.formats.verisig import Automaton, AutomatonMode
-from percver.translation.values import TOL, NeedAbsolute, Relative, ast_vars, build_value, is_num
+from percver.formats.flowstar_syntax import Automaton, AutomatonMode, ast_variables
+from percver.translation.values import TOL, NeedAbsolute, Relative, build_value, is_num
 
 
 class Analysis:
@@ -46,7 +46,7 @@ class Analysis:
             )
         self.timers = self.find_timers()
         for m, mode in self.modes.items():
-            states = [a for a in mode.inv if not (ast_vars(a[0], set()) | ast_vars(a[2], set())) <= set(self.timers)]
+            states = [a for a in mode.inv if not (ast_variables(a[0]) | ast_variables(a[2])) <= set(self.timers)]
             if states and m not in self.terminal:
                 self.notes.append(
                     f"mode '{m}' (line {self.src.line(mode.pos)}): state invariants ignored (an over-approximation: "
@@ -56,7 +56,7 @@ class Analysis:
         self.flow_mode = self.find_flow_mode()
 
     def const(self, ast) -> Optional[float]:
-        if ast_vars(ast, set()):
+        if ast_variables(ast):
             return None
         try:
             v = build_value(self.src, ast, lambda n, p: 0.0)
@@ -119,7 +119,7 @@ class Analysis:
             ast = mode.ode.get(v, ("num", 0.0))
             if self.const(ast) == 0.0:
                 continue
-            if not ast_vars(ast, set()) <= frozen:
+            if not ast_variables(ast) <= frozen:
                 return False
         return True
 

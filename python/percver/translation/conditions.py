@@ -10,7 +10,7 @@ from typing import Optional
 
 from percver.errors import ParseError
 from percver.expr import Condition, Expr
-from percver.formats.verisig import AutomatonJump
+from percver.formats.flowstar_syntax import AutomatonJump
 from percver.translation.values import condition_of, evaluate_floats, same_ast
 
 

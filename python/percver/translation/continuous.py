@@ -12,7 +12,8 @@ from percver.translation.problem import VerisigProblem, make_problem
 from percver.translation.properties import check_plant_states, final_goal, jump_properties
 from percver.translation.stages import build_stages, same_controller
 from percver.translation.timing import check_entry_clock, flow_trigger, horizon_steps, jump_note, property_horizon
-from percver.translation.values import TOL, Relative, ast_vars, build_value
+from percver.formats.flowstar_syntax import ast_variables
+from percver.translation.values import TOL, Relative, build_value
 
 
 def continuous_problem(ex, init_timers: dict) -> VerisigProblem:
@@ -67,7 +68,7 @@ def continuous_problem(ex, init_timers: dict) -> VerisigProblem:
     # by the period's jumps) or constant parameters (never assigned).
     rhs_vars = set()
     for v in plant:
-        rhs_vars |= ast_vars(fmode.ode[v], set())
+        rhs_vars |= ast_variables(fmode.ode[v])
     if rhs_vars & set(ex.timers):
         clocks = ", ".join(sorted(rhs_vars & set(ex.timers)))
         raise ex.src.error(fmode.pos, f"the dynamics of '{F}' read the clock/counter(s) {clocks} (time-varying ODE); not supported")

@@ -12,14 +12,13 @@ from dataclasses import dataclass
 from typing import Optional
 
 from percver.expr import Expr
-from percver.formats.verisig import AutomatonJump
+from percver.formats.flowstar_syntax import AutomatonJump, ast_variables
 from percver.translation.analysis import Analysis
 from percver.translation.branches import post_dominators
 from percver.translation.values import (
     TOL,
     NeedAbsolute,
     Relative,
-    ast_vars,
     build_value,
     call_function,
     compare,
@@ -91,7 +90,7 @@ class Execution(Analysis):
         """(timer atoms as ASTs, state conditions as values); mixed atoms are refused."""
         timer_atoms, conds = [], []
         for lhs, op, rhs, pos in atoms:
-            used = ast_vars(lhs, set()) | ast_vars(rhs, set())
+            used = ast_variables(lhs) | ast_variables(rhs)
             if used and used <= set(self.timers):
                 timer_atoms.append((lhs, op, rhs, pos))
                 continue
@@ -247,7 +246,7 @@ class Execution(Analysis):
             edges = []
             for j in self.continuing(node):
                 if state.dwell > TOL and not any(
-                    op == "=" and ast_vars(l, set()) <= set(self.timers) and ast_vars(l, set()) for l, op, r, _ in j.guard
+                    op == "=" and ast_variables(l) <= set(self.timers) and ast_variables(l) for l, op, r, _ in j.guard
                 ):
                     # Without 'clock = c' the jump may fire at any time of the flow, not just at its end.
                     raise self.src.error(

@@ -12,7 +12,8 @@ from percver.translation.problem import VerisigProblem, make_problem
 from percver.translation.properties import check_plant_states, constraint_conditions, edge_conditions, final_goal, property_edges
 from percver.translation.stages import build_stages, same_controller
 from percver.translation.timing import check_entry_clock, classify_trigger, flow_trigger, horizon_steps, jump_note, property_horizon
-from percver.translation.values import TOL, Relative, ast_vars, build_value
+from percver.formats.flowstar_syntax import ast_variables
+from percver.translation.values import TOL, Relative, build_value
 
 
 def hybrid_problem(ex, init_timers: dict) -> VerisigProblem:
@@ -67,10 +68,10 @@ def hybrid_problem(ex, init_timers: dict) -> VerisigProblem:
     tested = set()
     for m in R:
         for lhs, _, rhs, _ in ex.modes[m].inv:
-            tested |= ast_vars(lhs, set()) | ast_vars(rhs, set())
+            tested |= ast_variables(lhs) | ast_variables(rhs)
     for j in inner + leaving:
         for lhs, _, rhs, _ in j.guard:
-            tested |= ast_vars(lhs, set()) | ast_vars(rhs, set())
+            tested |= ast_variables(lhs) | ast_variables(rhs)
     clocks = [v for v in ex.vars if v in ex.timers and v in tested]
     for v in clocks:
         if any(abs(e[v] - entry0[v]) > TOL for e in entries):
@@ -80,11 +81,11 @@ def hybrid_problem(ex, init_timers: dict) -> VerisigProblem:
     read = set()
     for m in R:
         for v in plant:
-            read |= ast_vars(ex.modes[m].ode.get(v, ("num", 0.0)), set())
+            read |= ast_variables(ex.modes[m].ode.get(v, ("num", 0.0)))
     read |= tested
     for j in inner:
         for ast in j.reset.values():
-            read |= ast_vars(ast, set())
+            read |= ast_variables(ast)
     if read & set(ex.timers) - set(clocks):
         raise ex.src.error(
             ex.modes[first].pos, f"the plant modes read the counters {sorted(read & set(ex.timers) - set(clocks))}; not supported"
@@ -168,7 +169,7 @@ def through_plant_modes(ex, R: set, first: str, last: str, timers: dict) -> tupl
         inner = [j for j in ex.out[node] if j.dst in R]
         fire = []
         for j in inner:
-            if any(not (ast_vars(l, set()) | ast_vars(r, set())) <= set(ex.timers) for l, _, r, _ in j.guard):
+            if any(not (ast_variables(l) | ast_variables(r)) <= set(ex.timers) for l, _, r, _ in j.guard):
                 raise ex.src.error(
                     j.pos,
                     f"jump {j.src} -> {j.dst} between plant modes has a state guard; only clock-triggered jumps between plant modes are supported",

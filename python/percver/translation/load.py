@@ -31,7 +31,7 @@ def translate(ex: Execution) -> VerisigProblem:
     """The loop the model becomes: discrete without plant modes, hybrid with several, else continuous."""
     aut = ex.aut
     init_timers = ex.initial_timers()
-    if "max_jumps" not in aut.settings:
+    if aut.settings.max_jumps is None:
         ex.notes.append("no 'max jumps' setting; the horizon comes from 'time' alone")
     if ex.flow_mode is None:
         return discrete_problem(ex, init_timers)

@@ -107,7 +107,7 @@ class VerisigProblem:
 
 
 def make_problem(ex, loop, init, H, goal, safe, within, period) -> VerisigProblem:
-    ignored = ex.aut.settings.get("ignored", [])
+    ignored = ex.aut.settings.unused("time", "max_jumps")
     if ignored:
         ex.notes.append(f"Flow* integration settings not used by percver: {'; '.join(ignored)}")
     return VerisigProblem(
@@ -121,5 +121,5 @@ def make_problem(ex, loop, init, H, goal, safe, within, period) -> VerisigProble
         period,
         list(ex.networks),
         ex.notes,
-        {k: v for k, v in ex.aut.settings.items() if k != "ignored"},
+        {k: getattr(ex.aut.settings, k) for k in ("time", "max_jumps") if getattr(ex.aut.settings, k) is not None},
     )

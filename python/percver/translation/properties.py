@@ -7,11 +7,11 @@ from typing import Optional
 
 from percver.errors import ParseError
 from percver.expr import Expr
-from percver.formats.verisig import AutomatonJump
+from percver.formats.flowstar_syntax import AutomatonJump, ast_variables
 from percver.translation.conditions import all_of, atom_text, complementary, dedupe, dedupe_atoms, implies, negate
 from percver.translation.execution import RunState
 from percver.translation.timing import classify_trigger
-from percver.translation.values import ast_vars, build_value, condition_of
+from percver.translation.values import build_value, condition_of
 
 
 def property_edges(ex, source: str) -> tuple:
@@ -54,9 +54,9 @@ def final_goal(ex, finals: list, within_goals: list, anchor: str):
                 "an absorbing goal mode is supported with exactly one goal jump and one final-step unsafe jump (the Mountain Car pattern)",
             )
         (gj, _), (uj, uconds, _) = within_goals[0], finals[0]
-        g_atoms = [a for a in gj.guard if not (ast_vars(a[0], set()) | ast_vars(a[2], set())) <= set(ex.timers)]
+        g_atoms = [a for a in gj.guard if not (ast_variables(a[0]) | ast_variables(a[2])) <= set(ex.timers)]
         u_atoms = dedupe_atoms(
-            [a for a in uj.guard if not (ast_vars(a[0], set()) | ast_vars(a[2], set())) <= set(ex.timers)]
+            [a for a in uj.guard if not (ast_variables(a[0]) | ast_variables(a[2])) <= set(ex.timers)]
             + (ex.aut.unsafe[uj.dst][0] if uj.dst in ex.aut.unsafe else [])
         )
         if len(g_atoms) != 1 or len(u_atoms) != 1 or not complementary(g_atoms[0], u_atoms[0]):

@@ -11,11 +11,11 @@ from percver.translation.values import TOL, Relative, compare, fold
 
 
 def horizon_steps(ex, elapsed: float, per_period_jumps: int, prefix_jumps: int) -> int:
-    T = ex.aut.settings["time"]
+    T = ex.aut.settings.time
     if elapsed > TOL:
         H = int(math.floor(T / elapsed + TOL))
     else:
-        mj = ex.aut.settings.get("max_jumps")
+        mj = ex.aut.settings.max_jumps
         if not mj:
             raise ParseError(f"{ex.src.path}: a period takes no time and there is no 'max jumps': the horizon is undefined")
         H = (mj - prefix_jumps) // max(per_period_jumps, 1)
@@ -25,7 +25,7 @@ def horizon_steps(ex, elapsed: float, per_period_jumps: int, prefix_jumps: int) 
 
 
 def jump_note(ex, H: int, per_period: int, prefix: int, property_jump: bool):
-    mj = ex.aut.settings.get("max_jumps")
+    mj = ex.aut.settings.max_jumps
     if mj is None:
         return
     need = prefix + H * per_period + (1 if property_jump else 0)

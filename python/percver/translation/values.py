@@ -106,16 +106,18 @@ def build_value(src, ast, lookup):
         return call_function(ast[1], build_value(src, ast[2], lookup))
     if kind == "interval":
         return ast[1] if ast[1] == ast[2] else Expr.uncertain(ast[1], ast[2])
+    if kind in ("min", "max"):
+        a, b = build_value(src, ast[1], lookup), build_value(src, ast[2], lookup)
+        if is_num(a) and is_num(b):
+            return float(min(a, b) if kind == "min" else max(a, b))
+        return (Expr.minimum if kind == "min" else Expr.maximum)(as_expr(a), as_expr(b))
+    if kind == "where":
+        holds = condition_of(build_value(src, ast[1], lookup), ast[2], build_value(src, ast[3], lookup))
+        then, otherwise = build_value(src, ast[4], lookup), build_value(src, ast[5], lookup)
+        if isinstance(holds, bool):
+            return then if holds else otherwise
+        return Expr.select(holds, as_expr(then), as_expr(otherwise))
     raise AssertionError(kind)
-
-
-def ast_vars(ast, out: set) -> set:
-    if ast[0] == "var":
-        out.add(ast[1])
-    for part in ast[1:]:
-        if isinstance(part, tuple):
-            ast_vars(part, out)
-    return out
 
 
 def same_ast(a, b) -> bool:
