@@ -282,7 +282,10 @@ pub fn reach(aut: &Automaton, start: usize, init: &[Interval], t_end: f64, flow:
     let ctx = Ctx::new(space.clone(), order, flow.cutoff);
     let state = symbolize(&init.iter().copied().chain([Interval::ZERO]).collect::<Vec<_>>(), &ctx);
     let mut remainder = flow.remainder_estimate.clone();
-    remainder.push(remainder.iter().copied().fold(f64::MIN_POSITIVE, f64::min));
+    // The clock's estimate is a tolerance like the others (the smallest): one at the underflow
+    // level failed every Picard check by the clock's rounding, which no step length shrinks,
+    // so adaptive steps halved to their minimum at every step (exported networks at 1e-6).
+    remainder.push(remainder.iter().copied().fold(f64::INFINITY, f64::min));
     let flow = Settings { remainder_estimate: remainder, ..flow.clone() };
     // Never the reason a run stops (the clock is): a visit flows at most t_end and a step past
     // it, and a branch's latest entry time sums its visits' latest jump times.
@@ -339,12 +342,13 @@ fn with_horizon(aut: &Automaton, t_end: f64) -> Result<Automaton> {
     Ok(timed)
 }
 
-/// Most coefficients a state's models may hold together when the automaton is too wide for a
-/// symbol per variable (2^22: 32 MB a state, of which a run keeps a few per step and jump).
-const COEFFICIENT_BUDGET: f64 = 4_194_304.0;
+/// Most monomials of the models' space when the automaton is too wide for a symbol per
+/// variable: 14 symbols at order 4 (3,876), whose states of 600 variables take 19 MB; every
+/// product of two models of a wider space costs more than a whole narrow run's flowpipe step.
+const MONOMIAL_BUDGET: f64 = 4096.0;
 
 /// How many symbols the models of `n` variables at `order` may have: one per variable if they
-/// fit a space with time, else as many as keep a state within [`COEFFICIENT_BUDGET`].
+/// fit a space with time, else as many as keep the space within [`MONOMIAL_BUDGET`].
 fn symbol_budget(n: usize, order: usize) -> usize {
     let max = crate::space::MAX_VARS - 1;
     if n <= max {
@@ -352,7 +356,7 @@ fn symbol_budget(n: usize, order: usize) -> usize {
     }
     // Monomials of degree <= order in k + 1 variables: C(k + 1 + order, order).
     let monomials = |k: usize| (1..=order).fold(1.0, |acc: f64, i| acc * (k + 1 + i) as f64 / i as f64);
-    (1..=max).take_while(|&k| n as f64 * monomials(k) <= COEFFICIENT_BUDGET).last().unwrap_or(1)
+    (1..=max).take_while(|&k| monomials(k) <= MONOMIAL_BUDGET).last().unwrap_or(1)
 }
 
 /// The box `ranges` as models: the widest intervals (as many as the space has variables
