@@ -393,7 +393,7 @@ def hybrid_flowpipe(
         list(box.bounds),
         float(t_end),
         step_arg,
-        int(order),
+        (int(order[0]), int(order[1])) if isinstance(order, (list, tuple)) else int(order),
         float(cutoff),
         rem,
         plant.max_jumps if max_jumps is None else int(max_jumps),

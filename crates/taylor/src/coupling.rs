@@ -312,3 +312,120 @@ fn slice(p: &Program, vars: &[usize], moving: usize) -> Program {
     }
     Program { inputs: vars.iter().map(|&v| p.inputs[v].clone()).collect(), ops, outputs }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::parser::parse_expr;
+    use crate::tm::Ctx;
+    use crate::{OrderPolicy, Precondition};
+
+    fn ode(pairs: &[(&str, &str)]) -> Ode {
+        let names = pairs.iter().map(|(n, _)| n.to_string()).collect();
+        Ode::new(names, pairs.iter().map(|(_, e)| parse_expr(e).unwrap()).collect()).unwrap()
+    }
+
+    #[test]
+    fn a_layer_mode_splits_into_neurons_with_their_pre_activations() {
+        let o = ode(&[("z1", "a1 * z1 * (1 - z1)"), ("z2", "a2 * (1 - z2 * z2)"), ("a1", "0"), ("a2", "0"), ("y", "0"), ("c", "1")]);
+        assert_eq!(Coupling::least_width(&o), 2);
+        let c = Coupling::of(&o, 2).unwrap();
+        assert!(!c.whole);
+        assert_eq!(c.drifting, vec![(5, 1.0)]);
+        let vars: Vec<&[usize]> = c.groups.iter().map(|g| &g.vars[..]).collect();
+        assert_eq!(vars, vec![&[0, 2][..], &[1, 3][..]]);
+        // A sliced program computes what the whole one does for its variables.
+        let x = [0.3, -0.2, 1.5, -2.0, 7.0, 0.0];
+        let whole = o.program.eval(&crate::expr::Intervals, &x.map(Interval::point)).unwrap();
+        for g in &c.groups {
+            let local: Vec<Interval> = g.vars.iter().map(|&v| Interval::point(x[v])).collect();
+            let part = g.ode.program.eval(&crate::expr::Intervals, &local).unwrap();
+            assert_eq!(part[0], whole[g.vars[0]]);
+            assert_eq!(part[1], Interval::ZERO);
+        }
+        // All moving variables and their parameters fit four: one group; six: the whole ODE.
+        assert_eq!(Coupling::of(&o, 4).unwrap().groups.len(), 1);
+        assert!(Coupling::of(&o, 6).unwrap().whole);
+        // Coupled through what they read: x reads y, so they are one group, too wide for 1.
+        let coupled = ode(&[("x", "y"), ("y", "-x"), ("k", "0")]);
+        assert!(Coupling::of(&coupled, 1).unwrap_err().to_string().contains("2 variables (x, y) move together"));
+    }
+
+    #[test]
+    fn grouped_flows_hold_every_sampled_solution() {
+        // Three rotations x' = w y, y' = -w x at uncertain rates w, a still variable and a
+        // clock, integrated group by group in a space of four variables (the whole ODE has
+        // 11): every step's box and the final models hold the exact solutions.
+        let mut pairs = vec![];
+        let names: Vec<(String, String, String)> = (0..3).map(|i| (format!("x{i}"), format!("y{i}"), format!("w{i}"))).collect();
+        let rhs: Vec<(String, String)> = names.iter().map(|(x, y, w)| (format!("{w} * {y}"), format!("-{w} * {x}"))).collect();
+        for ((x, y, _), (fx, fy)) in names.iter().zip(&rhs) {
+            pairs.push((x.as_str(), fx.as_str()));
+            pairs.push((y.as_str(), fy.as_str()));
+        }
+        for (_, _, w) in &names {
+            pairs.push((w.as_str(), "0"));
+        }
+        pairs.extend([("s", "0"), ("c", "1")]);
+        let o = ode(&pairs);
+        let space = Space::get(4, 6, 1).unwrap();
+        let ctx = Ctx::new(space.clone(), 6, 1e-14);
+        let coupling = Coupling::of(&o, 3).unwrap();
+        assert_eq!(coupling.groups.len(), 3);
+        // x0 in [0.9, 1.1] (symbol 1), w in [0.8, 1.2] (symbol 2, shared by the first pair;
+        // the others' rates are interval constants), y0 = 0.
+        let mut start = vec![TaylorModel::constant(0.0); 11];
+        for i in 0..3 {
+            start[2 * i] = TaylorModel::affine(&ctx, 1.0, 1, 0.1);
+            start[6 + i] =
+                if i == 0 { TaylorModel::affine(&ctx, 1.0, 2, 0.2) } else { TaylorModel::from_interval(Interval::new(0.8, 1.2).unwrap()) };
+        }
+        start[9] = TaylorModel::constant(2.0);
+        let settings = Settings {
+            step: StepSize::Adaptive { min: 1e-3, max: 0.1 },
+            order: OrderPolicy::Fixed(6),
+            t_end: 1.5,
+            cutoff: 1e-14,
+            remainder_estimate: vec![1e-6; 11],
+            precondition: Precondition::Identity,
+            refinements: 10,
+            symbolic_queue: 50,
+        };
+        let mut segments = vec![];
+        let mut last = (0.0, vec![]);
+        let failure = coupling
+            .flow(start, &space, &settings, &mut |t, seg, state| {
+                segments.push(seg.clone());
+                last = (t, state);
+                true
+            })
+            .unwrap();
+        assert!(failure.is_none(), "{failure:?}");
+        assert_eq!(last.0, 1.5);
+        for a in 0..=10 {
+            for b in 0..=10 {
+                let (u, v) = (-1.0 + 0.2 * a as f64, -1.0 + 0.2 * b as f64);
+                let (x0, w) = (1.0 + 0.1 * u, 1.0 + 0.2 * v);
+                let exact = |t: f64| (x0 * (w * t).cos(), -x0 * (w * t).sin());
+                for seg in &segments {
+                    for t in [seg.t0, 0.5 * (seg.t0 + seg.t1), seg.t1] {
+                        let (x, y) = exact(t);
+                        for i in 0..3 {
+                            assert!(seg.bounds[2 * i].contains(x) && seg.bounds[2 * i + 1].contains(y), "t {t}: ({x}, {y}) pair {i}");
+                        }
+                        assert!(seg.bounds[9].contains(2.0) && seg.bounds[10].contains(t));
+                    }
+                }
+                // The first pair's models at the point's own symbols.
+                let mut point = vec![Interval::ZERO; 4];
+                (point[1], point[2]) = (Interval::point(u), Interval::point(v));
+                let (x, y) = exact(1.5);
+                let at = |i: usize| last.1[i].eval_interval(&space, &point).inflate(1e-12);
+                assert!(at(0).contains(x) && at(1).contains(y), "({x}, {y}) not in ({}, {})", at(0), at(1));
+                assert!(at(10).contains(1.5) && at(9).contains(2.0));
+            }
+        }
+        // Models over the symbols keep the first pair tight (the rotation's own spread).
+        assert!(last.1[0].bound(&space).width() < 0.9, "{}", last.1[0].bound(&space));
+    }
+}

@@ -7,9 +7,9 @@
 //! on the jumps that leave the automaton ([`Target::Exit`]): in a closed loop, the jumps that
 //! return control to the controller. [`reach`] runs an automaton on its own as Flow*'s hybrid
 //! reachability does: from a box, up to a time horizon and a number of jumps.
+use crate::coupling::Coupling;
 use crate::error::{Result, TaylorError};
 use crate::expr::{BinOp, Cmp, Expr, Intervals, Op, Program, TaylorModels};
-use crate::coupling::Coupling;
 use crate::flowpipe::{Ode, Segment, Settings};
 use crate::interval::Interval;
 use crate::space::Space;
