@@ -270,13 +270,12 @@ pub fn reach(aut: &Automaton, start: usize, init: &[Interval], t_end: f64, flow:
     let budget = symbol_budget(n + 1, order);
     let uncertain = init.iter().filter(|iv| iv.lo() < iv.hi()).count();
     let symbols = if limits.box_at_jumps { budget } else { uncertain.min(budget) };
-    let coupled = timed.modes.iter().map(|m| Coupling::least_width(&m.ode)).max().unwrap_or(0);
+    let widest = timed.modes.iter().max_by_key(|m| Coupling::least_width(&m.ode));
+    let coupled = widest.map_or(0, |m| Coupling::least_width(&m.ode));
     let nvars = 1 + symbols.max(coupled).max(1);
-    if nvars > crate::space::MAX_VARS {
-        return Err(TaylorError::input(format!(
-            "a mode of the automaton couples {coupled} variables through its derivatives; Taylor-model flowpipes integrate at most {}",
-            crate::space::MAX_VARS - 1
-        )));
+    if let Some(mode) = widest.filter(|_| nvars > crate::space::MAX_VARS) {
+        let too_wide = Coupling::of(&mode.ode, crate::space::MAX_VARS - 1).expect_err("its widest group exceeds the limit");
+        return Err(TaylorError::input(format!("mode '{}': {too_wide}", mode.name)));
     }
     let space = Space::get(nvars, order, 1)?;
     let ctx = Ctx::new(space.clone(), order, flow.cutoff);
