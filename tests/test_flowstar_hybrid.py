@@ -136,11 +136,13 @@ def wide_model(path: Path) -> Path:
     at c = 0.5 every velocity is reset to -v / 2 and damping starts. Uncertain are every x and
     three k, more than the symbols of a space at order 5 that wide (the rest are intervals)."""
     names = [f"{v}{i}" for i in range(OSCILLATORS) for v in "xvk"]
-    flow = lambda damping: "\n".join(  # noqa: E731
-        f"    x{i}' = v{i}\n    v{i}' = -k{i} * x{i}{damping.format(i=i)}\n    k{i}' = 0" for i in range(OSCILLATORS)
-    )
+
+    def flow(damping: str) -> str:
+        return "\n".join(f"    x{i}' = v{i}\n    v{i}' = -k{i} * x{i}{damping.format(i=i)}\n    k{i}' = 0" for i in range(OSCILLATORS))
+
     init = "\n".join(
-        f"   x{i} in [{1 + 0.01 * i}, {1.05 + 0.01 * i}]\n   v{i} in [0, 0]\n   k{i} in " + (f"[0.9, 1.1]" if i < 3 else f"[{1 + 0.1 * i}, {1 + 0.1 * i}]")
+        f"   x{i} in [{1 + 0.01 * i}, {1.05 + 0.01 * i}]\n   v{i} in [0, 0]\n   k{i} in "
+        + ("[0.9, 1.1]" if i < 3 else f"[{1 + 0.1 * i}, {1 + 0.1 * i}]")
         for i in range(OSCILLATORS)
     )
     resets = " ".join(f"v{i}' := -0.5 * v{i}" for i in range(OSCILLATORS))
