@@ -1,8 +1,8 @@
 """Flow* export in the Verisig 1.0 style, read back by percver's own Flow* parser and run by its
 own engine (Taylor models through the jumps): the reach sets must enclose float samples of the
 network (numpy forward pass) or of the closed loop, and agree with
-``net.bounds(box, method="verisig")``. The automata that run keep within the variables a Taylor
-model holds (30): networks of up to 6 neurons a layer."""
+``net.bounds(box, method="verisig")``. Automata wider than a Taylor model's space run neuron
+by neuron (``taylor::coupling``)."""
 
 from pathlib import Path
 
@@ -42,13 +42,11 @@ def small(activations: list, seed: int, n_in: int = 2, width: int = 6, scale=Non
     return Network(layers) if scale is None else Network(layers, scale=[scale[0]], offset=[scale[1]])
 
 
-def run_exported(path: Path):
-    """The file's reach set; its fixed order with a fixed step (its adaptive steps halve far
-    below what these small automata need)."""
+def run_exported(path: Path, jumps: str = "taylor"):
+    """The file's reach set with the file's settings (adaptive steps from 1e-6 to 0.05)."""
     model = pv.formats.load_flowstar(str(path))
     assert isinstance(model, pv.formats.FlowstarHybrid)
-    model.step = 0.05
-    return model.run()
+    return model.run(jumps=jumps)
 
 
 def exported_outputs(network: pv.Network, box: list, tmp_path: Path) -> list:
@@ -70,6 +68,23 @@ def check_against_methods(network: pv.Network, box: list, exported: list) -> Non
         assert lo <= y[:, k].min() and y[:, k].max() <= hi, (k, (lo, hi), y[:, k].min(), y[:, k].max())
         assert hi - lo <= 1.05 * (i_hi - i_lo) + 5e-4, (k, (lo, hi), (i_lo, i_hi))
         assert max(lo, v_lo) <= min(hi, v_hi) and hi - lo <= 2.0 * (v_hi - v_lo) + 1e-3, (k, (lo, hi), (v_lo, v_hi))
+
+
+@pytest.mark.slow
+def test_a_wide_export_encloses_the_network(tmp_path):
+    # Two sigmoid layers of 20: 44 variables, more than one Taylor model's space holds (31); the
+    # run integrates neuron by neuron. Boxing at the jumps gives fresh symbols to the 14 widest
+    # variables only (the rest are intervals): sound, and no tighter than the models.
+    network = small(["sigmoid", "sigmoid", "tanh"], seed=8, width=20)
+    box = around(network, 0.02, seed=3)
+    path = pv.formats.to_flowstar(network, tmp_path / "wide.model", box)
+    assert len(pv.formats.load_flowstar(str(path)).variables) == 44
+    taylor = run_exported(path).reach_box("_out")["y1"]
+    check_against_methods(network, box, [taylor])
+    boxed = run_exported(path, jumps="box").reach_box("_out")["y1"]
+    y = network(samples(box))[:, 0]
+    assert boxed[0] <= y.min() and y.max() <= boxed[1], (boxed, y.min(), y.max())
+    assert boxed[1] - boxed[0] > 2 * (taylor[1] - taylor[0]), (boxed, taylor)
 
 
 @pytest.mark.parametrize(

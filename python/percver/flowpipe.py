@@ -372,6 +372,10 @@ def hybrid_flowpipe(
     estimate for all variables or one per variable. ``jumps="box"`` boxes the state at every jump
     instead of carrying its Taylor models (sound, wider: for comparison). ``max_branches`` bounds
     the branches followed at once (beyond, states of one jump are aggregated).
+
+    Wide automata run: the models' symbols are the uncertain variables of ``init`` (past 30
+    variables, the widest within a budget, the rest intervals), and each mode is integrated by
+    groups of the variables its derivatives couple (at most 31 in one group).
     """
     if plant.inputs:
         raise InputError(f"the hybrid plant reads inputs {plant.inputs}: give it a controller (pv.ClosedLoop) or write them as states")
@@ -393,7 +397,7 @@ def hybrid_flowpipe(
         list(box.bounds),
         float(t_end),
         step_arg,
-        int(order),
+        (int(order[0]), int(order[1])) if isinstance(order, (list, tuple)) else int(order),
         float(cutoff),
         rem,
         plant.max_jumps if max_jumps is None else int(max_jumps),

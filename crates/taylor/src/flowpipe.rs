@@ -409,13 +409,13 @@ fn flow_from(
 
 /// The time grid of a flowpipe to `t_end`: the float spacing just below t_end. Multiples of it
 /// up to t_end are floats (t_end / grid <= 2^53), so sums and differences of them are exact.
-fn time_grid(t_end: f64) -> f64 {
+pub(crate) fn time_grid(t_end: f64) -> f64 {
     t_end - t_end.next_down()
 }
 
 /// The step `h` rounded to the nearest multiple of `grid` (at least one): it moves by at most
 /// half an ulp of t_end, far below any step's own accuracy.
-fn on_grid(h: f64, grid: f64) -> f64 {
+pub(crate) fn on_grid(h: f64, grid: f64) -> f64 {
     ((h / grid).round() * grid).max(grid)
 }
 

@@ -7,9 +7,10 @@
 //! on the jumps that leave the automaton ([`Target::Exit`]): in a closed loop, the jumps that
 //! return control to the controller. [`reach`] runs an automaton on its own as Flow*'s hybrid
 //! reachability does: from a box, up to a time horizon and a number of jumps.
+use crate::coupling::Coupling;
 use crate::error::{Result, TaylorError};
 use crate::expr::{BinOp, Cmp, Expr, Intervals, Op, Program, TaylorModels};
-use crate::flowpipe::{reach_from_steps, Ode, Segment, Settings};
+use crate::flowpipe::{Ode, Segment, Settings};
 use crate::interval::Interval;
 use crate::space::Space;
 use crate::tm::{Ctx, TaylorModel};
@@ -167,6 +168,11 @@ pub fn run(aut: &Automaton, start: usize, state: Vec<TaylorModel>, space: &Arc<S
         return Err(TaylorError::input("the start mode or the initial state does not fit the automaton"));
     }
     let ctx = Ctx::new(space.clone(), space.order, flow.cutoff);
+    let couplings = aut
+        .modes
+        .iter()
+        .map(|m| Coupling::of(&m.ode, space.nvars - 1).map_err(|e| TaylorError::input(format!("mode '{}': {e}", m.name))))
+        .collect::<Result<Vec<_>>>()?;
     let mut out = Run::default();
     let mut queue = VecDeque::from([Branch { mode: start, state, elapsed: (0.0, 0.0), jumps: 0 }]);
     while let Some(branch) = queue.pop_front() {
@@ -180,7 +186,7 @@ pub fn run(aut: &Automaton, start: usize, state: Vec<TaylorModel>, space: &Arc<S
             return Ok(out);
         }
         let outgoing: Vec<&Jump> = aut.jumps.iter().filter(|j| j.source == branch.mode).collect();
-        let visit = match visit(aut, &branch, &outgoing, space, &ctx, flow, limits, &mut out.segments)? {
+        let visit = match visit(aut, &couplings[branch.mode], &branch, &outgoing, space, &ctx, flow, limits, &mut out.segments)? {
             Ok(v) => v,
             Err(reason) => {
                 out.failure = Some(reason);
@@ -257,20 +263,28 @@ pub fn reach(aut: &Automaton, start: usize, init: &[Interval], t_end: f64, flow:
     if aut.names.iter().any(|v| v == TIME) {
         return Err(TaylorError::input(format!("'{TIME}' is the clock reachability adds; rename the automaton's variable")));
     }
-    if n + 2 > crate::space::MAX_VARS {
-        return Err(TaylorError::input(format!(
-            "the automaton has {n} variables; its Taylor models (over them, the clock '{TIME}' and the step time) hold at most {}: \
-             drop the variables no mode or jump changes, or split the automaton",
-            crate::space::MAX_VARS - 2
-        )));
-    }
     let timed = with_horizon(aut, t_end)?;
     let order = flow.max_order();
-    let space = Space::get(n + 2, order, 1)?;
+    // The models' variables: time, then the symbols of the initial set (or, boxing at the
+    // jumps, of every jump's box), and as many as the widest group of coupled variables needs.
+    let budget = symbol_budget(n + 1, order);
+    let uncertain = init.iter().filter(|iv| iv.lo() < iv.hi()).count();
+    let symbols = if limits.box_at_jumps { budget } else { uncertain.min(budget) };
+    let widest = timed.modes.iter().max_by_key(|m| Coupling::least_width(&m.ode));
+    let coupled = widest.map_or(0, |m| Coupling::least_width(&m.ode));
+    let nvars = 1 + symbols.max(coupled).max(1);
+    if let Some(mode) = widest.filter(|_| nvars > crate::space::MAX_VARS) {
+        let too_wide = Coupling::of(&mode.ode, crate::space::MAX_VARS - 1).expect_err("its widest group exceeds the limit");
+        return Err(TaylorError::input(format!("mode '{}': {too_wide}", mode.name)));
+    }
+    let space = Space::get(nvars, order, 1)?;
     let ctx = Ctx::new(space.clone(), order, flow.cutoff);
-    let state = init.iter().chain([&Interval::ZERO]).enumerate().map(|(i, iv)| symbol(&ctx, iv, i + 1)).collect();
+    let state = symbolize(&init.iter().copied().chain([Interval::ZERO]).collect::<Vec<_>>(), &ctx);
     let mut remainder = flow.remainder_estimate.clone();
-    remainder.push(remainder.iter().copied().fold(f64::MIN_POSITIVE, f64::min));
+    // The clock's estimate is a tolerance like the others (the smallest): one at the underflow
+    // level failed every Picard check by the clock's rounding, which no step length shrinks,
+    // so adaptive steps halved to their minimum at every step (exported networks at 1e-6).
+    remainder.push(remainder.iter().copied().fold(f64::INFINITY, f64::min));
     let flow = Settings { remainder_estimate: remainder, ..flow.clone() };
     // Never the reason a run stops (the clock is): a visit flows at most t_end and a step past
     // it, and a branch's latest entry time sums its visits' latest jump times.
@@ -279,7 +293,7 @@ pub fn reach(aut: &Automaton, start: usize, init: &[Interval], t_end: f64, flow:
         crate::StepSize::Adaptive { max, .. } => max,
     };
     let max_time = (t_end + step) * (limits.max_jumps as f64 + 2.0);
-    let limits = Limits { contract: (1..=n).collect(), max_time, ..limits.clone() };
+    let limits = Limits { contract: (1..nvars).collect(), max_time, ..limits.clone() };
     Ok((run(&timed, start, state, &space, &flow, &limits)?, space))
 }
 
@@ -327,20 +341,44 @@ fn with_horizon(aut: &Automaton, t_end: f64) -> Result<Automaton> {
     Ok(timed)
 }
 
-/// The interval as a model of one variable v of the space (range [-1, 1]): c + r x_v with r
-/// rounded up, so that it encloses the interval; a point stays a constant.
-fn symbol(ctx: &Ctx, iv: &Interval, v: usize) -> TaylorModel {
-    if iv.lo() == iv.hi() {
-        return TaylorModel::constant(iv.lo());
+/// Most monomials of the models' space when the automaton is too wide for a symbol per
+/// variable: 14 symbols at order 4 (3,876), whose states of 600 variables take 19 MB; every
+/// product of two models of a wider space costs more than a whole narrow run's flowpipe step.
+const MONOMIAL_BUDGET: f64 = 4096.0;
+
+/// How many symbols the models of `n` variables at `order` may have: one per variable if they
+/// fit a space with time, else as many as keep the space within [`MONOMIAL_BUDGET`].
+fn symbol_budget(n: usize, order: usize) -> usize {
+    let max = crate::space::MAX_VARS - 1;
+    if n <= max {
+        return n;
     }
-    let (c, r) = crate::flowpipe::initial_affine(iv);
-    TaylorModel::affine(ctx, c, v, r)
+    // Monomials of degree <= order in k + 1 variables: C(k + 1 + order, order).
+    let monomials = |k: usize| (1..=order).fold(1.0, |acc: f64, i| acc * (k + 1 + i) as f64 / i as f64);
+    (1..=max).take_while(|&k| monomials(k) <= MONOMIAL_BUDGET).last().unwrap_or(1)
 }
 
-/// The state's box, each variable i a fresh symbol (variable i + 1 of the space): the
-/// dependence on the initial set and between the variables is forgotten.
+/// The box `ranges` as models: the widest intervals (as many as the space has variables
+/// besides time) each an affine map c + r x_v of a symbol of its own (r rounded up, so that it
+/// encloses the interval), the others constants with the interval as remainder (sound: their
+/// dependence on the rest is forgotten), points constants.
+fn symbolize(ranges: &[Interval], ctx: &Ctx) -> Vec<TaylorModel> {
+    let mut wide: Vec<usize> = (0..ranges.len()).filter(|&i| ranges[i].lo() < ranges[i].hi()).collect();
+    wide.sort_by(|&a, &b| ranges[b].width().total_cmp(&ranges[a].width()));
+    wide.truncate(ctx.space.nvars - 1);
+    wide.sort_unstable();
+    let mut out: Vec<TaylorModel> = ranges.iter().map(|iv| TaylorModel::from_interval(*iv)).collect();
+    for (k, &i) in wide.iter().enumerate() {
+        let (c, r) = crate::flowpipe::initial_affine(&ranges[i]);
+        out[i] = TaylorModel::affine(ctx, c, k + 1, r);
+    }
+    out
+}
+
+/// The state's box, each variable a fresh symbol while the space has them (see [`symbolize`]):
+/// the dependence on the initial set and between the variables is forgotten.
 fn boxed(state: &[TaylorModel], ctx: &Ctx) -> Vec<TaylorModel> {
-    state.iter().enumerate().map(|(i, m)| symbol(ctx, &crate::bound::range(m, &ctx.space), i + 1)).collect()
+    symbolize(&state.iter().map(|m| crate::bound::range(m, &ctx.space)).collect::<Vec<_>>(), ctx)
 }
 
 /// The states a jump may be taken from during one visit of its mode, and the earliest and latest
@@ -352,6 +390,7 @@ type Found = (Vec<Vec<TaylorModel>>, f64, f64);
 #[allow(clippy::too_many_arguments, clippy::type_complexity)]
 fn visit(
     aut: &Automaton,
+    coupling: &Coupling,
     branch: &Branch,
     outgoing: &[&Jump],
     space: &Arc<Space>,
@@ -391,7 +430,7 @@ fn visit(
         let mut prev = start.clone();
         let mut t_prev = 0.0;
         let mut error = None;
-        let fp = reach_from_steps(&mode.ode, start, space, &settings, &mut |t, seg, now| {
+        let failure = coupling.flow(start, space, &settings, &mut |t, seg, now| {
             let window =
                 Window { ode: &mode.ode, invariant: &mode.invariant, start: &prev, end: &now, seg, h: t - t_prev, space: &ctx.space };
             let step = (|| -> Result<bool> {
@@ -433,7 +472,7 @@ fn visit(
         if let Some(e) = error {
             return Err(e);
         }
-        if let Some(f) = fp.failure {
+        if let Some(f) = failure {
             return Ok(Err(format!("in mode '{}': {f}", mode.name)));
         }
         if stopped {

@@ -3,10 +3,11 @@
 //! Layers, each in its own module and usable alone:
 //! intervals ([`interval`]) -> monomial layout ([`space`]) -> Taylor models ([`tm`]) ->
 //! elementary functions ([`functions`]) and range bounding ([`bound`]) -> expressions
-//! ([`expr`], [`parser`]) -> ODE flowpipes ([`flowpipe`], [`precondition`]) -> hybrid automata
-//! ([`hybrid`]);
+//! ([`expr`], [`parser`]) -> ODE flowpipes ([`flowpipe`], [`precondition`]; wide ODEs group by
+//! group, [`coupling`]) -> hybrid automata ([`hybrid`]);
 //! discrete-time error symbols ([`error_symbols`], [`parallelotope`]).
 pub mod bound;
+pub mod coupling;
 pub mod error;
 pub mod error_symbols;
 pub mod expr;
