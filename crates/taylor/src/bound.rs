@@ -9,9 +9,9 @@
 //! Each lower bound found is valid because the global minimiser never leaves the box.
 //! Bernstein bounds were not chosen: their cost grows with (order + 1)^n.
 use crate::error::{Result, TaylorError};
-use crate::flowpipe::compose_all;
 use crate::interval::Interval;
 use crate::space::Space;
+use crate::tm::compose_all;
 use crate::tm::{Ctx, TaylorModel};
 use std::sync::Arc;
 

@@ -22,7 +22,7 @@ use crate::precondition::{precondition, Precondition};
 use crate::space::Space;
 use crate::symbolic::{mat_mul, mat_vec, SymbolicRemainder};
 // hybrid.rs and bound.rs reach the shared monomial builder here.
-pub(crate) use crate::tm::compose_all;
+use crate::tm::compose_all;
 use crate::tm::{Ctx, TaylorModel};
 use std::sync::Arc;
 use std::time::Instant;

@@ -658,7 +658,7 @@ fn contract(state: Vec<TaylorModel>, constraints: &[&Constraint], vars: &[usize]
             }
         })
         .collect();
-    Ok(Some(crate::flowpipe::compose_all(&state, &args, ctx)))
+    Ok(Some(crate::tm::compose_all(&state, &args, ctx)))
 }
 
 /// The box shrunk, variable by variable, to where `constraints` may hold (interval evaluation,
