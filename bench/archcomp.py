@@ -7,6 +7,8 @@ the deepest step an unknown cell reached, whether a counterexample replays, and 
     python bench/archcomp.py                      # all
     python bench/archcomp.py tora acc:tanh        # a file, or file:variant
     python bench/archcomp.py --limit 600 --list
+    nice -n 10 python bench/archcomp.py inverted_two_link_pendulum:less_robust --journal /tmp/j
+                                                  # cells journaled: a rerun resumes
 """
 
 import argparse
@@ -19,6 +21,7 @@ import subprocess
 import sys
 import time
 from pathlib import Path
+from typing import Optional
 
 ROOT = Path(__file__).resolve().parents[1]
 EXAMPLES = ROOT / "examples" / "archcomp"
@@ -43,8 +46,9 @@ def label(name: str, variant: str) -> str:
     return f"{name}:{variant}" if variant else name
 
 
-def one(name: str, variant: str) -> dict:
-    """Runs one benchmark in this process; the row of the results file."""
+def one(name: str, variant: str, journal: Optional[str] = None) -> dict:
+    """Runs one benchmark in this process; the row of the results file. With ``journal`` (a
+    directory) its finished cells are journaled there, and a rerun resumes from them."""
     import numpy as np  # noqa: F401 - imported before timing, as percver is
 
     import percver as pv
@@ -52,6 +56,9 @@ def one(name: str, variant: str) -> dict:
     examples = module("_common")
     bench = module(name)
     loop, kwargs = bench.problem(variant)
+    if journal:
+        Path(journal).mkdir(parents=True, exist_ok=True)
+        kwargs["journal"] = str(Path(journal) / f"{label(name, variant).replace(':', '-')}.jsonl")
     settings = {
         k: v for k, v in kwargs.items() if k in ("split", "order", "max_splits", "steps", "rebox", "state_symbols", "timeout_per_cell")
     }
@@ -88,11 +95,12 @@ def main():
     parser.add_argument("select", nargs="*", help="file names or file:variant (default: all)")
     parser.add_argument("--limit", type=float, default=900.0, help="wall seconds per benchmark (default 900)")
     parser.add_argument("--list", action="store_true", help="list the benchmarks and exit")
+    parser.add_argument("--journal", help="directory of journals (one per benchmark): a rerun resumes the finished cells")
     parser.add_argument("--one", help=argparse.SUPPRESS)
     args = parser.parse_args()
     if args.one:
         name, _, variant = args.one.partition(":")
-        print(json.dumps(one(name, variant)))
+        print(json.dumps(one(name, variant, args.journal)))
         return
     chosen = [b for b in benchmarks() if not args.select or b[0] in args.select or label(b[0], b[1]) in args.select]
     if args.list:
@@ -106,11 +114,14 @@ def main():
         before = os.getloadavg()[0]
         start = time.perf_counter()
         try:
-            done = subprocess.run([sys.executable, __file__, "--one", key], capture_output=True, text=True, timeout=args.limit, check=False)
+            journal = ["--journal", args.journal] if args.journal else []
+            done = subprocess.run(
+                [sys.executable, __file__, "--one", key, *journal], capture_output=True, text=True, timeout=args.limit, check=False
+            )
             row = (
                 json.loads(done.stdout.strip().splitlines()[-1])
                 if done.returncode == 0
-                else {"verdict": "error", "error": done.stderr[-2000:]}
+                else {"verdict": "error", "returncode": done.returncode, "error": done.stderr[-2000:]}
             )
         except subprocess.TimeoutExpired:
             row = {"verdict": "timeout", "wall_s": round(time.perf_counter() - start, 2)}

@@ -18,7 +18,8 @@ def problem(variant: str = ""):
     init = {"s_x": (70, 106), "s_y": (70, 106), "v_x": (-0.14, 0.14), "v_y": (-0.14, 0.14)}
     safe = pv.sqrt(vx**2 + vy**2) <= 0.2 + 2 * N * pv.sqrt(sx**2 + sy**2)
     # The controller holds the speed 0.044 under the limit for the whole run: state symbols keep its
-    # correction from wrapping; still unknown at step 37 of 40 with 64 or 160 splits (bench/README.md).
+    # correction from wrapping; every part reaches the last period with 160 splits, still unknown
+    # there: the controller's Taylor model is 2-3x its sampled range on the first periods (bench/README.md).
     return pv.ClosedLoop(plant, [stage]), dict(
         init=init, steps=40, safe=safe, split={"s_x": 2, "s_y": 2}, order=3, max_splits=160, state_symbols=True
     )

@@ -13,7 +13,7 @@ use std::sync::atomic::Ordering;
 use std::time::Instant;
 use taylor::error_symbols::ErrorSymbols;
 use taylor::expr::{Intervals, Op, TaylorModels};
-use taylor::flowpipe::{reach_from, Ode, Segment, Settings as FlowSettings};
+use taylor::flowpipe::{reach_from_checked, Ode, Segment, Settings as FlowSettings};
 use taylor::{Ctx, Interval, Program, Space, TaylorModel};
 
 pub(crate) fn decide(c: &Condition, state: &[TaylorModel], ctx: &Ctx) -> Result<Option<bool>> {
@@ -386,12 +386,18 @@ pub(crate) fn integrate_period(
     let flow_space = Space::get(1 + m.max(ctx.space.nvars), order, 1)?;
     let init: Vec<TaylorModel> = state.iter().chain(held).map(|t| shift_vars(t, &ctx.space, &flow_space, 1)).collect::<Result<_>>()?;
     let settings = FlowSettings { t_end: period, order: taylor::OrderPolicy::Fixed(order), ..flow.clone() };
-    let fp = reach_from(ode, init, &flow_space, &settings, &mut |_| true)?;
+    let flow_ctx = Ctx::new(flow_space.clone(), order, ctx.cutoff);
+    // Each segment is checked as it is computed (the period stops at the first that fails).
+    let mut unsafe_at: Result<Option<String>> = Ok(None);
+    let fp = reach_from_checked(ode, init, &flow_space, &settings, &mut |seg, models| {
+        unsafe_at = segment_unsafe(lp, seg, models, &flow_ctx, |c| c.applies_on(step, seg.t0, seg.t1, period));
+        matches!(unsafe_at, Ok(None))
+    })?;
+    if let Some(reason) = unsafe_at? {
+        return Ok(Err(reason));
+    }
     if let Some(f) = &fp.failure {
         return Ok(Err(f.to_string()));
-    }
-    if let Some(reason) = unsafe_segment(lp, &fp.segments, |c, seg| c.applies_on(step, seg.t0, seg.t1, period))? {
-        return Ok(Err(reason));
     }
     let next = fp.final_state[..n].iter().map(|t| {
         let mut t = shift_vars(t, &flow_space, &ctx.space, -1)?;
@@ -415,6 +421,31 @@ pub(crate) fn unsafe_segment<'a>(
             if c.cmp.decide(margin[0]) != Some(true) {
                 return Ok(Some(format!("'{}' could not be proved over t in [{:.4}, {:.4}] of the period", c.label, seg.t0, seg.t1)));
             }
+        }
+    }
+    Ok(None)
+}
+
+/// Why a safety condition that `applies` fails on a flowpipe segment, if one does: decided on the
+/// segment's box first, and where that fails on its Taylor models over the cell's variables and
+/// time (`models`, built once), which keep how the states move together.
+pub(crate) fn segment_unsafe(
+    lp: &ClosedLoop,
+    seg: &Segment,
+    models: &dyn Fn() -> Vec<TaylorModel>,
+    ctx: &Ctx,
+    applies: impl Fn(&Condition) -> bool,
+) -> Result<Option<String>> {
+    let n = lp.state_names.len();
+    let mut over_cell: Option<Vec<TaylorModel>> = None;
+    for c in lp.safe.iter().filter(|c| applies(c)) {
+        if c.cmp.decide(c.margin.eval(&Intervals, &seg.bounds[..n])?[0]) == Some(true) {
+            continue;
+        }
+        let models = over_cell.get_or_insert_with(models);
+        let margin = c.margin.eval(&TaylorModels { ctx }, &models[..n])?;
+        if c.cmp.decide(taylor::bound::range(&margin[0], &ctx.space)) != Some(true) {
+            return Ok(Some(format!("'{}' could not be proved over t in [{:.4}, {:.4}] of the period", c.label, seg.t0, seg.t1)));
         }
     }
     Ok(None)

@@ -270,3 +270,47 @@ fn deepest_step_is_where_a_part_gave_up() {
     assert!(out.reason.as_deref().unwrap_or("").starts_with("step 20:"), "{:?}", out.reason);
     assert_eq!((out.steps_done, out.boxes.len(), out.deepest_step), (1, 2, 20));
 }
+
+/// x' = y, y' = -x from around (1, 0) for one period of pi (half a turn); safe while
+/// 0.5 x^2 + y^2 <= `limit`. The runs from the corners (1.1, +-0.1) reach 1.22 (their whole 1.1^2 + 0.1^2) near a quarter turn
+/// and are back at 0.615 at the period's end, so only the segments can tell a limit below it.
+fn half_turn(limit: f64) -> ClosedLoop {
+    use taylor::flowpipe::Ode;
+    let names: Vec<String> = ["x", "y"].iter().map(|s| s.to_string()).collect();
+    let ode = Ode::new(names.clone(), vec![parse_expr("y").unwrap(), parse_expr("-x").unwrap()]).unwrap();
+    let margin = Program::compile(&[parse_expr(&format!("0.5*x^2 + y^2 - {limit}")).unwrap()], &names).unwrap();
+    let lp = ClosedLoop {
+        state_names: names,
+        stages: vec![],
+        plant: Plant::continuous(ode, vec![], std::f64::consts::PI, std::f64::consts::PI / 10.0, 1e-4),
+        safe: vec![Condition { margin: Arc::new(margin), cmp: Cmp::Le, label: format!("0.5 x^2 + y^2 <= {limit}"), window: None }],
+        goal: None,
+        goal_within: false,
+        steps: 1,
+    };
+    lp.validate().unwrap();
+    lp
+}
+
+#[test]
+fn a_relation_between_states_is_proved_on_the_segments_models_and_only_if_it_holds() {
+    let cell = [Interval::new(0.9, 1.1).unwrap(), Interval::new(-0.1, 0.1).unwrap()];
+    // The most the corner runs reach, sampled over the half turn.
+    let peak = (0..=1000)
+        .flat_map(|k| [(1.1, 0.1), (1.1, -0.1), (0.9, 0.1)].map(|(x, y): (f64, f64)| (k, x, y)))
+        .map(|(k, x0, y0)| {
+            let t = std::f64::consts::PI * k as f64 / 1000.0;
+            let (x, y) = (x0 * t.cos() + y0 * t.sin(), -x0 * t.sin() + y0 * t.cos());
+            0.5 * x * x + y * y
+        })
+        .fold(0.0, f64::max);
+    assert!((peak - 1.22).abs() < 1e-3, "{peak}");
+    // The boxes of the segments near the quarter turn (x up to 0.43 where |y| reaches 1.1)
+    // fail even 1.5; the relation between x and y proves 1.3.
+    let out = verify_cell(&half_turn(1.3), &cell, &loop_settings(false));
+    assert_eq!(out.verdict, Verdict::Verified, "{:?}", out.reason);
+    // Runs cross 1.2 inside the period only, never at its ends: not verified.
+    let out = verify_cell(&half_turn(1.2), &cell, &loop_settings(false));
+    assert_eq!(out.verdict, Verdict::Unknown, "{:?}", out.reason);
+    assert!(out.reason.as_deref().unwrap_or("").contains("could not be proved over t"), "{:?}", out.reason);
+}

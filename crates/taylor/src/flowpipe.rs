@@ -17,7 +17,7 @@
 use crate::bound::{bound_all, Bounder};
 use crate::error::{Result, TaylorError};
 use crate::expr::{Expr, Program, TaylorModels};
-use crate::interval::Interval;
+use crate::interval::{add_up, mul_up, Interval};
 use crate::precondition::{precondition, Precondition};
 use crate::space::Space;
 use crate::symbolic::{mat_mul, mat_vec, SymbolicRemainder};
@@ -248,7 +248,7 @@ pub fn reach_from(
     settings: &Settings,
     observer: &mut dyn FnMut(f64) -> bool,
 ) -> Result<Flowpipe> {
-    flow_from(ode, state, space, settings, &mut |t, _, _| observer(t), crate::bound::range)
+    flow_from(ode, state, space, settings, &mut |t, _, _, _| observer(t), crate::bound::range)
 }
 
 /// [`reach_from`] that hands `on_step(t, segment, state)` the state at time t (the end of the
@@ -263,7 +263,7 @@ pub fn reach_from_steps(
     settings: &Settings,
     on_step: &mut dyn FnMut(f64, &Segment, Vec<TaylorModel>) -> bool,
 ) -> Result<Flowpipe> {
-    flow_from(ode, state, space, settings, &mut |t, seg, state| on_step(t, seg, state()), TaylorModel::bound)
+    flow_from(ode, state, space, settings, &mut |t, seg, state, _| on_step(t, seg, state()), TaylorModel::bound)
 }
 
 /// [`reach_from`] with `final_box` the naive bound of each final model (monomial by monomial,
@@ -277,12 +277,28 @@ pub fn reach_from_naive_box(
     settings: &Settings,
     observer: &mut dyn FnMut(f64) -> bool,
 ) -> Result<Flowpipe> {
-    flow_from(ode, state, space, settings, &mut |t, _, _| observer(t), TaylorModel::bound)
+    flow_from(ode, state, space, settings, &mut |t, _, _, _| observer(t), TaylorModel::bound)
 }
 
-/// What the step loop hands its observer: the time, the step's segment, and a way to build the
-/// state at that time (built only by observers that want it).
-type StepObserver<'a> = dyn FnMut(f64, &Segment, &dyn Fn() -> Vec<TaylorModel>) -> bool + 'a;
+/// [`reach_from`] that hands `check(segment, models)` every segment as it is computed, with a
+/// way to build the segment's Taylor models over the initial set's variables and normalised
+/// time (variable 0), [`segment_over_initial`]; the flowpipe stops when it returns false. A
+/// property of several states (a speed limit that grows with the distance) holds on those
+/// models where the segment's box, which drops how the states move together, fails it.
+pub fn reach_from_checked(
+    ode: &Ode,
+    state: Vec<TaylorModel>,
+    space: &Arc<Space>,
+    settings: &Settings,
+    check: &mut dyn FnMut(&Segment, &dyn Fn() -> Vec<TaylorModel>) -> bool,
+) -> Result<Flowpipe> {
+    flow_from(ode, state, space, settings, &mut |_, seg, _, models| check(seg, models), crate::bound::range)
+}
+
+/// What the step loop hands its observer: the time, the step's segment, a way to build the
+/// state at that time and one to build the segment's models over the initial set (each built
+/// only by observers that want it).
+type StepObserver<'a> = dyn FnMut(f64, &Segment, &dyn Fn() -> Vec<TaylorModel>, &dyn Fn() -> Vec<TaylorModel>) -> bool + 'a;
 
 fn flow_from(
     ode: &Ode,
@@ -394,7 +410,8 @@ fn flow_from(
             break;
         }
         let now = || state.iter().zip(symbolic.enclosure()).map(|(m, r)| TaylorModel { coef: m.coef.clone(), rem: m.rem + r }).collect();
-        if !observer(t, segments.last().expect("a segment per step"), &now) {
+        let over_initial = || segment_over_initial(&left, &pre.right, &shift, &ctx);
+        if !observer(t, segments.last().expect("a segment per step"), &now, &over_initial) {
             break;
         }
     }
@@ -405,6 +422,27 @@ fn flow_from(
     let final_box = state.iter().map(|m| bounder(m, &space)).collect();
     stats.seconds = started.elapsed().as_secs_f64();
     Ok(Flowpipe { names: ode.names.clone(), segments, final_state: state, final_box, time_reached: t, failure, stats, space })
+}
+
+/// A step's models `left(s, x̂)` over the initial set's variables: left(s, right(z)), time kept
+/// as variable 0, plus what the symbolic remainder's shift of x̂ (at most `shift` per
+/// coordinate, inside the domain where `left` holds) can add: |d left / d x̂_j| bounded over the
+/// domain times shift_j (mean value theorem on the convex domain).
+pub(crate) fn segment_over_initial(left: &[TaylorModel], right: &[TaylorModel], shift: &[f64], ctx: &Ctx) -> Vec<TaylorModel> {
+    let space = &ctx.space;
+    let mut args = vec![TaylorModel::var(ctx, 0)];
+    args.extend(right.iter().cloned());
+    args.resize(space.nvars, TaylorModel::zero());
+    compose_all(left, &args, ctx)
+        .into_iter()
+        .zip(left)
+        .map(|(mut x, m)| {
+            let linear =
+                shift.iter().enumerate().fold(0.0, |acc, (j, &s)| add_up(acc, mul_up(m.linear_coefficient(space, j + 1).abs(), s)));
+            x.rem = x.rem + Interval::symmetric(add_up(linear, nonlinear_gradient_dot(m, space, shift)));
+            x
+        })
+        .collect()
 }
 
 /// The time grid of a flowpipe to `t_end`: the float spacing just below t_end. Multiples of it
@@ -623,6 +661,49 @@ mod tests {
                 assert!(fp.final_box[0].inflate(1e-9).contains(last[0]) && fp.final_box[1].inflate(1e-9).contains(last[1]));
             }
         }
+    }
+
+    #[test]
+    fn segment_models_over_the_initial_set_hold_every_run() {
+        // Van der Pol from a box with the symbolic remainder on: a float run from initial point
+        // z lies in the segment's models evaluated at (s, z), at every time of the segment.
+        let o = ode(&["x", "y"], &["y", "(1 - x^2)*y - x"]);
+        let init = [Interval::new(1.25, 1.55).unwrap(), Interval::new(2.28, 2.32).unwrap()];
+        let s = settings(2, 0.02, 5, 1.0);
+        let space = Space::get(3, 5, 1).unwrap();
+        let ctx = Ctx::new(space.clone(), 5, s.cutoff);
+        let start = init.iter().enumerate().map(|(i, iv)| {
+            let (m, r) = initial_affine(iv);
+            TaylorModel::affine(&ctx, m, i + 1, r)
+        });
+        let mut segments = Vec::new();
+        let fp = reach_from_checked(&o, start.collect(), &space, &s, &mut |seg, models| {
+            segments.push((seg.clone(), models()));
+            true
+        })
+        .unwrap();
+        assert!(fp.failure.is_none() && segments.len() == 50);
+        let dt = 0.0005;
+        let mut tighter = 0;
+        for a in 0..=6 {
+            for b in 0..=4 {
+                let x0 = [1.25 + 0.3 * a as f64 / 6.0, 2.28 + 0.04 * b as f64 / 4.0];
+                let z = normalise_initial_point(&init, &x0).unwrap();
+                for (step, x) in simulate(&o, &x0, 1.0, dt).iter().enumerate() {
+                    let t = step as f64 * dt;
+                    for (seg, models) in segments.iter().filter(|(seg, _)| seg.t0 <= t && t <= seg.t1) {
+                        let at = [Interval::point(((t - seg.t0) / (seg.t1 - seg.t0)).clamp(0.0, 1.0)), z[0], z[1]];
+                        for i in 0..2 {
+                            let range = models[i].eval_interval(&space, &at);
+                            assert!(range.inflate(1e-9).contains(x[i]), "t={t} var {i}: {range} misses {}", x[i]);
+                            tighter += usize::from(range.width() < 0.5 * seg.bounds[i].width());
+                        }
+                    }
+                }
+            }
+        }
+        // At a point of the initial set the models are far narrower than the segment's box.
+        assert!(tighter > 1000, "{tighter}");
     }
 
     #[test]
