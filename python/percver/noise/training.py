@@ -136,7 +136,9 @@ def _seconds_per_batch(torch, module, x, y, loss_fn, batch, lr, weight_decay) ->
 
 
 def _duration(seconds: float) -> str:
-    """``seconds`` as people say it: 40 s, 3.5 min, 1.2 h."""
+    """``seconds`` as people say it: 0.4 s, 40 s, 3.5 min, 1.2 h."""
+    if seconds < 10:
+        return f"{seconds:.1f} s"
     if seconds < 90:
         return f"{seconds:.0f} s"
     if seconds < 5400:
