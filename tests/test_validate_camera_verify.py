@@ -102,27 +102,29 @@ def test_a_hidden_contrast_is_found_and_the_diagnosed_camera_is_verified_on_its_
     assert falsified.verdict == "falsified" and "inside the validated domain" in falsified.validity
     cex = falsified.counterexample
     runs = real_runs(np.array([[cex.initial["p"], cex.initial["v"]]]), 40, tmp_path)
-    assert runs[0, -1, 0] > 0.1  # the real camera's car misses the goal from there too
+    assert np.all(runs[0, :, 0] > 0.1)  # the real camera's car misses the goal from there too
     # Safety with the diagnosed camera: verified, and the real camera's runs stay in the reach sets.
-    steps = 40
+    steps = 20
     safe = pv.verify(diagnosed, init, steps=steps, safe=[p >= -0.2, p <= 0.8], progress=False)
-    assert safe.verdict == "verified" and safe.states[:2] == ["p", "v"]
+    assert safe.verdict == "verified" and safe.states == ["p", "v", "param_0"]
     rng = np.random.default_rng(5)
     x0 = np.column_stack([rng.uniform(0.6, 0.7, 300), np.zeros(300)])
     x0[:2, 0] = [0.6, 0.7]
     runs = real_runs(x0, steps, tmp_path)
     domain = found.domain.bounds["p"]
-    checked = 0
+    assert np.all((runs[:, :, 0] >= domain[0]) & (runs[:, :, 0] <= domain[1]))  # every step is checked
+    covered = np.zeros(len(x0), dtype=bool)
     for cell in safe.cells:
+        # The engine splits the held contrast too: the real camera's runs belong to the cells holding its value.
+        if not cell.box["param_0"][0] <= CONTRAST <= cell.box["param_0"][1]:
+            continue
         inside = (x0[:, 0] >= cell.box["p"][0]) & (x0[:, 0] <= cell.box["p"][1])
+        covered |= inside
         for t, box in enumerate(np.asarray(cell.boxes)):
-            states = runs[inside, t]
-            valid = (states[:, 0] >= domain[0]) & (states[:, 0] <= domain[1])
             for j in range(2):
-                part = states[valid, j]
+                part = runs[inside, t, j]
                 assert np.all(part >= box[j, 0] - 1e-9) and np.all(part <= box[j, 1] + 1e-9), (t, j, box[j], part.min(), part.max())
-            checked += valid.sum()
-    assert checked == 300 * (steps + 1)
+    assert covered.all()
 
 
 def real_runs(x0, steps, folder):
@@ -194,9 +196,13 @@ def test_a_network_camera_with_blur_and_shift_is_a_chain_that_encloses_its_rende
     runs = closed.simulate(x0, 1, values)[:, 1, 1:]
     expected = np.array([camera.with_effects(effects).predict(x[None, :1])[0, kept] for effects, x in zip(drawn, x0)])
     np.testing.assert_allclose(runs, expected, atol=1e-9)  # the chain's floats are the camera model's
+    held = closed.with_held_parameters().held  # param_k -> (id, lo, hi), as verify names them
+    assert sorted(pid for pid, _, _ in held.values()) == sorted(values)
     for cell in result.cells:
         box = np.asarray(cell.boxes)[1][1 : 1 + len(kept)]
         inside = (x0[:, 0] >= cell.box["p"][0]) & (x0[:, 0] <= cell.box["p"][1])
+        for name, (pid, _, _) in held.items():
+            inside &= (values[pid] >= cell.box[name][0]) & (values[pid] <= cell.box[name][1])
         assert np.all(runs[inside] >= box[:, 0] - 1e-9) and np.all(runs[inside] <= box[:, 1] + 1e-9)
 
 
