@@ -227,3 +227,24 @@ def test_cameras_without_a_set_form_are_refused_with_what_to_do():
         ImageModel(generator(), ["p", "v"], (H, W))
     with pytest.raises(pv.InputError, match="gives 24 pixels, its shape 30"):
         ImageModel(pixel_exprs(), ["p"], (5, 6))
+
+
+def test_a_learned_noise_model_after_a_network_camera_follows_its_chain():
+    """A shadow no library effect explains is learned (generative, the paper's g_n); its network
+    stage reads the generator's render, and the chain's floats are the diagnosed model's."""
+    pytest.importorskip("torch")
+    rng = np.random.default_rng(4)
+    states = rng.uniform(-1.2, 1.2, (400, 1))
+    shadowed = np.where(states > 0.3, 0.6, 1.0) * render(states) + rng.uniform(-NOISE, NOISE, (400, H * W))
+    data = pv.Measurements(states, shadowed, state_names=["p"])
+    options = {"threads": 1, "epochs": 100, "hidden": (16,)}
+    found = pv.diagnose(ImageModel(generator(), ["p"], (H, W)), data, learn="generative", learn_options=options)
+    assert found.learned is not None and found.learned.claimed, found.table()
+    chain = found.system(residual="max").stages("image")
+    outputs = [s.output for s in chain]
+    assert outputs[0] == "image_canonical_render0" and outputs[-3:] == ["image_canonical", "image_generated", "image"], found.table()
+    kept = [4, 11, 12, 19]
+    closed = pv.ClosedLoop(pv.Discrete({p: p, **{f"y{k}": pv.Expr.var(f"image_{k}") for k in kept}}), chain)
+    x0 = np.column_stack([np.linspace(-1.0, 1.0, 21), np.zeros((21, len(kept)))])
+    zero = {pid: np.zeros(21) for pid, _, _ in closed.parameters()}  # the residual bounds at 0
+    np.testing.assert_allclose(closed.simulate(x0, 1, zero)[:, 1, 1:], found.final_model.predict(x0[:, :1])[:, kept], atol=1e-9)
