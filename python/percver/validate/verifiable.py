@@ -318,10 +318,10 @@ def camera_component(model, ranges: dict, residual: dict | None, residual_kind: 
     rendering the states (and the blur's moved states). A Python renderer is refused."""
     from percver.expr import Expr
     from percver.networks import Network
-    from percver.sensors.camera import ExpressionRenderer
 
     renderer = model.render
-    if not isinstance(renderer, (ExpressionRenderer, Network)):
+    exprs = getattr(renderer, "exprs", None)  # an ExpressionRenderer's pixels
+    if exprs is None and not isinstance(renderer, Network):
         raise NoSetSemanticsError(
             f"the camera's renderer {getattr(renderer, '__name__', type(renderer).__name__)} is a Python function, which "
             "verification cannot enclose: give ImageModel the renderer as a generator pv.Network of the states (e.g. one "
@@ -335,7 +335,7 @@ def camera_component(model, ranges: dict, residual: dict | None, residual_kind: 
     position = Expr.var(model.position)
 
     def render(shift):
-        return renderer.exprs if shift is None else [substitute(e, {model.position: position + shift}) for e in renderer.exprs]
+        return exprs if shift is None else [substitute(e, {model.position: position + shift}) for e in exprs]
 
     out = SensorComponent(_with_residual(camera_image(model, effects, render), model.measurement_names, residual))
     out.inputs = tuple(model.state_names)
