@@ -107,6 +107,7 @@ def test_a_hidden_contrast_is_found_and_the_diagnosed_camera_is_verified_on_its_
     steps = 20
     safe = pv.verify(diagnosed, init, steps=steps, safe=[p >= -0.2, p <= 0.8], progress=False)
     assert safe.verdict == "verified" and safe.states == ["p", "v", "param_0"]
+    assert safe.validity.startswith(f"verified inside the validated domain ({found.domain.describe()})")
     rng = np.random.default_rng(5)
     x0 = np.column_stack([rng.uniform(0.6, 0.7, 300), np.zeros(300)])
     x0[:2, 0] = [0.6, 0.7]
