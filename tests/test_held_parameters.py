@@ -103,9 +103,5 @@ def test_per_is_kept_by_pickling_and_bad_values_are_refused():
     assert [p[0] for p in held_parameters(e)] == [held.parameters()[0][0]]
     with pytest.raises(InputError, match="per='step'.*per='run'"):
         pv.uncertain(0, 1, per="episode")
-    fly = pv.Mode({x: -pv.uncertain(1, 2, per="run")})
-    hybrid = pv.Hybrid({"fly": fly}, [pv.Jump("fly", None, guard=[x <= 0.5], urgent=True)], max_time=1, step=0.1)
-    with pytest.raises(InputError, match="hybrid plant.*per='step'"):
-        pv.verify(pv.ClosedLoop(hybrid), init={"x": (1, 1)}, steps=1, safe=x <= 2, progress=False)
     with pytest.raises(InputError, match="simulate|runs x steps"):
         _loop("step")[0].simulate([[1.0]], 3, {_loop("step")[1].parameters()[0][0]: np.zeros((1, 2))})

@@ -21,11 +21,11 @@ def controller() -> Network:
     )
 
 
-def ball_loop() -> pv.ClosedLoop:
+def ball_loop(gravity=G, bounce=BOUNCE) -> pv.ClosedLoop:
     """A ball pushed by a network, bouncing on the floor; the clock c ends each period."""
     plant = pv.Hybrid(
-        {"fly": pv.Mode({x: v, v: u - G, c: 1}, invariant=[x >= 0, c <= PERIOD])},
-        [pv.Jump("fly", "fly", guard=[x <= 0, v <= 0], reset={v: -BOUNCE * v}), pv.Jump("fly", None, guard=[c >= PERIOD], reset={c: 0})],
+        {"fly": pv.Mode({x: v, v: u - gravity, c: 1}, invariant=[x >= 0, c <= PERIOD])},
+        [pv.Jump("fly", "fly", guard=[x <= 0, v <= 0], reset={v: -bounce * v}), pv.Jump("fly", None, guard=[c >= PERIOD], reset={c: 0})],
         inputs=[u],
         max_time=0.5,
         step=0.01,
@@ -33,11 +33,13 @@ def ball_loop() -> pv.ClosedLoop:
     return pv.ClosedLoop(plant, [pv.Stage(controller(), [x, v], "u")])
 
 
-def simulate_ball(x0: np.ndarray, steps: int) -> np.ndarray:
+def simulate_ball(x0: np.ndarray, steps: int, gravity=G, bounce=BOUNCE) -> np.ndarray:
     """The ball's runs by scipy (DOP853, the floor as a terminal event), written from the
-    physics, not from pv.Hybrid: trajectories N x (steps + 1) x 2 of (x, v) at period ends."""
+    physics, not from pv.Hybrid: trajectories N x (steps + 1) x 2 of (x, v) at period ends.
+    ``gravity`` and ``bounce`` are numbers or one value per run."""
     net = controller()
     out = np.empty((len(x0), steps + 1, 2))
+    gravity, bounce = np.broadcast_to(gravity, len(x0)), np.broadcast_to(bounce, len(x0))
     for r, (xi, vi) in enumerate(x0):
         out[r, 0] = xi, vi
         for k in range(steps):
@@ -47,7 +49,7 @@ def simulate_ball(x0: np.ndarray, steps: int) -> np.ndarray:
             floor.terminal, floor.direction = True, -1
             while t < PERIOD:
                 sol = solve_ivp(
-                    lambda _t, y: [y[1], ui - G],
+                    lambda _t, y: [y[1], ui - gravity[r]],
                     (t, PERIOD),
                     y,
                     method="DOP853",
@@ -57,7 +59,7 @@ def simulate_ball(x0: np.ndarray, steps: int) -> np.ndarray:
                 )
                 t, y = sol.t[-1], sol.y[:, -1].copy()
                 if sol.status == 1:
-                    y = np.array([0.0, -BOUNCE * y[1]])
+                    y = np.array([0.0, -bounce[r] * y[1]])
             xi, vi = y
             out[r, k + 1] = xi, vi
     return out
@@ -84,6 +86,44 @@ def test_bouncing_ball_in_a_closed_loop_encloses_every_simulated_run():
     assert result.verdict == "verified", [cell.reason for cell in result.cells]
     # The package's own float simulation agrees with the physics.
     assert np.allclose(loop.simulate(np.column_stack([x0[:20], np.zeros(20)]), steps)[:, :, :2], traj[:20], atol=1e-6)
+
+
+def test_parameters_held_over_a_run_are_constant_states_of_every_mode():
+    """Gravity and the bounce held over a run (pv.uncertain(..., per="run")): a state of rate 0 in
+    every mode that no jump resets; scipy runs with one drawn pair per run stay in the reach sets."""
+    gravity, bounce = pv.uncertain(9.6, 10.0, per="run"), pv.uncertain(0.7, 0.85, per="run")
+    loop = ball_loop(gravity, bounce)
+    held = loop.with_held_parameters()
+    assert held.states == ["x", "v", "c", "param_0", "param_1"]
+    assert all(pv.evaluate([mode.rhs["param_0"], mode.rhs["param_1"]], {}).tolist() == [[0.0, 0.0]] for mode in held.plant.modes.values())
+    assert all("param_0" not in j.reset and "param_1" not in j.reset for j in held.plant.jumps)
+    steps = 7
+    result = pv.verify(loop, {x: (1.0, 1.1), v: (-0.1, 0.1), c: (0.0, 0.0)}, steps=steps, safe=[x >= -0.3], max_splits=2, progress=False)
+    assert result.states == ["x", "v", "c", "param_0", "param_1"]
+    rng = np.random.default_rng(8)
+    n = 300
+    x0 = np.column_stack([rng.uniform(1.0, 1.1, n), rng.uniform(-0.1, 0.1, n)])
+    (g_id, g_lo, g_hi), (b_id, b_lo, b_hi) = loop.held_parameters()
+    g, b = rng.uniform(g_lo, g_hi, n), rng.uniform(b_lo, b_hi, n)
+    g[:4], b[:4] = [g_lo, g_hi, g_lo, g_hi], [b_lo, b_lo, b_hi, b_hi]
+    traj = simulate_ball(x0, steps, g, b)
+    assert (traj[:, 5, 1] > 0).all(), "the runs bounce in period 5"
+    # The package's float simulation of the loop as given holds the same values.
+    replay = loop.simulate(np.column_stack([x0[:10], np.zeros(10)]), steps, {g_id: g[:10], b_id: b[:10]})
+    np.testing.assert_allclose(replay[:, :, :2], traj[:10], atol=1e-6)
+    for cell in result.cells:
+        box = cell.box
+        inside = np.ones(n, dtype=bool)
+        for j, value in enumerate((x0[:, 0], x0[:, 1], g, b)):
+            lo, hi = box[result.states[[0, 1, 3, 4][j]]]
+            inside &= (value >= lo) & (value <= hi)
+        for t, bounds in enumerate(np.asarray(cell.boxes)):
+            for j in range(2):
+                part = traj[inside, t, j]
+                assert ((part >= bounds[j, 0] - 1e-9) & (part <= bounds[j, 1] + 1e-9)).all(), (t, j, bounds[j], part.min(), part.max())
+            # Held through every flow and jump: the parameters' boxes are the cell's ranges at every step.
+            np.testing.assert_allclose(bounds[3:], [box["param_0"], box["param_1"]], atol=1e-9)
+    assert result.verdict == "verified", [cell.reason for cell in result.cells]
 
 
 def test_hybrid_plant_errors_name_the_fix():

@@ -119,6 +119,9 @@ def _constraints(conditions: Sequence[Condition], where: str) -> list:
     return out
 
 
+_COMPARE = {"<=": operator.le, "<": operator.lt, ">=": operator.ge, ">": operator.gt}
+
+
 def _signed(c: Condition, value: np.ndarray) -> np.ndarray:
     """The condition's margin turned so that >= 0 means it holds (equality counts as holding)."""
     return value if c.op in (">=", ">") else -value
@@ -205,6 +208,28 @@ class Hybrid:
             unknown = set(e.variables()) - names
             if unknown:
                 raise InputError(f"the hybrid plant uses {sorted(unknown)}, which are neither its states nor its inputs")
+
+    def with_constants(self, f, names: Sequence[str]) -> "Hybrid":
+        """A copy whose expressions (right-hand sides, invariants, guards, resets) are mapped by
+        ``f``, with states ``names`` that stay constant through the period: rate 0 in every mode,
+        and no jump resets them (a parameter held over a run)."""
+
+        def conditions(cs):
+            return [_COMPARE[c.op](f(c.lhs), f(c.rhs)) for c in cs]
+
+        zero = {n: as_expr(0.0) for n in names}
+        modes = {k: Mode({**{s: f(e) for s, e in m.rhs.items()}, **zero}, conditions(m.invariant)) for k, m in self.modes.items()}
+        jumps = [Jump(j.source, j.target, conditions(j.guard), {s: f(e) for s, e in j.reset.items()}, j.urgent) for j in self.jumps]
+        return Hybrid(
+            modes,
+            jumps,
+            self.inputs,
+            start=self.start,
+            max_time=self.max_time,
+            step=self.step,
+            remainder=self.remainder,
+            max_jumps=self.max_jumps,
+        )
 
     def rhs_of(self, mode: str) -> list:
         """The mode's right-hand sides in state order (0 for states it does not list)."""
@@ -590,11 +615,6 @@ class ClosedLoop:
         found = self.held_parameters()
         if not found:
             return self
-        if isinstance(self.plant, Hybrid):
-            raise InputError(
-                "parameters held over a run (pv.uncertain(..., per='run')) are not supported with a hybrid plant; "
-                "use per='step' (sound, looser) or add the parameter as a state of every mode"
-            )
         taken, names, k = set(self.signals), [], 0
         for _ in found:
             while f"param_{k}" in taken:
@@ -622,6 +642,8 @@ class ClosedLoop:
             update = dict(zip(plant.states, plain(plant.update)))
             update.update({n: Expr.var(n) for n in names})
             plant = Discrete(update, inputs=plant.inputs)
+        elif isinstance(plant, Hybrid):
+            plant = plant.with_constants(lambda e: plain([e])[0], names)
         else:
             rhs = dict(zip(plant.states, plain(plant.rhs)))
             rhs.update({n: as_expr(0.0) for n in names})

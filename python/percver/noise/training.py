@@ -7,6 +7,8 @@ is a :class:`percver.Network`, evaluated with numpy, written as ONNX and read ba
 
 from __future__ import annotations
 
+import copy
+import sys
 import time
 
 import numpy as np
@@ -63,7 +65,9 @@ def fit(torch, module, inputs, targets, loss_fn, *, epochs, batch, lr, weight_de
     """Adam with a cosine schedule on standardised inputs; the standardisation is folded into
     the first layer afterwards, so the module takes the raw inputs (pose features that span a
     few hundredths are too small for a step in them to be learnt unscaled). The module ends
-    in float64, so that export does not round to float32 again."""
+    in float64, so that export does not round to float32 again. With ``progress`` it first says
+    about how long training will take (a few mini-batches timed), then shows a bar over all
+    mini-batches with the time left."""
     inputs = np.asarray(inputs, dtype=np.float64)
     mean, scale = inputs.mean(axis=0), np.maximum(inputs.std(axis=0), 1e-3)
     generator = torch.Generator().manual_seed(seed)
@@ -71,12 +75,18 @@ def fit(torch, module, inputs, targets, loss_fn, *, epochs, batch, lr, weight_de
     y = torch.as_tensor(np.asarray(targets, dtype=np.float32))
     optimiser = torch.optim.Adam(module.parameters(), lr=lr, weight_decay=weight_decay)
     schedule = torch.optim.lr_scheduler.CosineAnnealingLR(optimiser, max(epochs, 1))
+    batches = -(-len(x) // batch)
     bar = None
     if progress:
         from tqdm import tqdm
 
-        bar = tqdm(total=epochs, desc=desc, unit="epoch")
-    started = time.perf_counter()
+        seconds = _seconds_per_batch(torch, module, x, y, loss_fn, batch, lr, weight_decay)
+        total = batches * epochs
+        print(
+            f"{desc}: about {_duration(seconds * total)} for {epochs} epochs of {batches} mini-batches (timed on {PROBE_BATCHES})",
+            file=sys.stderr,
+        )
+        bar = tqdm(total=total, desc=desc, unit="batch")
     for epoch in range(epochs):
         order = torch.randperm(len(x), generator=generator)
         total = 0.0
@@ -87,12 +97,11 @@ def fit(torch, module, inputs, targets, loss_fn, *, epochs, batch, lr, weight_de
             loss.backward()
             optimiser.step()
             total += loss.item() * len(index)
+            if bar is not None:
+                bar.update(1)
         schedule.step()
         if bar is not None:
-            bar.set_postfix(loss=f"{total / len(x):.4f}")
-            bar.update(1)
-            if epoch == 0:  # the first epoch times them all
-                bar.write(f"{desc}: about {(time.perf_counter() - started) * epochs:.0f} s for {epochs} epochs", file=bar.fp)
+            bar.set_postfix(epoch=f"{epoch + 1}/{epochs}", loss=f"{total / len(x):.4f}")
     if bar is not None:
         bar.close()
     module.double()
@@ -101,6 +110,40 @@ def fit(torch, module, inputs, targets, loss_fn, *, epochs, batch, lr, weight_de
         weight = first.weight / torch.as_tensor(scale)
         first.bias.copy_(first.bias - weight @ torch.as_tensor(mean))
         first.weight.copy_(weight)
+
+
+# Mini-batches timed before training to say how long it will take.
+PROBE_BATCHES = 5
+
+
+def _seconds_per_batch(torch, module, x, y, loss_fn, batch, lr, weight_decay) -> float:
+    """The time of one training step (forward, backward, Adam) on a copy of the module, so the
+    estimate comes before training and training itself is unchanged (same weights, same draws)."""
+    probe = copy.deepcopy(module)
+    optimiser = torch.optim.Adam(probe.parameters(), lr=lr, weight_decay=weight_decay)
+    starts = [lo % len(x) for lo in range(0, (PROBE_BATCHES + 1) * batch, batch)]
+
+    def step(lo):
+        optimiser.zero_grad()
+        loss_fn(probe(x[lo : lo + batch]), y[lo : lo + batch]).backward()
+        optimiser.step()
+
+    step(starts[0])  # the first step also sets torch up: not timed
+    started = time.perf_counter()
+    for lo in starts[1:]:
+        step(lo)
+    return (time.perf_counter() - started) / PROBE_BATCHES
+
+
+def _duration(seconds: float) -> str:
+    """``seconds`` as people say it: 0.4 s, 40 s, 3.5 min, 1.2 h."""
+    if seconds < 10:
+        return f"{seconds:.1f} s"
+    if seconds < 90:
+        return f"{seconds:.0f} s"
+    if seconds < 5400:
+        return f"{seconds / 60:.1f} min"
+    return f"{seconds / 3600:.1f} h"
 
 
 def session(torch, seed: int, threads: int | None) -> None:

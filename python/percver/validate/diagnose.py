@@ -80,8 +80,9 @@ class Diagnosis:
     def model(self):
         """The diagnosed model as ``verify`` takes it, with the fitted parameter values: for a plant
         a ``pv.Discrete``/``pv.Continuous`` (``pv.ClosedLoop(diagnosis.model, stages=[...])``), for
-        a LiDAR the ray expressions a ``pv.Stage`` takes. ``system(...)`` adds the parameters'
-        confidence intervals and the residual."""
+        a LiDAR (or a camera rendered by expressions) the expressions a ``pv.Stage`` takes, for a
+        camera rendered by a generator network a ``CameraSensor`` (``*model.stages(output="image")``).
+        ``system(...)`` adds the parameters' confidence intervals and the residual."""
         return self.system()
 
     @property
@@ -139,6 +140,8 @@ class Diagnosis:
         canonical_bounds = None if learned is not None else bounds
         if base.kind == "lidar":
             component = verifiable.lidar_component(base, ranges, canonical_bounds, kind, level, self.domain, per)
+        elif base.kind == "image":
+            component = verifiable.camera_component(base, ranges, canonical_bounds, kind, level, self.domain, per)
         else:
             component = verifiable.expression_component(base, canonical_bounds, kind, level, self.domain, per)
         if learned is None:

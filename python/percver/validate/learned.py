@@ -280,8 +280,7 @@ def learn(model, evaluation, report, kind=True, options=None, *, folds=3, bootst
     predicted = model.predict_inputs(train.inputs)
     if common.get("progress"):
         print(
-            f"learning a {kind} noise model on {len(train_rows)} rows x {predicted.shape[1]} dimensions, "
-            f"{settings['epochs']} epochs (after the first one it says about how long all take)",
+            f"learning a {kind} noise model on {len(train_rows)} rows x {predicted.shape[1]} dimensions, {settings['epochs']} epochs",
             file=sys.stderr,
         )
     if kind == "knockout":

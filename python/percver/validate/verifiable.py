@@ -252,12 +252,8 @@ def lidar_component(model, ranges: dict, residual: dict | None, residual_kind: s
     a, b = Expr.constant(1.0), Expr.constant(0.0)
     limit = model.lidar.max_range
     knockouts, notes = [], []
+    _refuse_unbounded(effects)
     for effect, p in effects:
-        if effect.name == "gaussian_noise":
-            raise NoSetSemanticsError(
-                "gaussian_noise is unbounded: it has no set form; leave it out of the model and bound the residual "
-                "instead (diagnosis.system(residual='max') or a quantile)"
-            )
         if getattr(effect, "knockout", False):
             knockouts.append(effect.name)
             continue
@@ -287,6 +283,117 @@ def lidar_component(model, ranges: dict, residual: dict | None, residual_kind: s
     out.inputs = tuple(model.state_names)
     out.validation = Basis(records, level, residual, residual_kind, domain, notes, per)
     return out
+
+
+def _refuse_unbounded(effects) -> None:
+    """Gaussian noise has no bound, hence no set form: the residual bound stands for it."""
+    for effect, _ in effects:
+        if effect.name == "gaussian_noise":
+            raise NoSetSemanticsError(
+                "gaussian_noise is unbounded: it has no set form; leave it out of the model and bound the residual "
+                "instead (diagnosis.system(residual='max') or a quantile)"
+            )
+
+
+def camera_image(model, effects, render) -> list:
+    """The pixel expressions (row-major) of a camera model: ``render(shift)`` gives the canonical
+    image with the ``position`` state moved by ``shift`` (None: not moved), then each effect's
+    ``image_expr`` in the model's order; the blur renders the effects before it at its shifts."""
+
+    def image(stack, shift):
+        pixels = render(shift)
+        for i, (effect, p) in enumerate(stack):
+            pixels = effect.image_expr(pixels, p, model, lambda moved, before=stack[:i]: image(before, moved))
+        return pixels
+
+    return image(effects, None)
+
+
+def camera_component(model, ranges: dict, residual: dict | None, residual_kind: str | None, level, domain: Domain, per: str = "run"):
+    """A diagnosed camera for verification: its renderer, then every fitted effect as expressions
+    of the pixels (``image_expr``), then the residual bound per pixel.
+
+    A renderer given as pixel expressions gives a :class:`SensorComponent` (one ``pv.Stage``);
+    a generator ``Network`` gives a :class:`CameraSensor`, a chain of stages with the network
+    rendering the states (and the blur's moved states). A Python renderer is refused."""
+    from percver.expr import Expr
+    from percver.networks import Network
+
+    renderer = model.render
+    exprs = getattr(renderer, "exprs", None)  # an ExpressionRenderer's pixels
+    if exprs is None and not isinstance(renderer, Network):
+        raise NoSetSemanticsError(
+            f"the camera's renderer {getattr(renderer, '__name__', type(renderer).__name__)} is a Python function, which "
+            "verification cannot enclose: give ImageModel the renderer as a generator pv.Network of the states (e.g. one "
+            "trained on its images, pv.load_network) or as one expression per pixel, and diagnose again"
+        )
+    effects, records = _deterministic(model, ranges, per)
+    _refuse_unbounded(effects)
+    basis = Basis(records, level, residual, residual_kind, domain, [], per)
+    if isinstance(renderer, Network):
+        return CameraSensor(model, renderer, effects, residual, basis)
+    position = Expr.var(model.position)
+
+    def render(shift):
+        return exprs if shift is None else [substitute(e, {model.position: position + shift}) for e in exprs]
+
+    out = SensorComponent(_with_residual(camera_image(model, effects, render), model.measurement_names, residual))
+    out.inputs = tuple(model.state_names)
+    out.validation = basis
+    return out
+
+
+class CameraSensor:
+    """A diagnosed camera whose renderer is a generator network: a chain of ``pv.Stage`` s
+    (``stages(output)``): the network on the states (``output_render0``), for a blur the states
+    with the position moved by -/+ delta (``output_at1``, ...) and the network on them, then
+    one expression stage with the effects and the residual bound (``output``). Without effects
+    and residual the network alone writes ``output``."""
+
+    def __init__(self, model, network, effects, residual: dict | None, validation: Basis):
+        self.model = model
+        self.network = network
+        self.effects = effects
+        self.residual = residual
+        self.inputs = tuple(model.state_names)
+        self.measurement_names = tuple(model.measurement_names)
+        self.validation = validation
+
+    def __len__(self) -> int:
+        return len(self.measurement_names)
+
+    def stages(self, output: str) -> list:
+        """The chain as ``pv.Stage`` s reading the states ``inputs``, the last one writing ``output``;
+        put them before the stages that read the image."""
+        from percver.expr import Expr
+        from percver.systems import Stage
+
+        if not self.effects and not self.residual:
+            chain = [Stage(self.network, inputs=list(self.inputs), output=output)]
+        else:
+            shifts = []
+
+            def render(shift):
+                shifts.append(shift)
+                return _signals(f"{output}_render{len(shifts) - 1}", len(self))
+
+            pixels = _with_residual(camera_image(self.model, self.effects, render), self.measurement_names, self.residual)
+            generic = self.network.with_input_names([f"in{i}" for i in range(self.network.n_in)])
+            chain = []
+            for k, shift in enumerate(shifts):
+                if shift is None:
+                    chain.append(Stage(self.network, inputs=list(self.inputs), output=f"{output}_render{k}"))
+                    continue
+                moved = [Expr.var(n) + shift if n == self.model.position else Expr.var(n) for n in self.inputs]
+                chain.append(Stage(moved, inputs=list(self.inputs), output=f"{output}_at{k}"))
+                chain.append(Stage(generic, inputs=[f"{output}_at{k}"], output=f"{output}_render{k}"))
+            chain.append(Stage(pixels, inputs=[f"{output}_render{k}" for k in range(len(shifts))], output=output))
+        chain[0].validation = self.validation  # the whole chain's: its domain and residual bound
+        return chain
+
+    def __repr__(self) -> str:
+        effects = ", ".join(e.name for e, _ in self.effects) or "no effects"
+        return f"CameraSensor({self.network.name}, {effects}: {len(self)} pixels over {list(self.inputs)})"
 
 
 def _with_residual(exprs, names, residual: dict | None) -> list:
@@ -355,7 +462,10 @@ class LearnedSensor:
 
         names, width = list(self.inputs), len(self.canonical)
         canonical = f"{output}_canonical"
-        chain = [Stage(self.canonical, inputs=names, output=canonical)]
+        if hasattr(self.canonical, "stages"):  # a camera rendered by a network
+            chain = self.canonical.stages(canonical)
+        else:
+            chain = [Stage(self.canonical, inputs=names, output=canonical)]
         chain[0].validation = self.validation  # the whole chain's: its domain and residual bound
         if self.learned.kind == "knockout":
             model = self.learned.model

@@ -1,6 +1,9 @@
-"""Camera effects on images (N x H x W, values in [0, 1])."""
+"""Camera effects on images (N x H x W, values in [0, 1]), each also as expressions of the
+pixels (``image_expr``): the set form ``verify`` uses for a diagnosed camera."""
 
 from __future__ import annotations
+
+import math
 
 import numpy as np
 from percver.validate.effects.base import Effect
@@ -17,6 +20,18 @@ class ImageEffect(Effect):
 
     def apply(self, images, states, model, before):
         raise NotImplementedError
+
+    def image_expr(self, pixels, p, model, render):
+        """The effect on one image as expressions (row-major pixels), sound over sets of states and
+        of the parameters ``p`` (numbers or ``pv.uncertain``); ``render(shift)`` is the image of the
+        effects before this one with the ``position`` state moved by ``shift`` (for the blur)."""
+        from percver.validate.verifiable import NoSetSemanticsError
+
+        raise NoSetSemanticsError(
+            f"the camera effect '{self.name}' has no expression form, so a diagnosed camera with it cannot be "
+            "verified: leave it out of diagnose (effects=[...]) and bound what it leaves with "
+            "diagnosis.system(residual='max'), or give the effect an image_expr"
+        )
 
 
 class Contrast(ImageEffect):
@@ -35,6 +50,12 @@ class Contrast(ImageEffect):
         mean = images.mean(axis=(1, 2), keepdims=True)
         return np.clip(mean + self.params["factor"] * (images - mean), 0.0, 1.0)
 
+    def image_expr(self, pixels, p, model, render):
+        from percver.expr import clip
+
+        mean = _total(pixels) / len(pixels)
+        return [clip(mean + p["factor"] * (x - mean), 0.0, 1.0) for x in pixels]
+
 
 class Brightness(ImageEffect):
     """Exposure: every pixel is scaled by ``factor`` (PIL's ``ImageEnhance.Brightness``)."""
@@ -46,6 +67,11 @@ class Brightness(ImageEffect):
 
     def apply(self, images, states, model, before):
         return np.clip(self.params["factor"] * images, 0.0, 1.0)
+
+    def image_expr(self, pixels, p, model, render):
+        from percver.expr import clip
+
+        return [clip(p["factor"] * x, 0.0, 1.0) for x in pixels]
 
 
 class Blur(ImageEffect):
@@ -77,6 +103,18 @@ class Blur(ImageEffect):
         left, right = (model.images(states, before, shift=sign * delta) for sign in (-1.0, 1.0))
         return motion_blur(left, images, right)
 
+    def image_expr(self, pixels, p, model, render):
+        """The overlay of the renders at position -/+ delta, rescaled by its smallest and largest
+        pixel (a set that cannot tell the two apart gets the hull of both, so the rescaled image
+        is loose where the image may be nearly flat)."""
+        from percver.expr import maximum, minimum
+
+        delta = p["delta"]
+        overlay = [0.5 * a + c + 0.5 * b for a, c, b in zip(render(-delta), pixels, render(delta))]
+        low, high = _reduce(minimum, overlay), _reduce(maximum, overlay)
+        span = high - low
+        return [(o - low) / span for o in overlay]
+
 
 def motion_blur(left, centre, right):
     """The paper's blur (Appendix A.3) of image stacks (N x H x W): ``0.5 left + centre + 0.5 right``,
@@ -103,6 +141,13 @@ class Shift(ImageEffect):
     def apply(self, images, states, model, before):
         return _shift(_shift(images, self.params["rows"], 1), self.params["cols"], 2)
 
+    def image_expr(self, pixels, p, model, render):
+        h, w = model.shape
+        grid = [pixels[r * w : (r + 1) * w] for r in range(h)]
+        columns = [_shift_expr(list(column), p["rows"]) for column in zip(*grid)]
+        grid = [_shift_expr(list(row), p["cols"]) for row in zip(*columns)]
+        return [x for row in grid for x in row]
+
 
 def _shift(images, amount, axis):
     """Move content by ``amount`` pixels along ``axis``: linear interpolation, edge pixels repeated."""
@@ -115,6 +160,46 @@ def _shift(images, amount, axis):
         return near
     far = np.take(images, np.clip(source - 1, 0, size - 1), axis=axis)
     return (1 - fraction) * near + fraction * far
+
+
+def _shift_expr(line, amount):
+    """``_shift`` of one line of pixel expressions: pixel i is the tent-weighted sum over whole
+    moves k of pixel i - k (edges repeated), weight max(0, 1 - |amount - k|): for a number the
+    two neighbours of ``_shift``, for a range every move it may take."""
+    from percver.expr import abs_, maximum
+
+    size = len(line)
+    lo, hi = _range(amount)
+    weights = []
+    for k in range(math.floor(lo), math.floor(hi) + 2):
+        if isinstance(amount, (int, float)):
+            if abs(amount - k) < 1:
+                weights.append((k, 1.0 - abs(amount - k)))
+        else:
+            weights.append((k, maximum(0.0, 1.0 - abs_(amount - k))))
+    return [_total([weight * line[min(max(i - k, 0), size - 1)] for k, weight in weights]) for i in range(size)]
+
+
+def _range(value) -> tuple:
+    """The interval of a number or of an expression of uncertain parameters alone."""
+    from percver._core import eval_interval
+    from percver.expr import as_expr
+
+    if isinstance(value, (int, float)):
+        return float(value), float(value)
+    return eval_interval([as_expr(value)], [], [])[0]
+
+
+def _total(terms):
+    """The sum of expressions as a balanced tree (shallow for images of hundreds of pixels)."""
+    return _reduce(lambda a, b: a + b, terms)
+
+
+def _reduce(f, terms):
+    terms = list(terms)
+    while len(terms) > 1:
+        terms = [f(terms[i], terms[i + 1]) if i + 1 < len(terms) else terms[i] for i in range(0, len(terms), 2)]
+    return terms[0]
 
 
 def _washed_out(predicted, measured):
@@ -156,6 +241,19 @@ class Glare(ImageEffect):
         r, c = np.mgrid[0:h, 0:w]
         disc = (r - self.params["row"]) ** 2 + (c - self.params["col"]) ** 2 <= self.params["radius"] ** 2
         return np.where(disc, 1.0, images)
+
+    def image_expr(self, pixels, p, model, render):
+        """Saturated where the disc covers the pixel for every parameter in range, unchanged where
+        it covers it for none, and anything between (a disturbance in [0, 1] mixing the two) where
+        that depends on the parameters: no branch per pixel."""
+        from percver.expr import as_expr, uncertain
+
+        h, w = model.shape
+        out = []
+        for (r, c), x in zip(np.ndindex(h, w), pixels):
+            lo, hi = _range(as_expr((r - p["row"]) ** 2 + (c - p["col"]) ** 2 - p["radius"] ** 2))
+            out.append(1.0 if hi <= 0 else x if lo > 0 else x + (1.0 - x) * uncertain(0.0, 1.0))
+        return out
 
 
 EFFECTS = (Contrast, Brightness, Blur, Shift, Glare)
