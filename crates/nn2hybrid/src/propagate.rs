@@ -80,6 +80,9 @@ pub struct Settings {
     pub narrow_symbols: Option<usize>,
     /// (input index, pieces): split that input's interval into equal pieces (bounds only).
     pub splits: Vec<(usize, usize)>,
+    /// Tighten ReLU neurons' ranges by back-substitution ([`crate::crown`]); off, the models'
+    /// own ranges (the zonotope relaxation alone).
+    pub back_substitution: bool,
 }
 
 impl Default for Settings {
@@ -93,6 +96,7 @@ impl Default for Settings {
             max_vars: 4,
             narrow_symbols: Some(128),
             splits: vec![],
+            back_substitution: true,
         }
     }
 }
@@ -906,17 +910,19 @@ pub type Activate<'a> = dyn Fn(&Models, &Layer, usize, Option<&[Interval]>) -> R
 
 /// One layer: the affine map, the ReLU neurons' ranges by back-substitution (recording the
 /// layer in `crown`, which starts at `models` if it is not running yet; a layer with a smooth
-/// neuron ends it), the activation. `all`: back-substitute every neuron, not only the ReLU
-/// neurons of open sign (the last layer of a bound); their ranges are returned then.
+/// neuron ends it; `crown` None: back-substitution is off), the activation. `all`:
+/// back-substitute every neuron, not only the ReLU neurons of open sign (the last layer of a
+/// bound); their ranges are returned then.
 fn layer_step<'a>(
     models: &Models,
     layer: &'a Layer,
     index: usize,
-    crown: &mut Option<Crown<'a>>,
+    crown: &mut Option<Option<Crown<'a>>>,
     all: bool,
     activate: &Activate,
 ) -> Result<(Models, Option<Vec<Interval>>)> {
     let pre = models.affine(layer)?;
+    let Some(crown) = crown else { return Ok((activate(&pre, layer, index, None)?, None)) };
     if !passable(layer) {
         *crown = None;
         return Ok((activate(&pre, layer, index, None)?, None));
@@ -942,12 +948,12 @@ fn layer_step<'a>(
 }
 
 /// Propagates models through all layers and the output map (no splitting).
-pub fn propagate_with(net: &Network, input: &Models, activate: &Activate) -> Result<Models> {
+pub fn propagate_with(net: &Network, input: &Models, back_substitution: bool, activate: &Activate) -> Result<Models> {
     if input.n() != net.n_in() {
         return Err(NetworkError::input(format!("the network takes {} inputs but {} were given", net.n_in(), input.n())));
     }
     let mut models = input.clone();
-    let mut crown = None;
+    let mut crown = back_substitution.then_some(None);
     for (index, layer) in net.layers().iter().enumerate() {
         models = layer_step(&models, layer, index + 1, &mut crown, false, activate)?.0;
     }
@@ -957,7 +963,7 @@ pub fn propagate_with(net: &Network, input: &Models, activate: &Activate) -> Res
 /// Direct Taylor-model propagation of `input` through the network.
 pub fn propagate(net: &Network, input: &Models, settings: &Settings) -> Result<Models> {
     settings.validate()?;
-    propagate_with(net, input, &|m: &Models, layer: &Layer, _, ranges| activate(m, layer, settings, ranges))
+    propagate_with(net, input, settings.back_substitution, &|m: &Models, layer: &Layer, _, ranges| activate(m, layer, settings, ranges))
 }
 
 /// The network applied to Taylor models in `ctx` (e.g. a closed loop's state): the outputs as
@@ -988,14 +994,21 @@ pub fn bounds_with(net: &Network, input: &[Interval], settings: &Settings, time_
             None => {}
         }
     }
-    run(net, models, 0, &pending, activate)
+    run(net, models, 0, &pending, settings.back_substitution, activate)
 }
 
 /// Layers from `start` on; splits a pending variable at the first nonlinear layer using it. The
 /// bounds are the output models' ranges, intersected with the last layer's back-substituted
 /// ranges where the layers since the last smooth one allow it.
-fn run(net: &Network, mut models: Models, start: usize, pending: &[(usize, usize)], activate: &Activate) -> Result<Vec<Interval>> {
-    let mut crown = None;
+fn run(
+    net: &Network,
+    mut models: Models,
+    start: usize,
+    pending: &[(usize, usize)],
+    back_substitution: bool,
+    activate: &Activate,
+) -> Result<Vec<Interval>> {
+    let mut crown = back_substitution.then_some(None);
     let mut last = None;
     for index in start..net.layers().len() {
         let layer = &net.layers()[index];
@@ -1012,7 +1025,7 @@ fn run(net: &Network, mut models: Models, start: usize, pending: &[(usize, usize
                     let r = (b - c).max(c - a).next_up();
                     let sub = pre.substitute(v, c, r);
                     let after = activate(&sub, layer, index + 1, None)?;
-                    run(net, after, index + 1, &rest, activate)
+                    run(net, after, index + 1, &rest, back_substitution, activate)
                 })
                 .collect();
             let mut hull: Option<Vec<Interval>> = None;
