@@ -350,13 +350,20 @@ class Network:
             raise InputError(f"network {self._name!r} takes {self.n_in} inputs, the box has {len(pairs)} intervals")
         return pairs
 
-    def _settings(self, order, symbolic, max_vars, pieces, back_substitution=True) -> dict:
+    def _settings(self, order, symbolic, max_vars, pieces, back_substitution=True, alpha_steps=0) -> dict:
         splits = []
         for name, count in (pieces or {}).items():
             if name not in self.input_names:
                 raise InputError(f"network {self._name!r}: cannot split {name!r}, not an input ({', '.join(self.input_names[:8])})")
             splits.append((self.input_names.index(name), int(count)))
-        return dict(order=order, symbolic=symbolic, max_vars=max_vars, splits=splits, back_substitution=bool(back_substitution))
+        return dict(
+            order=order,
+            symbolic=symbolic,
+            max_vars=max_vars,
+            splits=splits,
+            back_substitution=bool(back_substitution),
+            alpha_steps=int(alpha_steps),
+        )
 
     def bounds(
         self,
@@ -369,6 +376,7 @@ class Network:
         max_vars: int = 4,
         leaves: int = 1,
         back_substitution: bool = True,
+        alpha_steps: int = 0,
     ):
         """Sound bounds of every output over an input box: a list of ``(lo, hi)``.
 
@@ -386,9 +394,11 @@ class Network:
         ReLU network's linear relaxations need on wide boxes (``bench/networks.py``).
         ``back_substitution`` tightens the ranges of ReLU neurons (and of the last layer) by
         back-substituting the layers down to the input (CROWN-style linear bounds); ``False``
-        keeps the Taylor models' own ranges (to compare).
+        keeps the Taylor models' own ranges (to compare). ``alpha_steps`` optimises the lower slopes
+        of the unstable ReLUs per bound by that many gradient steps (alpha-CROWN; each step costs
+        about two back-substitutions).
         """
-        settings = self._settings(order, symbolic, max_vars, pieces, back_substitution)
+        settings = self._settings(order, symbolic, max_vars, pieces, back_substitution, alpha_steps)
         if not (isinstance(leaves, int) and leaves >= 1):
             raise InputError(f"leaves must be a positive integer, got {leaves!r}")
         if leaves > 1 and (method != "taylor" or isinstance(box, _core.NetworkModels)):

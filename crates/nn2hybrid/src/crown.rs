@@ -83,14 +83,45 @@ impl<'a> Crown<'a> {
     }
 
     /// Bounds of the pre-activations `rows` of `layer`, whose input is the output of the last
-    /// recorded layer (or the anchor): one upper and one lower bound per row.
-    pub(crate) fn bounds(&self, layer: &Layer, rows: &[usize]) -> Vec<Interval> {
+    /// recorded layer (or the anchor): one upper and one lower bound per row. `steps` > 0
+    /// optimises the lower slopes of the unstable ReLUs per bound (alpha-CROWN: projected
+    /// gradient steps, Adam, from the adaptive 0 / 1 slopes); every slope in [0, 1] gives a sound
+    /// bound, so each bound is the best one met.
+    pub(crate) fn bounds(&self, layer: &Layer, rows: &[usize], steps: usize) -> Vec<Interval> {
         if rows.is_empty() {
             return vec![];
         }
         let r = rows.len();
-        // Column q of `lt` is a bound's coefficients on the current layer's outputs: q < r the
-        // upper bound of z_rows[q], q >= r the upper bound of -z_rows[q - r].
+        let mut upper = self.pass(layer, rows, None).0;
+        if steps > 0 && self.layers.iter().any(|(l, b)| unstable(l, b).next().is_some()) {
+            let mut alpha: Vec<DMatrix<f64>> = self
+                .layers
+                .iter()
+                .map(|(l, b)| DMatrix::from_fn(l.n_out(), 2 * r, |p, _| relaxation_or_zero(l, b, p).2))
+                .collect();
+            let mut adam = Adam::new(&alpha);
+            for _ in 0..steps {
+                let (bound, trace) = self.pass(layer, rows, Some(&alpha));
+                upper.iter_mut().zip(&bound).for_each(|(u, b)| *u = u.min(*b));
+                let gradient = self.gradient(&trace.expect("recorded"));
+                adam.step(&mut alpha, &gradient);
+            }
+            let last = self.pass(layer, rows, Some(&alpha)).0;
+            upper.iter_mut().zip(&last).for_each(|(u, b)| *u = u.min(*b));
+        }
+        (0..r)
+            .map(|q| {
+                let (lo, hi) = (-upper[q + r], upper[q]);
+                Interval::new(lo, hi).unwrap_or(Interval::ENTIRE)
+            })
+            .collect()
+    }
+
+    /// One back-substitution: the upper bounds of the rows (column q < r of the coefficients:
+    /// z_rows[q], q >= r: -z_rows[q - r]) with lower slopes `alpha` (per layer, neuron and
+    /// bound; None: adaptive), and with `alpha` what the gradient needs.
+    fn pass(&self, layer: &Layer, rows: &[usize], alpha: Option<&[DMatrix<f64>]>) -> (Vec<f64>, Option<Trace>) {
+        let r = rows.len();
         let n_in = layer.n_in();
         let mut lt = DMatrix::zeros(n_in, 2 * r);
         let mut k = vec![0.0; 2 * r];
@@ -101,22 +132,79 @@ impl<'a> Crown<'a> {
             k[q] = layer.bias[i];
             k[q + r] = -layer.bias[i];
         }
+        let mut before = Vec::new();
         for j in (0..self.layers.len()).rev() {
             let (prev, bounds) = &self.layers[j];
-            self.relax(prev, bounds, &mut lt, &mut k);
+            if alpha.is_some() {
+                before.push(lt.clone());
+            }
+            self.relax(prev, bounds, &mut lt, &mut k, alpha.map(|a| &a[j]));
             lt = self.substitute(prev, j, &lt, &mut k);
         }
         let upper = self.at_anchor(&lt, &k);
-        (0..r)
-            .map(|q| {
-                let (lo, hi) = (-upper[q + r], upper[q]);
-                Interval::new(lo, hi).unwrap_or(Interval::ENTIRE)
-            })
-            .collect()
+        before.reverse();
+        (upper, alpha.map(|a| Trace { before, anchor: lt, alpha: a.to_vec() }))
     }
 
-    /// L h_j <= L' z_j + (added to k): each ReLU by its relaxation, by the sign of its coefficient.
-    fn relax(&self, layer: &Layer, bounds: &[Interval], lt: &mut DMatrix<f64>, k: &mut [f64]) {
+    /// The gradient of the bounds (each bound its own column) in the lower slopes, by going
+    /// back up the recorded pass: d bound / d L at the anchor, through each layer's W^T and
+    /// relaxation (a float estimate: it only steers).
+    fn gradient(&self, trace: &Trace) -> Vec<DMatrix<f64>> {
+        let a = &self.anchor;
+        let gt = a.coef_matrix() * &trace.anchor;
+        let nonneg = &a.space().nonneg;
+        let f = DMatrix::from_fn(gt.nrows(), gt.ncols(), |idx, q| {
+            let v = gt[(idx, q)];
+            if idx == 0 {
+                1.0
+            } else if idx < a.m && nonneg[idx] {
+                (v > 0.0) as u8 as f64
+            } else {
+                v.signum()
+            }
+        });
+        let mut g = a.coef_matrix().transpose() * f;
+        for (i, mut row) in g.row_iter_mut().enumerate() {
+            let (own, rem) = (a.own_coef(i).abs(), a.rem[i]);
+            for (q, v) in row.iter_mut().enumerate() {
+                *v += own * trace.anchor[(i, q)].signum() + rem.mid() + rem.radius() * trace.anchor[(i, q)].signum();
+            }
+        }
+        let mut out = vec![DMatrix::zeros(0, 0); self.layers.len()];
+        for j in 0..self.layers.len() {
+            let (layer, bounds) = &self.layers[j];
+            // d / d L' (after the relaxation) = W g + b.
+            let mut gp = layer.weight_t.transpose() * &g;
+            for (mut row, b) in gp.row_iter_mut().zip(&layer.bias) {
+                row.add_scalar_mut(*b);
+            }
+            let before = &trace.before[j];
+            let mut grad = DMatrix::zeros(layer.n_out(), before.ncols());
+            for p in 0..layer.n_out() {
+                let (s, t, _) = relaxation_or_zero(layer, bounds, p);
+                let open = layer.activations[p] == Activation::Relu && bounds[p].lo() < 0.0 && bounds[p].hi() > 0.0;
+                let dead = layer.activations[p] == Activation::Relu && bounds[p].hi() <= 0.0;
+                for q in 0..before.ncols() {
+                    let v = before[(p, q)];
+                    if dead {
+                        gp[(p, q)] = 0.0;
+                    } else if open && v > 0.0 {
+                        gp[(p, q)] = gp[(p, q)] * s + t;
+                    } else if open {
+                        grad[(p, q)] = gp[(p, q)] * v;
+                        gp[(p, q)] *= trace.alpha[j][(p, q)];
+                    }
+                }
+            }
+            out[j] = grad;
+            g = gp;
+        }
+        out
+    }
+
+    /// L h_j <= L' z_j + (added to k): each ReLU by its relaxation, by the sign of its
+    /// coefficient; the lower slope is `alpha`'s (per neuron and bound) or the adaptive one.
+    fn relax(&self, layer: &Layer, bounds: &[Interval], lt: &mut DMatrix<f64>, k: &mut [f64], alpha: Option<&DMatrix<f64>>) {
         for (p, (act, z)) in layer.activations.iter().zip(bounds).enumerate() {
             if *act != Activation::Relu || z.lo() >= 0.0 {
                 continue;
@@ -128,15 +216,16 @@ impl<'a> Crown<'a> {
             }
             let (s, t, a) = relaxation(*z);
             let zmag = z.mag();
-            for (v, kq) in row.iter_mut().zip(k.iter_mut()) {
-                if *v > 0.0 {
-                    let scaled = *v * s;
-                    let rounding = mul_up(add_up(mul_up(U, scaled), ETA), zmag);
-                    *kq = add_up(add_up(*kq, mul_up(*v, t)), rounding);
-                    *v = scaled;
-                } else {
-                    *v *= a;
+            for (q, (v, kq)) in row.iter_mut().zip(k.iter_mut()).enumerate() {
+                let slope = if *v > 0.0 { s } else { alpha.map_or(a, |al| al[(p, q)].clamp(0.0, 1.0)) };
+                let scaled = *v * slope;
+                if slope != 0.0 && slope != 1.0 {
+                    *kq = add_up(*kq, mul_up(add_up(mul_up(U, scaled.abs()), ETA), zmag));
                 }
+                if *v > 0.0 {
+                    *kq = add_up(*kq, mul_up(*v, t));
+                }
+                *v = scaled;
             }
         }
     }
@@ -186,6 +275,59 @@ impl<'a> Crown<'a> {
                 add_up(hi, rem.hi())
             })
             .collect()
+    }
+}
+
+/// A pass recorded for the gradient: the coefficients before each layer's relaxation (in layer
+/// order), at the anchor, and the slopes used.
+struct Trace {
+    before: Vec<DMatrix<f64>>,
+    anchor: DMatrix<f64>,
+    alpha: Vec<DMatrix<f64>>,
+}
+
+/// The unstable ReLU neurons of a recorded layer.
+fn unstable<'b>(layer: &'b Layer, bounds: &'b [Interval]) -> impl Iterator<Item = usize> + 'b {
+    (0..layer.n_out()).filter(|&p| layer.activations[p] == Activation::Relu && bounds[p].lo() < 0.0 && bounds[p].hi() > 0.0)
+}
+
+/// The relaxation of neuron p if it is an unstable ReLU, else zeros (never used).
+fn relaxation_or_zero(layer: &Layer, bounds: &[Interval], p: usize) -> (f64, f64, f64) {
+    if layer.activations[p] == Activation::Relu && bounds[p].lo() < 0.0 && bounds[p].hi() > 0.0 {
+        relaxation(bounds[p])
+    } else {
+        (0.0, 0.0, 0.0)
+    }
+}
+
+/// Adam on the slopes, projected onto [0, 1]: the bounds are sums of many piecewise-linear
+/// terms, whose raw gradients differ in scale by orders of magnitude between neurons.
+struct Adam {
+    m: Vec<DMatrix<f64>>,
+    v: Vec<DMatrix<f64>>,
+    t: i32,
+}
+
+impl Adam {
+    const RATE: f64 = 0.1;
+    const B1: f64 = 0.9;
+    const B2: f64 = 0.999;
+
+    fn new(like: &[DMatrix<f64>]) -> Adam {
+        let zeros: Vec<DMatrix<f64>> = like.iter().map(|a| DMatrix::zeros(a.nrows(), a.ncols())).collect();
+        Adam { m: zeros.clone(), v: zeros, t: 0 }
+    }
+
+    fn step(&mut self, x: &mut [DMatrix<f64>], gradient: &[DMatrix<f64>]) {
+        self.t += 1;
+        let (c1, c2) = (1.0 - Self::B1.powi(self.t), 1.0 - Self::B2.powi(self.t));
+        for ((x, g), (m, v)) in x.iter_mut().zip(gradient).zip(self.m.iter_mut().zip(self.v.iter_mut())) {
+            for (((x, g), m), v) in x.iter_mut().zip(g.iter()).zip(m.iter_mut()).zip(v.iter_mut()) {
+                *m = Self::B1 * *m + (1.0 - Self::B1) * g;
+                *v = Self::B2 * *v + (1.0 - Self::B2) * g * g;
+                *x = (*x - Self::RATE * (*m / c1) / ((*v / c2).sqrt() + 1e-12)).clamp(0.0, 1.0);
+            }
+        }
     }
 }
 

@@ -83,6 +83,9 @@ pub struct Settings {
     /// Tighten ReLU neurons' ranges by back-substitution ([`crate::crown`]); off, the models'
     /// own ranges (the zonotope relaxation alone).
     pub back_substitution: bool,
+    /// Gradient steps optimising the lower slopes of unstable ReLUs per back-substituted bound
+    /// (alpha-CROWN); each step costs about two back-substitutions. 0: the adaptive slopes.
+    pub alpha_steps: usize,
 }
 
 impl Default for Settings {
@@ -97,11 +100,17 @@ impl Default for Settings {
             narrow_symbols: Some(128),
             splits: vec![],
             back_substitution: true,
+            alpha_steps: 0,
         }
     }
 }
 
 impl Settings {
+    /// The back-substitution to run: None (off) or the slope optimisation's steps.
+    pub(crate) fn back_substitution(&self) -> Option<usize> {
+        self.back_substitution.then_some(self.alpha_steps)
+    }
+
     pub fn validate(&self) -> Result<()> {
         if self.order == 0 || self.order > taylor::space::MAX_ORDER {
             return Err(NetworkError::input(format!(
@@ -123,6 +132,9 @@ impl Settings {
                 taylor::space::MAX_VARS - 1,
                 self.max_vars
             )));
+        }
+        if self.alpha_steps > 1000 {
+            return Err(NetworkError::input(format!("alpha_steps is {}; use 0 to 1000", self.alpha_steps)));
         }
         if let Some(&(i, p)) = self.splits.iter().find(|&&(_, p)| p == 0 || p > 4096) {
             return Err(NetworkError::input(format!("input {i} is split into {p} pieces; use 1 to 4096")));
@@ -910,19 +922,20 @@ pub type Activate<'a> = dyn Fn(&Models, &Layer, usize, Option<&[Interval]>) -> R
 
 /// One layer: the affine map, the ReLU neurons' ranges by back-substitution (recording the
 /// layer in `crown`, which starts at `models` if it is not running yet; a layer with a smooth
-/// neuron ends it; `crown` None: back-substitution is off), the activation. `all`:
+/// neuron ends it; `crown` None: back-substitution is off, else its slope optimisation's steps and
+/// the chain), the activation. `all`:
 /// back-substitute every neuron, not only the ReLU neurons of open sign (the last layer of a
 /// bound); their ranges are returned then.
 fn layer_step<'a>(
     models: &Models,
     layer: &'a Layer,
     index: usize,
-    crown: &mut Option<Option<Crown<'a>>>,
+    crown: &mut Option<(usize, Option<Crown<'a>>)>,
     all: bool,
     activate: &Activate,
 ) -> Result<(Models, Option<Vec<Interval>>)> {
     let pre = models.affine(layer)?;
-    let Some(crown) = crown else { return Ok((activate(&pre, layer, index, None)?, None)) };
+    let Some((steps, crown)) = crown else { return Ok((activate(&pre, layer, index, None)?, None)) };
     if !passable(layer) {
         *crown = None;
         return Ok((activate(&pre, layer, index, None)?, None));
@@ -933,7 +946,7 @@ fn layer_step<'a>(
         .collect();
     if !rows.is_empty() {
         let chain = crown.get_or_insert_with(|| Crown::new(models));
-        for (&i, b) in rows.iter().zip(chain.bounds(layer, &rows)) {
+        for (&i, b) in rows.iter().zip(chain.bounds(layer, &rows, *steps)) {
             let tighter = ranges[i].intersect(&b);
             if !tighter.is_empty() {
                 ranges[i] = tighter;
@@ -948,12 +961,12 @@ fn layer_step<'a>(
 }
 
 /// Propagates models through all layers and the output map (no splitting).
-pub fn propagate_with(net: &Network, input: &Models, back_substitution: bool, activate: &Activate) -> Result<Models> {
+pub fn propagate_with(net: &Network, input: &Models, back_substitution: Option<usize>, activate: &Activate) -> Result<Models> {
     if input.n() != net.n_in() {
         return Err(NetworkError::input(format!("the network takes {} inputs but {} were given", net.n_in(), input.n())));
     }
     let mut models = input.clone();
-    let mut crown = back_substitution.then_some(None);
+    let mut crown = back_substitution.map(|steps| (steps, None));
     for (index, layer) in net.layers().iter().enumerate() {
         models = layer_step(&models, layer, index + 1, &mut crown, false, activate)?.0;
     }
@@ -963,7 +976,7 @@ pub fn propagate_with(net: &Network, input: &Models, back_substitution: bool, ac
 /// Direct Taylor-model propagation of `input` through the network.
 pub fn propagate(net: &Network, input: &Models, settings: &Settings) -> Result<Models> {
     settings.validate()?;
-    propagate_with(net, input, settings.back_substitution, &|m: &Models, layer: &Layer, _, ranges| activate(m, layer, settings, ranges))
+    propagate_with(net, input, settings.back_substitution(), &|m: &Models, layer: &Layer, _, ranges| activate(m, layer, settings, ranges))
 }
 
 /// The network applied to Taylor models in `ctx` (e.g. a closed loop's state): the outputs as
@@ -994,7 +1007,7 @@ pub fn bounds_with(net: &Network, input: &[Interval], settings: &Settings, time_
             None => {}
         }
     }
-    run(net, models, 0, &pending, settings.back_substitution, activate)
+    run(net, models, 0, &pending, settings.back_substitution(), activate)
 }
 
 /// Layers from `start` on; splits a pending variable at the first nonlinear layer using it. The
@@ -1005,10 +1018,10 @@ fn run(
     mut models: Models,
     start: usize,
     pending: &[(usize, usize)],
-    back_substitution: bool,
+    back_substitution: Option<usize>,
     activate: &Activate,
 ) -> Result<Vec<Interval>> {
-    let mut crown = back_substitution.then_some(None);
+    let mut crown = back_substitution.map(|steps| (steps, None));
     let mut last = None;
     for index in start..net.layers().len() {
         let layer = &net.layers()[index];

@@ -213,7 +213,7 @@ pub fn bounds(net: &Network, input: &[Interval], settings: &Settings) -> Result<
 /// Models propagated through the Verisig translation (a time variable is added if missing).
 pub fn propagate(net: &Network, input: &Models, settings: &Settings) -> Result<Models> {
     let s = verisig_settings(settings)?;
-    propagate_with(net, &input.with_time_var()?, s.back_substitution, &|m: &Models, layer: &Layer, index, ranges| {
+    propagate_with(net, &input.with_time_var()?, s.back_substitution(), &|m: &Models, layer: &Layer, index, ranges| {
         activate(m, layer, index, &s, ranges)
     })
 }
