@@ -446,3 +446,30 @@ fn back_substituted_models_enclose_taylor_model_inputs() {
     }
     assert!(with_total < 0.95 * without_total, "back-substitution must tighten the models: {with_total} vs {without_total}");
 }
+
+/// Optimised lower slopes (alpha-CROWN): sound on ReLU networks over wide boxes, never looser
+/// than the adaptive slopes (0.1% slack, as above), and tighter in total.
+#[test]
+fn optimised_slopes_are_sound_and_tighter() {
+    let mut rng = Rng(23);
+    let adaptive = Settings::default();
+    let optimised = Settings { alpha_steps: 20, ..Settings::default() };
+    let (mut with_total, mut without_total) = (0.0, 0.0);
+    for shape in [&[3usize, 30, 30, 2][..], &[4, 20, 20, 20, 20, 1], &[12, 40, 40, 10, 3]] {
+        for radius in [0.5, 1.0] {
+            let net = random_network(&mut rng, shape, &[RELU], false, 2.0);
+            let bx = random_box(&mut rng, shape[0], radius);
+            let points = samples(&mut rng, &net, &bx, 5000);
+            let with = propagate::bounds(&net, &bx, &optimised).unwrap();
+            let without = propagate::bounds(&net, &bx, &adaptive).unwrap();
+            assert_encloses(&format!("{shape:?} radius {radius} optimised"), &with, &points);
+            for (a, b) in with.iter().zip(&without) {
+                let slack = 1e-3 * b.width();
+                assert!(a.lo() >= b.lo() - slack && a.hi() <= b.hi() + slack, "{shape:?} radius {radius}: {a} not inside {b}");
+                with_total += a.width();
+                without_total += b.width();
+            }
+        }
+    }
+    assert!(with_total < 0.95 * without_total, "optimised slopes must tighten: {with_total} vs {without_total}");
+}
