@@ -94,11 +94,8 @@ impl<'a> Crown<'a> {
         let r = rows.len();
         let mut upper = self.pass(layer, rows, None).0;
         if steps > 0 && self.layers.iter().any(|(l, b)| unstable(l, b).next().is_some()) {
-            let mut alpha: Vec<DMatrix<f64>> = self
-                .layers
-                .iter()
-                .map(|(l, b)| DMatrix::from_fn(l.n_out(), 2 * r, |p, _| relaxation_or_zero(l, b, p).2))
-                .collect();
+            let mut alpha: Vec<DMatrix<f64>> =
+                self.layers.iter().map(|(l, b)| DMatrix::from_fn(l.n_out(), 2 * r, |p, _| relaxation_or_zero(l, b, p).2)).collect();
             let mut adam = Adam::new(&alpha);
             for _ in 0..steps {
                 let (bound, trace) = self.pass(layer, rows, Some(&alpha));

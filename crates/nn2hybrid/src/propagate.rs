@@ -26,7 +26,9 @@
 //!   joins the neuron's new error;
 //! - ReLU: identity or zero when the sign is decided; otherwise the linear relaxation
 //!   relu(y) in lambda y + [0, mu] with lambda = u / (u - l), mu = -lambda l on [l, u] (exact
-//!   for the symbols, which are scaled by lambda);
+//!   for the symbols, which are scaled by lambda). [l, u] is the model's range intersected with
+//!   the bound found by back-substituting the layers since the input or the last smooth layer
+//!   ([`crate::crown`], optionally with optimised slopes): decided signs and narrower chords;
 //! - identity: nothing.
 //!
 //! All of a neuron's new error becomes one new symbol (or its remainder if symbols are off),
