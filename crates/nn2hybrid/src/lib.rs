@@ -5,7 +5,7 @@
 //! [`activation`], ReLU ranges tightened by back-substitution in `crown`); [`verisig`] does the same through the Verisig translation (each sigmoid or
 //! tanh neuron an ODE over fictitious time) and serves as a cross-check.
 pub mod activation;
-mod crown;
+pub mod crown;
 pub mod error;
 pub mod network;
 pub mod propagate;
