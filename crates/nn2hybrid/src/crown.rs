@@ -38,6 +38,7 @@ pub(crate) struct Crown<'a> {
     /// Per anchor neuron: an upper bound of its |value|.
     anchor_range: Vec<f64>,
     layers: Vec<(&'a Layer, Vec<Interval>)>,
+    relaxes: bool,
 }
 
 /// Whether back-substitution can pass the layer (ReLU and identity neurons only).
@@ -63,14 +64,20 @@ fn relaxation(z: Interval) -> (f64, f64, f64) {
 impl<'a> Crown<'a> {
     pub(crate) fn new(anchor: &Models) -> Crown<'a> {
         let anchor_mags = (0..anchor.n()).map(|i| add_up(taylor::tm::abs_sum(anchor.column(i)), anchor.own_mag(i))).collect();
-        let anchor_range = anchor.bounds().iter().map(|b| b.mag()).collect();
-        Crown { anchor: anchor.clone(), anchor_mags, anchor_range, layers: vec![] }
+        let anchor_range = (0..anchor.n()).map(|i| anchor.range(i).mag()).collect();
+        Crown { anchor: anchor.clone(), anchor_mags, anchor_range, layers: vec![], relaxes: false }
     }
 
     /// Records a layer (ReLU and identity neurons only) with its neurons' pre-activation bounds.
     pub(crate) fn push(&mut self, layer: &'a Layer, bounds: Vec<Interval>) {
         debug_assert!(passable(layer) && bounds.len() == layer.n_out());
+        self.relaxes |= unstable(layer, &bounds).next().is_some();
         self.layers.push((layer, bounds));
+    }
+
+    /// Whether a recorded layer has an unstable ReLU (else a bound is the anchor's affine image).
+    pub(crate) fn relaxes(&self) -> bool {
+        self.relaxes
     }
 
     /// Upper bound of |h| per neuron of the output of layer j (the anchor for j = 0).
@@ -93,7 +100,7 @@ impl<'a> Crown<'a> {
         }
         let r = rows.len();
         let mut upper = self.pass(layer, rows, None).0;
-        if steps > 0 && self.layers.iter().any(|(l, b)| unstable(l, b).next().is_some()) {
+        if steps > 0 && self.relaxes {
             let mut alpha: Vec<DMatrix<f64>> =
                 self.layers.iter().map(|(l, b)| DMatrix::from_fn(l.n_out(), 2 * r, |p, _| relaxation_or_zero(l, b, p).2)).collect();
             let mut adam = Adam::new(&alpha);

@@ -236,7 +236,7 @@ impl Models {
 
     /// The range of neuron i: its polynomial's bound plus symbols and remainder (what a ReLU's
     /// relaxation starts from).
-    fn range(&self, i: usize) -> Interval {
+    pub(crate) fn range(&self, i: usize) -> Interval {
         let p = TaylorModel { coef: self.poly(i).to_vec(), rem: Interval::ZERO };
         p.poly_bound(&self.ctx.space) + self.rem[i].inflate(self.sym_mag(i))
     }
@@ -943,11 +943,15 @@ fn layer_step<'a>(
         return Ok((activate(&pre, layer, index, None)?, None));
     }
     let mut ranges: Vec<Interval> = (0..pre.n()).map(|i| pre.range(i)).collect();
-    let rows: Vec<usize> = (0..pre.n())
-        .filter(|&i| all || (layer.activations[i] == Activation::Relu && ranges[i].lo() < 0.0 && ranges[i].hi() > 0.0))
-        .collect();
-    if !rows.is_empty() {
-        let chain = crown.get_or_insert_with(|| Crown::new(models));
+    if crown.is_none() && layer.activations.contains(&Activation::Relu) {
+        *crown = Some(Crown::new(models));
+    }
+    let Some(chain) = crown else { return Ok((activate(&pre, layer, index, None)?, all.then_some(ranges))) };
+    // Without a relaxation since the anchor, back-substitution is the models' own affine image.
+    if chain.relaxes() {
+        let rows: Vec<usize> = (0..pre.n())
+            .filter(|&i| all || (layer.activations[i] == Activation::Relu && ranges[i].lo() < 0.0 && ranges[i].hi() > 0.0))
+            .collect();
         for (&i, b) in rows.iter().zip(chain.bounds(layer, &rows, *steps)) {
             let tighter = ranges[i].intersect(&b);
             if !tighter.is_empty() {
@@ -956,9 +960,7 @@ fn layer_step<'a>(
         }
     }
     let out = activate(&pre, layer, index, Some(&ranges))?;
-    if let Some(chain) = crown {
-        chain.push(layer, ranges.clone());
-    }
+    chain.push(layer, ranges.clone());
     Ok((out, all.then_some(ranges)))
 }
 
