@@ -14,7 +14,10 @@ of an earlier commit), in the same processes, for a before/after on equal terms.
 ``--archcomp`` measures instead the ARCH-COMP 2024 AINNCS controllers (ReLU and, for comparison,
 smooth) on boxes of half-width 0.5 around the centre of their benchmark's initial set: the
 ratio of the bound's width to the sampled range (worst output), unrefined and refined by
-branch and bound (``leaves=``); writes bench/results/networks_archcomp.json.
+branch and bound (``leaves=``), with the adaptive ReLU slopes and with ``--alpha`` steps of their
+optimisation (``alpha_steps=``); writes bench/results/networks_archcomp.json.
+
+    python bench/networks.py --archcomp 1 256 1024 --alpha 0 20
 """
 
 import argparse
@@ -194,9 +197,10 @@ ARCHCOMP_CENTRES = {
 }
 
 
-def archcomp(leaves: list) -> dict:
+def archcomp(leaves: list, alphas: list) -> dict:
     """Per controller: worst-output ratio of bound width to sampled range (100,000 uniform points
-    and the box's corners up to 2^12), CPU seconds, per number of leaves (1: unrefined)."""
+    and the box's corners up to 2^12), CPU seconds, per number of leaves (1: unrefined) and of
+    slope optimisation steps (rows ``leaves_N`` for 0 steps, ``leaves_N_alpha_K`` for K)."""
     import itertools
     import warnings
 
@@ -216,20 +220,23 @@ def archcomp(leaves: list) -> dict:
             - {"identity"}
         )
         row = {"activations": acts, "sampled": [[float(a), float(b)] for a, b in zip(y.min(0), y.max(0))]}
-        for n in leaves:
-            start = time.process_time()
-            bounds = np.array(network.bounds(box, leaves=n))
-            seconds = time.process_time() - start
-            if np.any(y < bounds[:, 0]) or np.any(y > bounds[:, 1]):
-                raise AssertionError(f"{name}: a sample lies outside the bounds with leaves={n}")
-            row[f"leaves_{n}"] = {
-                "ratio": float(np.max((bounds[:, 1] - bounds[:, 0]) / np.maximum(sampled, 1e-12))),
-                "cpu_seconds": seconds,
-            }
+        keys = []
+        for alpha in alphas:
+            for n in leaves:
+                start = time.process_time()
+                bounds = np.array(network.bounds(box, leaves=n, alpha_steps=alpha))
+                seconds = time.process_time() - start
+                if np.any(y < bounds[:, 0]) or np.any(y > bounds[:, 1]):
+                    raise AssertionError(f"{name}: a sample lies outside the bounds with leaves={n}, alpha_steps={alpha}")
+                key = f"leaves_{n}" + (f"_alpha_{alpha}" if alpha else "")
+                row[key] = {
+                    "ratio": float(np.max((bounds[:, 1] - bounds[:, 0]) / np.maximum(sampled, 1e-12))),
+                    "cpu_seconds": seconds,
+                }
+                keys.append(key)
         rows[name] = row
         print(
-            f"{name:70s} {'/'.join(acts):13s}"
-            + "".join(f"  {n:5d}: {row[f'leaves_{n}']['ratio']:7.2f}x {row[f'leaves_{n}']['cpu_seconds']:6.2f} s" for n in leaves),
+            f"{name:60s} {'/'.join(acts):10s}" + "".join(f"  {k}: {row[k]['ratio']:6.2f}x {row[k]['cpu_seconds']:6.2f} s" for k in keys),
             flush=True,
         )
     return rows
@@ -242,10 +249,15 @@ def main() -> None:
     parser.add_argument("--baseline", help="another build of percver._core (lib_core.so) to time the key figure with")
     parser.add_argument("--key-figure-only", action="store_true", help=argparse.SUPPRESS)
     parser.add_argument("--archcomp", type=int, nargs="*", metavar="LEAVES", help="the ARCH-COMP controllers (default leaves: 1 256 1024)")
+    parser.add_argument("--alpha", type=int, nargs="*", default=[0], metavar="STEPS", help="ReLU slope optimisation steps (default: 0)")
     args = parser.parse_args()
     if args.archcomp is not None:
         leaves = args.archcomp or [1, 256, 1024]
-        doc = {"machine": {"cpus": os.cpu_count(), "load_average": os.getloadavg()}, "half_width": 0.5, "networks": archcomp(leaves)}
+        doc = {
+            "machine": {"cpus": os.cpu_count(), "load_average": os.getloadavg()},
+            "half_width": 0.5,
+            "networks": archcomp(leaves, args.alpha),
+        }
         (ROOT / "bench" / "results" / "networks_archcomp.json").write_text(json.dumps(doc, indent=1))
         return
     if args.key_figure_only:

@@ -350,16 +350,33 @@ class Network:
             raise InputError(f"network {self._name!r} takes {self.n_in} inputs, the box has {len(pairs)} intervals")
         return pairs
 
-    def _settings(self, order, symbolic, max_vars, pieces) -> dict:
+    def _settings(self, order, symbolic, max_vars, pieces, back_substitution=True, alpha_steps=0) -> dict:
         splits = []
         for name, count in (pieces or {}).items():
             if name not in self.input_names:
                 raise InputError(f"network {self._name!r}: cannot split {name!r}, not an input ({', '.join(self.input_names[:8])})")
             splits.append((self.input_names.index(name), int(count)))
-        return dict(order=order, symbolic=symbolic, max_vars=max_vars, splits=splits)
+        return dict(
+            order=order,
+            symbolic=symbolic,
+            max_vars=max_vars,
+            splits=splits,
+            back_substitution=bool(back_substitution),
+            alpha_steps=int(alpha_steps),
+        )
 
     def bounds(
-        self, box, method: str = "taylor", order: int = 5, *, pieces=None, symbolic: bool = True, max_vars: int = 4, leaves: int = 1
+        self,
+        box,
+        method: str = "taylor",
+        order: int = 5,
+        *,
+        pieces=None,
+        symbolic: bool = True,
+        max_vars: int = 4,
+        leaves: int = 1,
+        back_substitution: bool = True,
+        alpha_steps: int = 0,
     ):
         """Sound bounds of every output over an input box: a list of ``(lo, hi)``.
 
@@ -375,8 +392,13 @@ class Network:
         ``leaves=N`` (Taylor method, boxes) refines the bounds by branch and bound on the input, up to
         N sub-boxes, halving where a bound is loosest along the input that moves it most: what a
         ReLU network's linear relaxations need on wide boxes (``bench/networks.py``).
+        ``back_substitution`` tightens the ranges of ReLU neurons (and of the last layer) by
+        back-substituting the layers down to the input (CROWN-style linear bounds); ``False``
+        keeps the Taylor models' own ranges (to compare). ``alpha_steps`` optimises the lower slopes
+        of the unstable ReLUs per bound by that many gradient steps (alpha-CROWN; each step costs
+        about two back-substitutions).
         """
-        settings = self._settings(order, symbolic, max_vars, pieces)
+        settings = self._settings(order, symbolic, max_vars, pieces, back_substitution, alpha_steps)
         if not (isinstance(leaves, int) and leaves >= 1):
             raise InputError(f"leaves must be a positive integer, got {leaves!r}")
         if leaves > 1 and (method != "taylor" or isinstance(box, _core.NetworkModels)):
@@ -391,14 +413,16 @@ class Network:
             return self._core().bounds(box, method, **settings)
         return self._core().bounds(self._box(box), method, **settings)
 
-    def taylor_models(self, box, method: str = "taylor", order: int = 5, *, symbolic: bool = True, max_vars: int = 4):
+    def taylor_models(
+        self, box, method: str = "taylor", order: int = 5, *, symbolic: bool = True, max_vars: int = 4, back_substitution: bool = True
+    ):
         """The outputs as Taylor models over the box's variables (``percver._core.NetworkModels``).
 
         Pass them as the box of the next network's :meth:`bounds` or :meth:`taylor_models` to
         propagate through several networks without boxing; ``.bounds()`` gives their ranges,
         ``.variables`` the map from inputs to polynomial variables.
         """
-        settings = self._settings(order, symbolic, max_vars, None)
+        settings = self._settings(order, symbolic, max_vars, None, back_substitution)
         del settings["splits"]
         if isinstance(box, _core.NetworkModels):
             if len(box) != self.n_in:

@@ -26,7 +26,9 @@
 //!   joins the neuron's new error;
 //! - ReLU: identity or zero when the sign is decided; otherwise the linear relaxation
 //!   relu(y) in lambda y + [0, mu] with lambda = u / (u - l), mu = -lambda l on [l, u] (exact
-//!   for the symbols, which are scaled by lambda);
+//!   for the symbols, which are scaled by lambda). [l, u] is the model's range intersected with
+//!   the bound found by back-substituting the layers since the input or the last smooth layer
+//!   ([`crate::crown`], optionally with optimised slopes): decided signs and narrower chords;
 //! - identity: nothing.
 //!
 //! All of a neuron's new error becomes one new symbol (or its remainder if symbols are off),
@@ -36,6 +38,7 @@
 //! nonlinear neuron that depends on it are propagated once (for a perception chain, the whole
 //! image generator), then each piece substitutes x_v = c + r x_v' and continues.
 use crate::activation::{enclose, image_and_derivative, Smooth};
+use crate::crown::{passable, Crown};
 use crate::error::{NetworkError, Result};
 use crate::network::{Activation, Layer, Network};
 use nalgebra::DMatrix;
@@ -79,6 +82,12 @@ pub struct Settings {
     pub narrow_symbols: Option<usize>,
     /// (input index, pieces): split that input's interval into equal pieces (bounds only).
     pub splits: Vec<(usize, usize)>,
+    /// Tighten ReLU neurons' ranges by back-substitution ([`crate::crown`]); off, the models'
+    /// own ranges (the zonotope relaxation alone).
+    pub back_substitution: bool,
+    /// Gradient steps optimising the lower slopes of unstable ReLUs per back-substituted bound
+    /// (alpha-CROWN); each step costs about two back-substitutions. 0: the adaptive slopes.
+    pub alpha_steps: usize,
 }
 
 impl Default for Settings {
@@ -92,11 +101,18 @@ impl Default for Settings {
             max_vars: 4,
             narrow_symbols: Some(128),
             splits: vec![],
+            back_substitution: true,
+            alpha_steps: 0,
         }
     }
 }
 
 impl Settings {
+    /// The back-substitution to run: None (off) or the slope optimisation's steps.
+    pub(crate) fn back_substitution(&self) -> Option<usize> {
+        self.back_substitution.then_some(self.alpha_steps)
+    }
+
     pub fn validate(&self) -> Result<()> {
         if self.order == 0 || self.order > taylor::space::MAX_ORDER {
             return Err(NetworkError::input(format!(
@@ -119,6 +135,9 @@ impl Settings {
                 self.max_vars
             )));
         }
+        if self.alpha_steps > 1000 {
+            return Err(NetworkError::input(format!("alpha_steps is {}; use 0 to 1000", self.alpha_steps)));
+        }
         if let Some(&(i, p)) = self.splits.iter().find(|&&(_, p)| p == 0 || p > 4096) {
             return Err(NetworkError::input(format!("input {i} is split into {p} pieces; use 1 to 4096")));
         }
@@ -131,7 +150,7 @@ impl Settings {
 pub struct Models {
     pub ctx: Ctx,
     /// Polynomial coefficients per neuron: space.len_upto(order).
-    m: usize,
+    pub(crate) m: usize,
     /// (m + shared symbols) x neurons, column-major: a neuron's coefficients are contiguous.
     coef: DMatrix<f64>,
     /// Symbols of one neuron each, as an activation creates them: own[i] is neuron i's
@@ -201,8 +220,25 @@ impl Models {
     }
 
     /// |coefficient| of neuron i's own symbol.
-    fn own_mag(&self, i: usize) -> f64 {
-        self.own.as_ref().map_or(0.0, |own| own[i].abs())
+    pub(crate) fn own_mag(&self, i: usize) -> f64 {
+        self.own_coef(i).abs()
+    }
+
+    /// Neuron i's coefficient of its own symbol (0: none).
+    pub(crate) fn own_coef(&self, i: usize) -> f64 {
+        self.own.as_ref().map_or(0.0, |own| own[i])
+    }
+
+    /// The coefficients (polynomial, then shared symbols) of all neurons, one column each.
+    pub(crate) fn coef_matrix(&self) -> &DMatrix<f64> {
+        &self.coef
+    }
+
+    /// The range of neuron i: its polynomial's bound plus symbols and remainder (what a ReLU's
+    /// relaxation starts from).
+    pub(crate) fn range(&self, i: usize) -> Interval {
+        let p = TaylorModel { coef: self.poly(i).to_vec(), rem: Interval::ZERO };
+        p.poly_bound(&self.ctx.space) + self.rem[i].inflate(self.sym_mag(i))
     }
 
     /// Models of the box `input`: the `max_vars` widest non-degenerate inputs become polynomial
@@ -392,8 +428,8 @@ impl Models {
             .collect()
     }
 
-    /// Neuron i's coefficients: polynomial then symbols.
-    fn column(&self, i: usize) -> &[f64] {
+    /// Neuron i's coefficients: polynomial then shared symbols.
+    pub(crate) fn column(&self, i: usize) -> &[f64] {
         let w = self.coef.nrows();
         &self.coef.as_slice()[i * w..(i + 1) * w]
     }
@@ -815,11 +851,12 @@ fn smooth_neuron(f: Smooth, models: &Models, i: usize) -> NeuronOut {
     NeuronOut { poly, sym_factor, error, symbolic: true }
 }
 
-/// ReLU: decided signs exactly; undecided by relu(y) in lambda y + [0, mu].
-fn relu_neuron(models: &Models, i: usize) -> NeuronOut {
-    let ctx = &models.ctx;
+/// ReLU: decided signs exactly; undecided by relu(y) in lambda y + [0, mu]. `known` is a range
+/// of the pre-activation known otherwise (back-substitution), intersected with the model's.
+fn relu_neuron(models: &Models, i: usize, known: Option<Interval>) -> NeuronOut {
     let p = TaylorModel { coef: models.poly(i).to_vec(), rem: Interval::ZERO };
-    let y = p.poly_bound(&ctx.space) + models.rem[i].inflate(models.sym_mag(i));
+    let own = models.range(i);
+    let y = known.map(|k| own.intersect(&k)).filter(|y| !y.is_empty()).unwrap_or(own);
     if y.hi() <= 0.0 {
         return NeuronOut { poly: TaylorModel::zero(), sym_factor: 0.0, error: Interval::ZERO, symbolic: false };
     }
@@ -844,8 +881,15 @@ fn relu_neuron(models: &Models, i: usize) -> NeuronOut {
 pub(crate) type SmoothNeuron<'a> = dyn Fn(Smooth, &Models, usize) -> Result<NeuronOut> + Sync + 'a;
 
 /// A layer's activations, in parallel over neurons; `smooth` handles sigmoid and tanh neurons,
-/// ReLU and identity neurons are handled here for every method.
-pub(crate) fn activate_with(models: &Models, layer: &Layer, settings: &Settings, smooth: &SmoothNeuron) -> Result<Models> {
+/// ReLU and identity neurons are handled here for every method (`ranges`: the pre-activations'
+/// ranges where back-substitution found them, see [`Activate`]).
+pub(crate) fn activate_with(
+    models: &Models,
+    layer: &Layer,
+    settings: &Settings,
+    smooth: &SmoothNeuron,
+    ranges: Option<&[Interval]>,
+) -> Result<Models> {
     if layer.is_affine() {
         return Ok(models.clone());
     }
@@ -856,7 +900,7 @@ pub(crate) fn activate_with(models: &Models, layer: &Layer, settings: &Settings,
         .map(|i| match layer.activations[i] {
             Activation::Sigmoid => smooth(Smooth::Sigmoid, models, i),
             Activation::Tanh => smooth(Smooth::Tanh, models, i),
-            Activation::Relu => Ok(relu_neuron(models, i)),
+            Activation::Relu => Ok(relu_neuron(models, i, ranges.map(|r| r[i]))),
             Activation::Identity => Ok(NeuronOut {
                 poly: TaylorModel { coef: models.poly(i).to_vec(), rem: Interval::ZERO },
                 sym_factor: 1.0,
@@ -869,21 +913,66 @@ pub(crate) fn activate_with(models: &Models, layer: &Layer, settings: &Settings,
 }
 
 /// The activation of a layer by the direct method.
-pub fn activate(models: &Models, layer: &Layer, settings: &Settings) -> Result<Models> {
-    activate_with(models, layer, settings, &|f, m, i| Ok(smooth_neuron(f, m, i)))
+pub fn activate(models: &Models, layer: &Layer, settings: &Settings, ranges: Option<&[Interval]>) -> Result<Models> {
+    activate_with(models, layer, settings, &|f, m, i| Ok(smooth_neuron(f, m, i)), ranges)
 }
 
-/// The activation step of a propagation method (direct or Verisig).
-pub type Activate<'a> = dyn Fn(&Models, &Layer, usize) -> Result<Models> + Sync + 'a;
+/// The activation step of a propagation method (direct or Verisig): pre-activation models, the
+/// layer, its number, and the neurons' pre-activation ranges where back-substitution found
+/// tighter ones than the models' own (ReLU layers).
+pub type Activate<'a> = dyn Fn(&Models, &Layer, usize, Option<&[Interval]>) -> Result<Models> + Sync + 'a;
+
+/// One layer: the affine map, the ReLU neurons' ranges by back-substitution (recording the
+/// layer in `crown`, which starts at `models` if it is not running yet; a layer with a smooth
+/// neuron ends it; `crown` None: back-substitution is off, else its slope optimisation's steps and
+/// the chain), the activation. `all`:
+/// back-substitute every neuron, not only the ReLU neurons of open sign (the last layer of a
+/// bound); their ranges are returned then.
+fn layer_step<'a>(
+    models: &Models,
+    layer: &'a Layer,
+    index: usize,
+    crown: &mut Option<(usize, Option<Crown<'a>>)>,
+    all: bool,
+    activate: &Activate,
+) -> Result<(Models, Option<Vec<Interval>>)> {
+    let pre = models.affine(layer)?;
+    let Some((steps, crown)) = crown else { return Ok((activate(&pre, layer, index, None)?, None)) };
+    if !passable(layer) {
+        *crown = None;
+        return Ok((activate(&pre, layer, index, None)?, None));
+    }
+    let mut ranges: Vec<Interval> = (0..pre.n()).map(|i| pre.range(i)).collect();
+    if crown.is_none() && layer.activations.contains(&Activation::Relu) {
+        *crown = Some(Crown::new(models));
+    }
+    let Some(chain) = crown else { return Ok((activate(&pre, layer, index, None)?, all.then_some(ranges))) };
+    // Without a relaxation since the anchor, back-substitution is the models' own affine image.
+    if chain.relaxes() {
+        let rows: Vec<usize> = (0..pre.n())
+            .filter(|&i| all || (layer.activations[i] == Activation::Relu && ranges[i].lo() < 0.0 && ranges[i].hi() > 0.0))
+            .collect();
+        for (&i, b) in rows.iter().zip(chain.bounds(layer, &rows, *steps)) {
+            let tighter = ranges[i].intersect(&b);
+            if !tighter.is_empty() {
+                ranges[i] = tighter;
+            }
+        }
+    }
+    let out = activate(&pre, layer, index, Some(&ranges))?;
+    chain.push(layer, ranges.clone());
+    Ok((out, all.then_some(ranges)))
+}
 
 /// Propagates models through all layers and the output map (no splitting).
-pub fn propagate_with(net: &Network, input: &Models, activate: &Activate) -> Result<Models> {
+pub fn propagate_with(net: &Network, input: &Models, back_substitution: Option<usize>, activate: &Activate) -> Result<Models> {
     if input.n() != net.n_in() {
         return Err(NetworkError::input(format!("the network takes {} inputs but {} were given", net.n_in(), input.n())));
     }
     let mut models = input.clone();
+    let mut crown = back_substitution.map(|steps| (steps, None));
     for (index, layer) in net.layers().iter().enumerate() {
-        models = activate(&models.affine(layer)?, layer, index + 1)?;
+        models = layer_step(&models, layer, index + 1, &mut crown, false, activate)?.0;
     }
     Ok(models.output_map(net.scale(), net.offset()))
 }
@@ -891,7 +980,7 @@ pub fn propagate_with(net: &Network, input: &Models, activate: &Activate) -> Res
 /// Direct Taylor-model propagation of `input` through the network.
 pub fn propagate(net: &Network, input: &Models, settings: &Settings) -> Result<Models> {
     settings.validate()?;
-    propagate_with(net, input, &|m: &Models, layer: &Layer, _| activate(m, layer, settings))
+    propagate_with(net, input, settings.back_substitution(), &|m: &Models, layer: &Layer, _, ranges| activate(m, layer, settings, ranges))
 }
 
 /// The network applied to Taylor models in `ctx` (e.g. a closed loop's state): the outputs as
@@ -922,11 +1011,22 @@ pub fn bounds_with(net: &Network, input: &[Interval], settings: &Settings, time_
             None => {}
         }
     }
-    run(net, models, 0, &pending, activate)
+    run(net, models, 0, &pending, settings.back_substitution(), activate)
 }
 
-/// Layers from `start` on; splits a pending variable at the first nonlinear layer using it.
-fn run(net: &Network, mut models: Models, start: usize, pending: &[(usize, usize)], activate: &Activate) -> Result<Vec<Interval>> {
+/// Layers from `start` on; splits a pending variable at the first nonlinear layer using it. The
+/// bounds are the output models' ranges, intersected with the last layer's back-substituted
+/// ranges where the layers since the last smooth one allow it.
+fn run(
+    net: &Network,
+    mut models: Models,
+    start: usize,
+    pending: &[(usize, usize)],
+    back_substitution: Option<usize>,
+    activate: &Activate,
+) -> Result<Vec<Interval>> {
+    let mut crown = back_substitution.map(|steps| (steps, None));
+    let mut last = None;
     for index in start..net.layers().len() {
         let layer = &net.layers()[index];
         let pre = models.affine(layer)?;
@@ -941,8 +1041,8 @@ fn run(net: &Network, mut models: Models, start: usize, pending: &[(usize, usize
                     let c = 0.5 * a + 0.5 * b;
                     let r = (b - c).max(c - a).next_up();
                     let sub = pre.substitute(v, c, r);
-                    let after = activate(&sub, layer, index + 1)?;
-                    run(net, after, index + 1, &rest, activate)
+                    let after = activate(&sub, layer, index + 1, None)?;
+                    run(net, after, index + 1, &rest, back_substitution, activate)
                 })
                 .collect();
             let mut hull: Option<Vec<Interval>> = None;
@@ -955,9 +1055,27 @@ fn run(net: &Network, mut models: Models, start: usize, pending: &[(usize, usize
             }
             return Ok(hull.expect("at least one piece"));
         }
-        models = activate(&pre, layer, index + 1)?;
+        let final_layer = index + 1 == net.layers().len();
+        (models, last) = layer_step(&models, layer, index + 1, &mut crown, final_layer, activate)?;
     }
-    Ok(models.output_map(net.scale(), net.offset()).bounds())
+    let mut bounds = models.output_map(net.scale(), net.offset()).bounds();
+    if let Some(ranges) = last {
+        let layer = &net.layers()[net.layers().len() - 1];
+        for (i, (b, z)) in bounds.iter_mut().zip(ranges).enumerate() {
+            let mut y = if layer.activations[i] == Activation::Relu { z.max(&Interval::ZERO) } else { z };
+            if let Some(s) = net.scale() {
+                y = y * Interval::point(s[i]);
+            }
+            if let Some(o) = net.offset() {
+                y = y + Interval::point(o[i]);
+            }
+            let tighter = b.intersect(&y);
+            if !tighter.is_empty() {
+                *b = tighter;
+            }
+        }
+    }
+    Ok(bounds)
 }
 
 fn check_box(net: &Network, input: &[Interval]) -> Result<()> {
@@ -971,7 +1089,7 @@ fn check_box(net: &Network, input: &[Interval]) -> Result<()> {
 /// naive interval bounds (cheap, and tighter when the box is too wide for polynomials).
 pub fn bounds(net: &Network, input: &[Interval], settings: &Settings) -> Result<Vec<Interval>> {
     settings.validate()?;
-    let models = bounds_with(net, input, settings, false, &|m: &Models, layer: &Layer, _| activate(m, layer, settings))?;
+    let models = bounds_with(net, input, settings, false, &|m: &Models, layer: &Layer, _, ranges| activate(m, layer, settings, ranges))?;
     Ok(models.iter().zip(interval_bounds(net, input)?).map(|(a, b)| a.intersect(&b)).collect())
 }
 
@@ -1153,9 +1271,8 @@ mod tests {
         let net = Network::new(layers, None, None).unwrap();
         let settings = Settings { order: 3, symbol_min: 0.0, ..Settings::default() };
         let input = [Interval::new(-1.0, 1.0).unwrap(), Interval::new(0.5, 1.5).unwrap()];
-        let first =
-            activate(&Models::from_box(&input, &settings, false).unwrap().affine(&net.layers()[0]).unwrap(), &net.layers()[0], &settings)
-                .unwrap();
+        let pre = Models::from_box(&input, &settings, false).unwrap().affine(&net.layers()[0]).unwrap();
+        let first = activate(&pre, &net.layers()[0], &settings, None).unwrap();
         assert!(first.own.is_some() && first.symbols() == wide, "every sigmoid neuron has its own symbol");
         (net, first)
     }

@@ -172,19 +172,25 @@ impl Mode {
 }
 
 /// The Verisig activation of one layer: every sigmoid/tanh neuron through its ODE.
-fn activate(models: &Models, layer: &Layer, index: usize, settings: &Settings) -> Result<Models> {
+fn activate(models: &Models, layer: &Layer, index: usize, settings: &Settings, ranges: Option<&[Interval]>) -> Result<Models> {
     if layer.is_affine() {
         return Ok(models.clone());
     }
     let mode = Mode::new(models, settings.cutoff)?;
-    activate_with(models, layer, settings, &|f, m: &Models, i| {
-        let a = TaylorModel { coef: m.poly(i).to_vec(), rem: m.rem[i].inflate(m.sym_mag(i)) };
-        let mut z = mode.integrate(f, &a).map_err(|reason| NetworkError::Integration { layer: index, neuron: i + 1, reason })?;
-        let error = z.rem;
-        z.rem = Interval::ZERO;
-        // The ODE's enclosure already holds every symbol's effect: the old symbols are dropped.
-        Ok(NeuronOut { poly: z, sym_factor: 0.0, error, symbolic: false })
-    })
+    activate_with(
+        models,
+        layer,
+        settings,
+        &|f, m: &Models, i| {
+            let a = TaylorModel { coef: m.poly(i).to_vec(), rem: m.rem[i].inflate(m.sym_mag(i)) };
+            let mut z = mode.integrate(f, &a).map_err(|reason| NetworkError::Integration { layer: index, neuron: i + 1, reason })?;
+            let error = z.rem;
+            z.rem = Interval::ZERO;
+            // The ODE's enclosure already holds every symbol's effect: the old symbols are dropped.
+            Ok(NeuronOut { poly: z, sym_factor: 0.0, error, symbolic: false })
+        },
+        ranges,
+    )
 }
 
 fn verisig_settings(settings: &Settings) -> Result<Settings> {
@@ -201,13 +207,15 @@ fn verisig_settings(settings: &Settings) -> Result<Settings> {
 /// Sound output bounds over a box through the Verisig translation.
 pub fn bounds(net: &Network, input: &[Interval], settings: &Settings) -> Result<Vec<Interval>> {
     let s = verisig_settings(settings)?;
-    bounds_with(net, input, &s, true, &|m: &Models, layer: &Layer, index| activate(m, layer, index, &s))
+    bounds_with(net, input, &s, true, &|m: &Models, layer: &Layer, index, ranges| activate(m, layer, index, &s, ranges))
 }
 
 /// Models propagated through the Verisig translation (a time variable is added if missing).
 pub fn propagate(net: &Network, input: &Models, settings: &Settings) -> Result<Models> {
     let s = verisig_settings(settings)?;
-    propagate_with(net, &input.with_time_var()?, &|m: &Models, layer: &Layer, index| activate(m, layer, index, &s))
+    propagate_with(net, &input.with_time_var()?, s.back_substitution(), &|m: &Models, layer: &Layer, index, ranges| {
+        activate(m, layer, index, &s, ranges)
+    })
 }
 
 #[cfg(test)]

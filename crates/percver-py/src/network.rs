@@ -46,9 +46,13 @@ fn settings(options: Option<&Bound<'_, PyDict>>, splits: Vec<(usize, usize)>) ->
             "symbolic" => s.symbolic = value.extract()?,
             "max_vars" => s.max_vars = value.extract()?,
             "max_symbols" => s.max_symbols = value.extract()?,
+            "back_substitution" => s.back_substitution = value.extract()?,
+            "alpha_steps" => s.alpha_steps = value.extract()?,
             other => {
-                return Err(NetworkError::input(format!("unknown keyword '{other}'; use order, cutoff, symbolic, max_vars or max_symbols")))
-                    .py_err()
+                return Err(NetworkError::input(format!(
+                    "unknown keyword '{other}'; use order, cutoff, symbolic, max_vars, max_symbols, back_substitution or alpha_steps"
+                )))
+                .py_err()
             }
         }
     }
