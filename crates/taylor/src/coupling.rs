@@ -19,13 +19,14 @@
 //! but not their steps: they are run in lockstep, every group one step of the shared time
 //! grid at a time (several if it halves its step), so the hybrid run sees the whole state at
 //! every step end, as with one flowpipe. Each lockstep step starts a group's flowpipe anew
-//! from its state, its interval remainder folded in (no symbolic remainder across steps).
+//! from its state, its interval remainder folded in (no symbolic remainder across steps); a
+//! group whose step cannot be enclosed flows on from its entry box, bisected (see [`boxed_flow`]).
 use crate::error::{Result, TaylorError};
 use crate::expr::{Op, Program};
-use crate::flowpipe::{on_grid, reach_from_steps, time_grid, Ode, Segment, Settings, StepSize};
+use crate::flowpipe::{initial_affine, on_grid, reach_from_steps, time_grid, Ode, Segment, Settings, StepSize};
 use crate::interval::Interval;
 use crate::space::Space;
-use crate::tm::TaylorModel;
+use crate::tm::{Ctx, TaylorModel};
 use std::sync::Arc;
 
 /// One set of variables integrated together: `vars[..moving]` move, the rest are parameters.
@@ -218,6 +219,8 @@ impl Coupling {
         let grid = time_grid(settings.t_end);
         let mut t = 0.0;
         let mut state = entry.clone();
+        // Groups that flow from their entry box, once their own flowpipe could not be enclosed.
+        let mut boxed: Vec<Option<Boxed>> = vec![None; self.groups.len()];
         while t < settings.t_end {
             let remaining = settings.t_end - t; // exact: both on the grid
             let dt = if h >= remaining * (1.0 - 1e-12) { remaining } else { on_grid(h, grid) };
@@ -229,11 +232,24 @@ impl Coupling {
             let mut bounds = Vec::with_capacity(self.groups.len());
             let mut order = 0;
             let mut halved = false;
-            for g in &self.groups {
+            for (k, g) in self.groups.iter().enumerate() {
                 let (s, start) = local(g, &Settings { step, t_end: dt, ..settings.clone() }, &state);
+                if let Some(b) = &boxed[k] {
+                    bounds.push(b.over(t, t + dt, g.moving));
+                    now.push(b.over(t + dt, t + dt, g.moving).into_iter().map(TaylorModel::from_interval).collect());
+                    continue;
+                }
                 let fp = reach_from_steps(&g.ode, start, space, &s, &mut |_, _, _| true)?;
                 if let Some(failure) = fp.failure {
-                    return Ok(Some(shifted(failure, t)));
+                    let (whole, entry_box) = local(g, settings, &entry);
+                    let entry_box: Vec<Interval> = entry_box.iter().map(|m| m.bound(space)).collect();
+                    let Some(b) = boxed_flow(&g.ode, &entry_box, &whole, BOX_SPLITS) else {
+                        return Ok(Some(shifted(failure, t)));
+                    };
+                    bounds.push(b.over(t, t + dt, g.moving));
+                    now.push(b.over(t + dt, t + dt, g.moving).into_iter().map(TaylorModel::from_interval).collect());
+                    boxed[k] = Some(b);
+                    continue;
                 }
                 halved |= fp.segments.len() > 1;
                 order = order.max(fp.segments.iter().map(|s| s.order).max().unwrap_or(0));
@@ -254,6 +270,90 @@ impl Coupling {
         }
         Ok(None)
     }
+}
+
+/// Bisections of a group's box before its lockstep step counts as lost (at most 2^6 pieces).
+const BOX_SPLITS: usize = 6;
+
+/// A group's flow over a whole visit from its box at entry, every piece's segments and its
+/// boxes at the ends of its steps.
+#[derive(Clone, Default)]
+struct Boxed {
+    segments: Vec<Segment>,
+    ends: Vec<(f64, Vec<Interval>)>,
+}
+
+impl Boxed {
+    /// The hull over [t0, t1] of the first `n` variables: every piece's segments that meet
+    /// it, or at a single time its boxes there where every piece has a step ending there.
+    fn over(&self, t0: f64, t1: f64, n: usize) -> Vec<Interval> {
+        let pieces = self.ends.iter().filter(|(t, _)| *t == 0.0).count().max(1);
+        let at: Vec<&Vec<Interval>> = self.ends.iter().filter(|(t, _)| t0 == t1 && *t == t1).map(|(_, b)| b).collect();
+        let boxes: Vec<&Vec<Interval>> =
+            if at.len() == pieces { at } else { self.segments.iter().filter(|s| s.t0 <= t1 && t0 <= s.t1).map(|s| &s.bounds).collect() };
+        let mut hull = vec![Interval::EMPTY; n];
+        for b in boxes {
+            for (h, iv) in hull.iter_mut().zip(b) {
+                *h = h.hull(iv);
+            }
+        }
+        hull
+    }
+}
+
+/// The flow of `ode` from the box `start` up to `settings.t_end`, its widest side halved up
+/// to `splits` times where a flowpipe cannot be enclosed. A neuron of a translated network,
+/// z' = a (1 - z^2), has no Taylor model over a wide pre-activation a (tanh(a t) is too
+/// steep), but has one over each part of it. It starts from the entry box, where z is a
+/// point: restarting from each step's box would lose how z follows a, and the boxes would grow
+/// to |z| > 1, where the ODE diverges. The group's state loses its dependence on the initial
+/// set (it becomes a box), which is sound and is what a box-based runner keeps throughout.
+/// None if the pieces do not suffice.
+fn boxed_flow(ode: &Ode, start: &[Interval], settings: &Settings, splits: usize) -> Option<Boxed> {
+    if let Some(flow) = box_flow(ode, start, settings) {
+        return Some(flow);
+    }
+    let widest = (0..start.len()).max_by(|&i, &j| start[i].width().total_cmp(&start[j].width()))?;
+    let side = start[widest];
+    if splits == 0 || side.lo() >= side.hi() {
+        return None;
+    }
+    let mid = side.mid();
+    let mut all = Boxed::default();
+    for half in [Interval::new(side.lo(), mid), Interval::new(mid, side.hi())] {
+        let mut piece = start.to_vec();
+        piece[widest] = half.ok()?;
+        let flow = boxed_flow(ode, &piece, settings, splits - 1)?;
+        all.segments.extend(flow.segments);
+        all.ends.extend(flow.ends);
+    }
+    Some(all)
+}
+
+/// One flowpipe of `ode` from the box `start` (as [`reach`] starts it), with the box of its
+/// state at time 0 and at the end of every step; None if it cannot be enclosed.
+fn box_flow(ode: &Ode, start: &[Interval], settings: &Settings) -> Option<Boxed> {
+    let space = Space::get(start.len() + 1, settings.max_order(), 1).ok()?;
+    let ctx = Ctx::new(space.clone(), settings.max_order(), settings.cutoff);
+    let models = start
+        .iter()
+        .enumerate()
+        .map(|(i, iv)| {
+            let (m, r) = initial_affine(iv);
+            if iv.lo() == iv.hi() {
+                TaylorModel::constant(m)
+            } else {
+                TaylorModel::affine(&ctx, m, i + 1, r)
+            }
+        })
+        .collect();
+    let mut ends = vec![(0.0, start.to_vec())];
+    let fp = reach_from_steps(ode, models, &space, settings, &mut |t, _, state| {
+        ends.push((t, state.iter().map(|m| m.bound(&space)).collect()));
+        true
+    })
+    .ok()?;
+    fp.failure.is_none().then_some(Boxed { segments: fp.segments, ends })
 }
 
 /// A failure of a group's flowpipe started at time `t0`, with the time counted from the start.
@@ -316,6 +416,7 @@ fn slice(p: &Program, vars: &[usize], moving: usize) -> Program {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::flowpipe::reach;
     use crate::parser::parse_expr;
     use crate::tm::Ctx;
     use crate::{OrderPolicy, Precondition};
@@ -427,5 +528,62 @@ mod tests {
         }
         // Models over the symbols keep the first pair tight (the rotation's own spread).
         assert!(last.1[0].bound(&space).width() < 0.9, "{}", last.1[0].bound(&space));
+    }
+
+    #[test]
+    fn a_steep_neuron_flows_from_its_bisected_box() {
+        // Two tanh neurons z' = a (1 - z^2), z(0) = 0, over wide pre-activations a: no Taylor
+        // model of order 4 follows tanh(a t) for a in [-8, 8] in one piece, its bisected box
+        // does; every step's box and the final box hold tanh(a t) for sampled a.
+        let o = ode(&[("z1", "a1 * (1 - z1 * z1)"), ("z2", "a2 * (1 - z2 * z2)"), ("a1", "0"), ("a2", "0"), ("c", "1")]);
+        let space = Space::get(3, 4, 1).unwrap();
+        let ctx = Ctx::new(space.clone(), 4, 1e-14);
+        let coupling = Coupling::of(&o, 2).unwrap();
+        assert_eq!(coupling.groups.len(), 2);
+        let mut start = vec![TaylorModel::constant(0.0); 5];
+        start[2] = TaylorModel::affine(&ctx, 0.0, 1, 8.0);
+        start[3] = TaylorModel::affine(&ctx, 0.5, 2, 0.5);
+        let settings = Settings {
+            step: StepSize::Fixed(0.05),
+            order: OrderPolicy::Fixed(4),
+            t_end: 1.0,
+            cutoff: 1e-14,
+            remainder_estimate: vec![1e-4; 5],
+            precondition: Precondition::Identity,
+            refinements: 10,
+            symbolic_queue: 50,
+        };
+        // The whole box in one flowpipe fails (the reason a bisection is needed at all).
+        let one = ode(&[("z", "a * (1 - z * z)"), ("a", "0")]);
+        let lone = reach(&one, &[Interval::ZERO, Interval::new(-8.0, 8.0).unwrap()], &settings_for(&settings, 2), &mut |_| true).unwrap();
+        assert!(lone.failure.is_some());
+        let mut segments = vec![];
+        let mut last = (0.0, vec![]);
+        let failure = coupling
+            .flow(start, &space, &settings, &mut |t, seg, state| {
+                segments.push(seg.clone());
+                last = (t, state);
+                true
+            })
+            .unwrap();
+        assert!(failure.is_none(), "{failure:?}");
+        assert_eq!(last.0, 1.0);
+        for k in 0..=200 {
+            let (a1, a2) = (-8.0 + 0.08 * k as f64, 1.0 * k as f64 / 200.0);
+            for seg in &segments {
+                for t in [seg.t0, 0.5 * (seg.t0 + seg.t1), seg.t1] {
+                    assert!(seg.bounds[0].contains((a1 * t).tanh()), "z1 at t {t}, a1 {a1}: {}", seg.bounds[0]);
+                    assert!(seg.bounds[1].contains((a2 * t).tanh()), "z2 at t {t}, a2 {a2}: {}", seg.bounds[1]);
+                }
+            }
+            assert!(last.1[0].bound(&space).contains(a1.tanh()) && last.1[1].bound(&space).contains(a2.tanh()));
+        }
+        // A box, loose but bounded: within 2.5 times the true range [-tanh 8, tanh 8] (the
+        // pieces' remainders grow where the neuron saturates).
+        assert!(last.1[0].bound(&space).width() < 5.0, "{}", last.1[0].bound(&space));
+    }
+
+    fn settings_for(s: &Settings, n: usize) -> Settings {
+        Settings { remainder_estimate: vec![s.remainder_estimate[0]; n], ..s.clone() }
     }
 }
