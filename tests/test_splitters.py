@@ -45,7 +45,7 @@ def test_adaptive_cuts_a_cell_to_the_size_its_neighbours_needed():
     (left, _), (right, _) = a.again(parent, _cell(parent, "unknown", split="p"), init, False)
     assert left.bounds[0] == (0.0, 0.125)
     a.learn(left, _cell(left, "verified"), init)
-    assert [c.bounds[0] for c in a.prepare(Box(("p", "v"), ((0.125, 0.5), (0.0, 0.0))), init)] == [
+    assert [c.bounds[0] for c, _ in a.prepare(Box(("p", "v"), ((0.125, 0.5), (0.0, 0.0))), init)] == [
         (0.125, 0.21875),
         (0.21875, 0.3125),
         (0.3125, 0.40625),

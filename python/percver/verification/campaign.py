@@ -129,7 +129,7 @@ class Campaign:
             if self.queue:
                 cell, options = self.queue.pop()
             else:
-                cell, options = next(self.grid), {}
+                cell, options = _with_options(next(self.grid))
                 self.left -= 1
             key = cell_key(cell.to_dict(), options)
             known = self.journal.done.get(key)
@@ -141,10 +141,10 @@ class Campaign:
             if key in self.journal.cuts:
                 pieces = self.journal.cuts[key]
             else:
-                pieces = [(piece, options) for piece in self.splitter.prepare(cell, self.init)]
-                if len(pieces) > 1:
+                pieces = [_with_options(piece, options) for piece in self.splitter.prepare(cell, self.init)]
+                if pieces != [(cell, options)]:
                     self.journal.write_cut(cell.to_dict(), options, pieces)
-            if len(pieces) > 1:
+            if pieces != [(cell, options)]:  # cut, or run with other options: looked up in the journal as such
                 self.queue += pieces
                 self.bar.settled(None, more=len(pieces))
             else:
@@ -202,7 +202,7 @@ class Campaign:
         same box with more options."""
         pieces = self.splitter.again(cell, c, self.init, self._timed_out(c))
         if isinstance(pieces, Retry):
-            return [(cell, {**c.options, **pieces.options})]
+            return [(cell, {k: v for k, v in {**c.options, **pieces.options}.items() if v is not None})]
         return None if not pieces else [piece if isinstance(piece, tuple) else (piece, c.options) for piece in pieces]
 
     def _place(self, cell: Box, c: Cell, pieces: Optional[list]):
@@ -213,6 +213,11 @@ class Campaign:
         else:
             self.cells.append(c)
             self.bar.settled(c.verdict)
+
+
+def _with_options(piece, options: Optional[dict] = None) -> tuple:
+    """A splitter's cell as ``(box, options)``: a bare Box takes ``options`` (none given: {})."""
+    return piece if isinstance(piece, tuple) else (piece, options or {})
 
 
 class Progress:

@@ -175,12 +175,18 @@ class Adaptive(Bisection):
     max_cells: int = 16384
     patience: int = 4
     rebox: Optional[bool] = None
+    explore: int = 0
+    reach: int = 2
+    learn_states: bool = True
     needed: list = field(default_factory=list, repr=False)  # (cell, widths needed there)
     probe: Optional[Callable] = field(default=None, repr=False)  # (cell, steps) -> {state: spread}, set by the campaign
     runs: int = field(default=0, repr=False)
     lineage: dict = field(default_factory=dict, repr=False)  # half's key -> (parent's steps, deepest step, stalls, state halved)
     retried: dict = field(default_factory=dict, repr=False)  # cell key -> steps the plain run reached
     rebox_score: list = field(default_factory=lambda: [0, 0], repr=False)  # retries that went deeper, and not
+    verified: list = field(default_factory=list, repr=False)  # (cell, halvings from the initial set) of every verified cell
+    gains: dict = field(default_factory=dict, repr=False)  # state -> steps its halvings gained (latest last)
+    halved: dict = field(default_factory=dict, repr=False)  # half's key -> (parent's deepest step, state halved), until it runs
 
     def __post_init__(self):
         super().__post_init__()
@@ -190,12 +196,17 @@ class Adaptive(Bisection):
             raise InputError(f"Adaptive(max_cells=...) must be a positive integer, got {self.max_cells!r}")
         if not (isinstance(self.patience, int) and self.patience >= 1):
             raise InputError(f"Adaptive(patience=...) must be a positive integer, got {self.patience!r}")
+        for name in ("explore", "reach"):
+            value = getattr(self, name)
+            if not (isinstance(value, int) and value >= 0):
+                raise InputError(f"Adaptive({name}=...) must be a non-negative integer, got {value!r}")
 
     def initial(self, init: Box):
         if self.rebox:
             raise InputError("Adaptive(rebox=True) is pv.verify(rebox=True): give that instead")
         widest = [n for n, (lo, hi) in zip(init.names, init.bounds) if hi > lo][:6]
-        return grid(init, {n: self.start for n in widest})
+        cells, count = grid(init, {n: self.start for n in widest})
+        return ((cell, self._budget(cell, init)) for cell in cells), count
 
     def _min(self, init: Box) -> dict:
         return {n: self.min_width.get(n, (hi - lo) / 1024) for n, (lo, hi) in zip(init.names, init.bounds)}
@@ -214,11 +225,16 @@ class Adaptive(Bisection):
         if not pieces:
             return [cell]
         cells, _ = grid(cell, pieces)
-        return list(cells)
+        return [(piece, self._budget(piece, init)) for piece in cells]
 
     def learn(self, cell: Box, result, init: Box) -> None:
         self.runs += 1
         key = _key(cell)
+        if key in self.halved:
+            deepest, state = self.halved.pop(key)
+            self.gains.setdefault(state, []).append(result.deepest_step - deepest)
+        if result.verdict == "verified":
+            self.verified.append((cell, _halvings(cell, init)))
         if key in self.retried and result.options.get("rebox"):
             self.rebox_score[0 if result.verdict == "verified" or result.steps_done > self.retried[key] else 1] += 1
         if result.verdict == "verified" and (result.branches or key in self.lineage):
@@ -226,7 +242,8 @@ class Adaptive(Bisection):
             self.needed.append((cell, {n: hi - lo for n, (lo, hi) in zip(size.names, size.bounds)}))
 
     def again(self, cell: Box, result, init: Box, timed_out: bool):
-        """A :class:`Retry` with rebox, halves (with their options), or None (see the class doc)."""
+        """A :class:`Retry` (with rebox, or with the call's in-cell splits), halves (with their
+        options), or None (see the class doc)."""
         key = _key(cell)
         if result.verdict != "unknown" or self.runs >= self.max_cells:
             self.lineage.pop(key, None)
@@ -234,34 +251,68 @@ class Adaptive(Bisection):
         if self._rebox_pays(key, result):
             self.retried[key] = result.steps_done
             return Retry({"rebox": True})
-        if not splittable(cell, init, self._min(init), 0):
-            return None
+        explored = "max_splits" in result.options  # ran with the small budget: the call's is left to try
         widths = self._min(init)
+        if not splittable(cell, init, widths, 0):
+            return Retry({"max_splits": None}) if explored else None
         reached, deepest, stalls, halved = self.lineage.pop(key, (-1, -1, 0, None))
         stalls = stalls + 1 if result.steps_done <= reached and result.deepest_step <= deepest else 0
         if stalls >= self.patience * sum(above_min_width(init, init, widths, 0)):
+            if explored:
+                self.lineage[key] = (reached, deepest, stalls - 1, halved)  # the retry stops the lineage unless it goes deeper
+                return Retry({"max_splits": None})
             return None
-        hint = result.split
-        if self.probe is not None:
-            moves = self.probe(cell, result.deepest_step)
-            above = above_min_width(cell, init, widths, 0)
-            hint = max(((moves.get(n, 0.0), n) for ok, n in zip(above, cell.names) if ok), default=(0.0, hint))[1]
-        if stalls:
-            above = above_min_width(cell, init, widths, 0)
-            others = [
-                ((hi - lo) / (ihi - ilo), n)
-                for ok, n, (lo, hi), (ilo, ihi) in zip(above, cell.names, cell.bounds, init.bounds)
-                if ok and n != halved
-            ]
-            hint = max(others)[1] if others else hint
+        state = self._state_to_halve(cell, result, init, widths, stalls, halved)
         options = dict(result.options)
         if options.get("rebox") and key in self.retried and result.steps_done <= self.retried[key]:
             options.pop("rebox")  # the retry went no deeper than the plain run: the halves run plain
-        halves = bisect(cell, init, widths, hint)
-        j = next(j for j, (a, b) in enumerate(zip(halves[0].bounds, cell.bounds)) if a != b)
+        options.pop("max_splits", None)
+        halves = _halves(cell, cell.names.index(state))
         for half in halves:
-            self.lineage[_key(half)] = (result.steps_done, result.deepest_step, stalls, cell.names[j])
-        return [(half, options) for half in halves]
+            self.lineage[_key(half)] = (result.steps_done, result.deepest_step, stalls, state)
+            self.halved[_key(half)] = (result.deepest_step, state)
+        return [(half, {**options, **self._budget(half, init)}) for half in halves]
+
+    def _state_to_halve(self, cell: Box, result, init: Box, widths: dict, stalls: int, halved: Optional[str]) -> str:
+        """The state whose halvings have gained the most steps lately (each state above its
+        min_width tried once first, in the order of the probe's, else the engine's, choice); after
+        a halving that gained no step, the widest other state relative to the initial set."""
+        above = above_min_width(cell, init, widths, 0)
+        candidates = [n for ok, n in zip(above, cell.names) if ok]
+        if stalls:
+            others = [
+                ((hi - lo) / (ihi - ilo), n)
+                for n, (lo, hi), (ilo, ihi) in zip(cell.names, cell.bounds, init.bounds)
+                if n in candidates and n != halved
+            ]
+            if others:
+                return max(others)[1]
+        hint = result.split if result.split in candidates else None
+        if self.probe is not None:
+            moves = self.probe(cell, result.deepest_step)
+            hint = max(((moves.get(n, 0.0), n) for n in candidates), default=(0.0, hint))[1]
+        if hint is None:
+            rel = [((hi - lo) / (ihi - ilo), n) for n, (lo, hi), (ilo, ihi) in zip(cell.names, cell.bounds, init.bounds) if n in candidates]
+            hint = max(rel)[1]
+        if not self.learn_states:
+            return hint
+        untried = [n for n in candidates if not self.gains.get(n)]
+        if untried:
+            return hint if hint in untried else untried[0]
+        return max(candidates, key=lambda n: (np.mean(self.gains[n][-RECENT:]), n == hint))
+
+    def _budget(self, cell: Box, init: Box) -> dict:
+        """The in-cell splits of a cell about to run: the call's when a verified cell near it (one
+        it touches, else the nearest) is at most ``reach`` halvings smaller, else ``explore`` (a
+        cell far too big fails fast and is halved, instead of splitting inside many times)."""
+        if not self.verified:
+            return {"max_splits": self.explore}
+        touching = [depth for box, depth in self.verified if _touches(cell, box)]
+        if not touching:
+            gaps = [(_gap(cell, box, init), depth) for box, depth in self.verified]
+            nearest = min(g for g, _ in gaps)
+            touching = [depth for g, depth in gaps if g == nearest]
+        return {} if max(touching) - _halvings(cell, init) <= self.reach else {"max_splits": self.explore}
 
     def _rebox_pays(self, key: tuple, result) -> bool:
         if self.rebox is False or result.options.get("rebox") or key in self.retried:
@@ -274,6 +325,25 @@ class Adaptive(Bisection):
 # Reasons (the engine's words) after which a cell is retried with rebox: an operation left its
 # domain (taylor's Domain error: division, sqrt, log) or an enclosure blew up.
 PRECISION_LOST = (" is undefined on ", " blew up ")
+
+
+RECENT = 4  # halvings of a state whose gains choose the next state to halve
+
+
+def _halvings(cell: Box, init: Box) -> float:
+    """How many halvings of the initial set make the cell (log2 of the volume ratio, over the states the initial set is wide in)."""
+    return float(sum(np.log2((ihi - ilo) / (hi - lo)) for (lo, hi), (ilo, ihi) in zip(cell.bounds, init.bounds) if ihi > ilo and hi > lo))
+
+
+def _gap(a: Box, b: Box, init: Box) -> float:
+    """The distance between two boxes, per state relative to the initial set's width (0: they touch)."""
+    return float(
+        sum(
+            max(0.0, blo - ahi, alo - bhi) / (ihi - ilo)
+            for (alo, ahi), (blo, bhi), (ilo, ihi) in zip(a.bounds, b.bounds, init.bounds)
+            if ihi > ilo
+        )
+    )
 
 
 def _key(box: Box) -> tuple:
