@@ -182,7 +182,7 @@ class Adaptive(Bisection):
     probe: Optional[Callable] = field(default=None, repr=False)  # (cell, steps) -> {state: spread}, set by the campaign
     runs: int = field(default=0, repr=False)
     lineage: dict = field(default_factory=dict, repr=False)  # half's key -> (parent's steps, deepest step, stalls, state halved)
-    retried: dict = field(default_factory=dict, repr=False)  # cell key -> steps the plain run reached
+    retried: dict = field(default_factory=dict, repr=False)  # cell key -> (deepest step, seconds) of the plain run
     rebox_score: list = field(default_factory=lambda: [0, 0], repr=False)  # retries that went deeper, and not
     verified: list = field(default_factory=list, repr=False)  # (cell, halvings from the initial set) of every verified cell
     gains: dict = field(default_factory=dict, repr=False)  # state -> steps its halvings gained (latest last)
@@ -236,7 +236,7 @@ class Adaptive(Bisection):
         if result.verdict == "verified":
             self.verified.append((cell, _halvings(cell, init)))
         if key in self.retried and result.options.get("rebox"):
-            self.rebox_score[0 if result.verdict == "verified" or result.steps_done > self.retried[key] else 1] += 1
+            self.rebox_score[0 if self._rebox_won(key, result) else 1] += 1
         if result.verdict == "verified" and (result.branches or key in self.lineage):
             size = bisect(cell, init, self._min(init), result.split)[0] if result.branches else cell
             self.needed.append((cell, {n: hi - lo for n, (lo, hi) in zip(size.names, size.bounds)}))
@@ -249,7 +249,7 @@ class Adaptive(Bisection):
             self.lineage.pop(key, None)
             return None
         if self._rebox_pays(key, result):
-            self.retried[key] = result.steps_done
+            self.retried[key] = (result.deepest_step, result.seconds)
             return Retry({"rebox": True})
         explored = "max_splits" in result.options  # ran with the small budget: the call's is left to try
         widths = self._min(init)
@@ -264,8 +264,8 @@ class Adaptive(Bisection):
             return None
         state = self._state_to_halve(cell, result, init, widths, stalls, halved)
         options = dict(result.options)
-        if options.get("rebox") and key in self.retried and result.steps_done <= self.retried[key]:
-            options.pop("rebox")  # the retry went no deeper than the plain run: the halves run plain
+        if options.get("rebox") and key in self.retried and not self._rebox_won(key, result):
+            options.pop("rebox")  # the retry did not pay: the halves run plain
         options.pop("max_splits", None)
         halves = _halves(cell, cell.names.index(state))
         for half in halves:
@@ -313,6 +313,14 @@ class Adaptive(Bisection):
             nearest = min(g for g, _ in gaps)
             touching = [depth for g, depth in gaps if g == nearest]
         return {} if max(touching) - _halvings(cell, init) <= self.reach else {"max_splits": self.explore}
+
+    def _rebox_won(self, key: tuple, result) -> bool:
+        """Whether a reboxed retry paid: it verified, or it got deeper than the plain run at no
+        more seconds per step (rebox keeps a Taylor-model variable per state, so its steps can
+        cost several times the plain ones: on Mountain Car twice as deep at 3.5 times the
+        seconds, which halving the plain cell beats)."""
+        deepest, seconds = self.retried[key]
+        return result.verdict == "verified" or (result.deepest_step > deepest and result.deepest_step * seconds >= deepest * result.seconds)
 
     def _rebox_pays(self, key: tuple, result) -> bool:
         if self.rebox is False or result.options.get("rebox") or key in self.retried:
