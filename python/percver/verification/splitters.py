@@ -178,12 +178,14 @@ class Adaptive(Bisection):
     explore: int = 0
     reach: int = 2
     learn_states: bool = True
+    tile: bool = True
     needed: list = field(default_factory=list, repr=False)  # (cell, widths needed there)
     probe: Optional[Callable] = field(default=None, repr=False)  # (cell, steps) -> {state: spread}, set by the campaign
     runs: int = field(default=0, repr=False)
     lineage: dict = field(default_factory=dict, repr=False)  # half's key -> (parent's steps, deepest step, stalls, state halved)
     retried: dict = field(default_factory=dict, repr=False)  # cell key -> (deepest step, seconds) of the plain run
-    rebox_score: list = field(default_factory=lambda: [0, 0], repr=False)  # retries that went deeper, and not
+    rebox_score: list = field(default_factory=lambda: [0, 0], repr=False)  # retries that paid, and not
+    pending: set = field(default_factory=set, repr=False)  # keys of reboxed retries not yet run
     verified: list = field(default_factory=list, repr=False)  # (cell, halvings from the initial set) of every verified cell
     gains: dict = field(default_factory=dict, repr=False)  # state -> steps its halvings gained (latest last)
     halved: dict = field(default_factory=dict, repr=False)  # half's key -> (parent's deepest step, state halved), until it runs
@@ -214,10 +216,9 @@ class Adaptive(Bisection):
     def prepare(self, cell: Box, init: Box) -> list:
         """``cell`` cut to the widths its settled neighbours needed (where they are narrower)."""
         target = {}
-        for box, widths in self.needed:
-            if _touches(cell, box):
-                for n, w in widths.items():
-                    target[n] = min(target.get(n, np.inf), w)
+        for widths in _near(cell, self.needed, init) if self.tile else [w for box, w in self.needed if _touches(cell, box)]:
+            for n, w in widths.items():
+                target[n] = min(target.get(n, np.inf), w)
         pieces = {}
         for n, (lo, hi) in zip(cell.names, cell.bounds):
             if n in target and hi - lo > 1.5 * target[n]:
@@ -235,7 +236,8 @@ class Adaptive(Bisection):
             self.gains.setdefault(state, []).append(result.deepest_step - deepest)
         if result.verdict == "verified":
             self.verified.append((cell, _halvings(cell, init)))
-        if key in self.retried and result.options.get("rebox"):
+        if key in self.retried and result.options.get("rebox") and key in self.pending:
+            self.pending.discard(key)
             self.rebox_score[0 if self._rebox_won(key, result) else 1] += 1
         if result.verdict == "verified" and (result.branches or key in self.lineage):
             size = bisect(cell, init, self._min(init), result.split)[0] if result.branches else cell
@@ -250,6 +252,7 @@ class Adaptive(Bisection):
             return None
         if self._rebox_pays(key, result):
             self.retried[key] = (result.deepest_step, result.seconds)
+            self.pending.add(key)
             return Retry({"rebox": True})
         explored = "max_splits" in result.options  # ran with the small budget: the call's is left to try
         widths = self._min(init)
@@ -305,14 +308,8 @@ class Adaptive(Bisection):
         """The in-cell splits of a cell about to run: the call's when a verified cell near it (one
         it touches, else the nearest) is at most ``reach`` halvings smaller, else ``explore`` (a
         cell far too big fails fast and is halved, instead of splitting inside many times)."""
-        if not self.verified:
-            return {"max_splits": self.explore}
-        touching = [depth for box, depth in self.verified if _touches(cell, box)]
-        if not touching:
-            gaps = [(_gap(cell, box, init), depth) for box, depth in self.verified]
-            nearest = min(g for g, _ in gaps)
-            touching = [depth for g, depth in gaps if g == nearest]
-        return {} if max(touching) - _halvings(cell, init) <= self.reach else {"max_splits": self.explore}
+        near = _near(cell, self.verified, init)
+        return {} if near and max(near) - _halvings(cell, init) <= self.reach else {"max_splits": self.explore}
 
     def _rebox_won(self, key: tuple, result) -> bool:
         """Whether a reboxed retry paid: it verified, or it got deeper than the plain run at no
@@ -327,7 +324,10 @@ class Adaptive(Bisection):
             return False
         wins, losses = self.rebox_score
         lost = any(words in (result.reason or "") for words in PRECISION_LOST)
-        return wins + losses < self.patience or wins > losses or (lost and losses - wins < self.patience)
+        # Retries still running count as lost until they end: cells that run side by side must
+        # not all be retried before the first retry has shown whether it pays.
+        losses += len(self.pending)
+        return wins + losses < REBOX_TRIALS or wins > losses or (lost and losses - wins < self.patience)
 
 
 # Reasons (the engine's words) after which a cell is retried with rebox: an operation left its
@@ -335,12 +335,23 @@ class Adaptive(Bisection):
 PRECISION_LOST = (" is undefined on ", " blew up ")
 
 
+REBOX_TRIALS = 2  # unknown cells retried with rebox whatever the reason, to find out whether it pays
 RECENT = 4  # halvings of a state whose gains choose the next state to halve
 
 
 def _halvings(cell: Box, init: Box) -> float:
     """How many halvings of the initial set make the cell (log2 of the volume ratio, over the states the initial set is wide in)."""
     return float(sum(np.log2((ihi - ilo) / (hi - lo)) for (lo, hi), (ilo, ihi) in zip(cell.bounds, init.bounds) if ihi > ilo and hi > lo))
+
+
+def _near(cell: Box, entries: list, init: Box) -> list:
+    """The values of the ``(box, value)`` entries whose boxes touch ``cell``, else of the nearest ones."""
+    touching = [value for box, value in entries if _touches(cell, box)]
+    if touching or not entries:
+        return touching
+    gaps = [(_gap(cell, box, init), value) for box, value in entries]
+    nearest = min(g for g, _ in gaps)
+    return [value for g, value in gaps if g == nearest]
 
 
 def _gap(a: Box, b: Box, init: Box) -> float:
