@@ -51,9 +51,6 @@ def test_adaptive_cuts_a_cell_to_the_size_its_neighbours_needed():
         (0.3125, 0.40625),
         (0.40625, 0.5),
     ]
-    # A cell that does not touch it is left alone.
-    far = Box(("p", "v"), ((0.5, 1.0), (0.0, 0.0)))
-    assert a.prepare(far, init) == [far]
     # A verified cell that was cut ahead of its run (no parent failed) is no evidence of its size.
     b = pv.Adaptive(rebox=False)
     b.learn(left, _cell(left, "verified"), init)
@@ -132,7 +129,9 @@ def test_adaptive_halves_another_state_when_the_engine_s_choice_gains_no_step():
     a = pv.Adaptive(rebox=False)
     cell = init
     for expected in ("p", "d", "p"):
-        halves = a.again(cell, _cell(cell, "unknown", steps_done=0, deepest_step=33, split="p"), init, False)
+        outcome = _cell(cell, "unknown", steps_done=0, deepest_step=33, split="p")
+        a.learn(cell, outcome, init)
+        halves = a.again(cell, outcome, init, False)
         (left, _), _ = halves
         changed = [n for n, x, y in zip(cell.names, left.bounds, cell.bounds) if x != y]
         assert changed == [expected]
@@ -199,3 +198,79 @@ def test_spread_names_the_dimension_that_moves_the_runs():
     moves = spread(loop, Box(("x", "d"), ((0.0, 1.0), (0.0, 1.0))), 5)
     assert moves["d"] == pytest.approx(1.0) and moves["x"] == pytest.approx(1 / 50)
     assert spread(loop, Box(("x", "d"), ((0.0, 0.0), (0.0, 0.0))), 5) == {}
+
+
+def test_adaptive_gives_cells_far_above_the_verified_size_a_small_in_cell_budget():
+    """Cells run with ``explore`` in-cell splits until a verified cell near them is at most
+    ``reach`` halvings smaller; then with the call's (no ``max_splits`` of their own)."""
+    init = Box(("p", "d"), ((0.0, 1.0), (0.0, 1.0)))
+    a = pv.Adaptive(rebox=False, explore=1, reach=1)
+    (whole, options), *_ = a.initial(init)[0]
+    assert whole == init and options == {"max_splits": 1}
+    halves = a.again(init, _cell(init, "unknown", steps_done=3, deepest_step=3, options=options), init, False)
+    assert [o for _, o in halves] == [{"max_splits": 1}] * 2
+    # A quarter verifies: cells within one halving of it get the call's budget, bigger ones do not.
+    quarter = Box(("p", "d"), ((0.0, 0.5), (0.0, 0.5)))
+    a.learn(quarter, _cell(quarter, "verified"), init)
+    assert a._budget(Box(("p", "d"), ((0.5, 1.0), (0.0, 1.0))), init) == {}
+    assert a._budget(init, init) == {"max_splits": 1}
+    # A cell whose small budget was not enough and that cannot be halved runs again with the call's.
+    tiny = pv.Adaptive(rebox=False, min_width={"p": 0.5, "d": 0.5})
+    assert tiny.again(quarter, _cell(quarter, "unknown", options={"max_splits": 0}), init, False) == Retry({"max_splits": None})
+    assert tiny.again(quarter, _cell(quarter, "unknown", options={}), init, False) is None
+
+
+def test_adaptive_halves_the_state_whose_halvings_gained_the_most_steps():
+    """Each state is tried once; then the one whose halvings pushed the loss of precision later
+    wins over the engine's (and the probe's) choice."""
+    init = Box(("p", "d"), ((0.0, 1.0), (0.0, 1.0)))
+    a = pv.Adaptive(rebox=False)
+
+    def halve(cell, deepest):
+        (left, _), _ = a.again(cell, _cell(cell, "unknown", steps_done=deepest, deepest_step=deepest, split="p"), init, False)
+        return left, next(n for n, x, y in zip(cell.names, left.bounds, cell.bounds) if x != y)
+
+    half, state = halve(init, 33)
+    assert state == "p"  # the engine's choice first
+    a.learn(half, _cell(half, "unknown", steps_done=34, deepest_step=34), init)  # one step more
+    quarter, state = halve(half, 34)
+    assert state == "d"  # untried
+    a.learn(quarter, _cell(quarter, "unknown", steps_done=64, deepest_step=64), init)  # 30 steps more
+    _, state = halve(quarter, 64)
+    assert state == "d" and a.gains == {"p": [1], "d": [30]}
+
+
+def test_a_reboxed_retry_that_costs_more_per_step_than_it_gains_does_not_pay():
+    """Deeper is not enough: twice as deep at 3.5 times the seconds loses to halving, and the
+    halves run plain; a retry that verifies always pays."""
+    init = Box(("x",), ((0.0, 1.0),))
+    a = pv.Adaptive(patience=2)
+    plain = _cell(init, "unknown", seconds=1.0, steps_done=33, deepest_step=33)
+    assert a.again(init, plain, init, False) == Retry({"rebox": True})
+    costly = _cell(init, "unknown", seconds=3.5, steps_done=65, deepest_step=65, split="x", options={"rebox": True})
+    a.learn(init, costly, init)
+    halves = a.again(init, costly, init, False)
+    assert a.rebox_score == [0, 1] and not any("rebox" in o for _, o in halves)
+    b = pv.Adaptive(patience=2)
+    b.again(init, plain, init, False)
+    b.learn(init, _cell(init, "verified", seconds=9.0, steps_done=92, deepest_step=92, options={"rebox": True}), init)
+    assert b.rebox_score == [1, 0]
+
+
+def test_cells_run_side_by_side_are_not_all_retried_before_a_retry_shows_whether_it_pays():
+    init = Box(("x",), ((0.0, 1.0),))
+    a = pv.Adaptive()
+    cells = [Box(("x",), ((k / 4, (k + 1) / 4),)) for k in range(4)]
+    outs = [a.again(c, _cell(c, "unknown", seconds=1.0, steps_done=3, deepest_step=3, split="x"), init, False) for c in cells]
+    assert [isinstance(o, Retry) for o in outs] == [True, True, False, False]
+
+
+def test_adaptive_cuts_a_cell_to_the_nearest_size_needed_when_none_touches_it():
+    init = Box(("p", "v"), ((0.0, 1.0), (0.0, 0.0)))
+    parent = Box(("p", "v"), ((0.0, 0.25), (0.0, 0.0)))
+    far = Box(("p", "v"), ((0.5, 1.0), (0.0, 0.0)))
+    for tile, pieces in ((True, 4), (False, 1)):
+        a = pv.Adaptive(rebox=False, tile=tile)
+        (left, _), _ = a.again(parent, _cell(parent, "unknown", split="p"), init, False)
+        a.learn(left, _cell(left, "verified"), init)
+        assert len(a.prepare(far, init)) == pieces

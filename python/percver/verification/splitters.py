@@ -183,7 +183,7 @@ class Adaptive(Bisection):
     probe: Optional[Callable] = field(default=None, repr=False)  # (cell, steps) -> {state: spread}, set by the campaign
     runs: int = field(default=0, repr=False)
     lineage: dict = field(default_factory=dict, repr=False)  # half's key -> (parent's steps, deepest step, stalls, state halved)
-    retried: dict = field(default_factory=dict, repr=False)  # cell key -> (deepest step, seconds) of the plain run
+    retried: dict = field(default_factory=dict, repr=False)  # cell key -> (steps done, deepest step, seconds) of the plain run
     rebox_score: list = field(default_factory=lambda: [0, 0], repr=False)  # retries that paid, and not
     pending: set = field(default_factory=set, repr=False)  # keys of reboxed retries not yet run
     verified: list = field(default_factory=list, repr=False)  # (cell, halvings from the initial set) of every verified cell
@@ -251,29 +251,31 @@ class Adaptive(Bisection):
             self.lineage.pop(key, None)
             return None
         if self._rebox_pays(key, result):
-            self.retried[key] = (result.deepest_step, result.seconds)
+            self.retried[key] = (result.steps_done, result.deepest_step, result.seconds)
             self.pending.add(key)
             return Retry({"rebox": True})
         explored = "max_splits" in result.options  # ran with the small budget: the call's is left to try
         widths = self._min(init)
         if not splittable(cell, init, widths, 0):
             return Retry({"max_splits": None}) if explored else None
+        options = dict(result.options)
+        steps, deepest_step = result.steps_done, result.deepest_step
+        if options.get("rebox") and key in self.retried and not self._rebox_won(key, result):
+            options.pop("rebox")  # the retry did not pay: the halves run plain, and compare with the plain run
+            steps, deepest_step = self.retried[key][:2]
         reached, deepest, stalls, halved = self.lineage.pop(key, (-1, -1, 0, None))
-        stalls = stalls + 1 if result.steps_done <= reached and result.deepest_step <= deepest else 0
+        stalls = stalls + 1 if steps <= reached and deepest_step <= deepest else 0
         if stalls >= self.patience * sum(above_min_width(init, init, widths, 0)):
             if explored:
                 self.lineage[key] = (reached, deepest, stalls - 1, halved)  # the retry stops the lineage unless it goes deeper
                 return Retry({"max_splits": None})
             return None
         state = self._state_to_halve(cell, result, init, widths, stalls, halved)
-        options = dict(result.options)
-        if options.get("rebox") and key in self.retried and not self._rebox_won(key, result):
-            options.pop("rebox")  # the retry did not pay: the halves run plain
         options.pop("max_splits", None)
         halves = _halves(cell, cell.names.index(state))
         for half in halves:
-            self.lineage[_key(half)] = (result.steps_done, result.deepest_step, stalls, state)
-            self.halved[_key(half)] = (result.deepest_step, state)
+            self.lineage[_key(half)] = (steps, deepest_step, stalls, state)
+            self.halved[_key(half)] = (deepest_step, state)
         return [(half, {**options, **self._budget(half, init)}) for half in halves]
 
     def _state_to_halve(self, cell: Box, result, init: Box, widths: dict, stalls: int, halved: Optional[str]) -> str:
@@ -282,7 +284,7 @@ class Adaptive(Bisection):
         a halving that gained no step, the widest other state relative to the initial set."""
         above = above_min_width(cell, init, widths, 0)
         candidates = [n for ok, n in zip(above, cell.names) if ok]
-        if stalls:
+        if stalls and not self.learn_states:
             others = [
                 ((hi - lo) / (ihi - ilo), n)
                 for n, (lo, hi), (ilo, ihi) in zip(cell.names, cell.bounds, init.bounds)
@@ -316,7 +318,7 @@ class Adaptive(Bisection):
         more seconds per step (rebox keeps a Taylor-model variable per state, so its steps can
         cost several times the plain ones: on Mountain Car twice as deep at 3.5 times the
         seconds, which halving the plain cell beats)."""
-        deepest, seconds = self.retried[key]
+        _, deepest, seconds = self.retried[key]
         return result.verdict == "verified" or (result.deepest_step > deepest and result.deepest_step * seconds >= deepest * result.seconds)
 
     def _rebox_pays(self, key: tuple, result) -> bool:
