@@ -4,15 +4,19 @@ cut again. A splitter is a parameter of :func:`percver.verify` (``splitter=``), 
 - :class:`Grid`: a uniform grid (``split={state: pieces}``); a cell's verdict is final.
 - :class:`Bisection`: a grid whose unknown cells are halved (along the state the engine wanted
   to split, else the widest relative to the initial set) down to ``min_width``.
-- :class:`Adaptive` (the default): no layout to give. It starts from the whole set, halves what
-  stays unknown while halving pushes the loss of precision later, cuts cells ahead of their run
-  to the size their settled neighbours needed, and retries a cell lost to a domain error or a
-  blow-up with ``rebox`` (see its doc).
+- :class:`Adaptive` (the default): no layout to give. It starts from the whole set with few
+  in-cell splits, halves what stays unknown along the state whose halvings pushed the loss of
+  precision furthest, cuts cells ahead of their run to the size needed nearby, gives cells near
+  that size the call's in-cell splits, and retries a cell with ``rebox`` where that pays (see
+  its doc).
 
 A splitter has four methods: ``initial(init)`` (the first cells, lazily, and their count),
 ``prepare(cell, init)`` (the cell cut before it runs), ``learn(cell, result, init)`` (every cell
 settled or split) and ``again(cell, result, init, timed_out)`` (None: the verdict is final; else
-the cells replacing it, each a Box or ``(Box, engine options)``, or a :class:`Retry`). Whatever
+the cells replacing it, or a :class:`Retry`). Cells given by ``initial``, ``prepare`` and
+``again`` are each a Box (with the options of the cell it comes from) or ``(Box, engine
+options)``, e.g. ``{"max_splits": 0}``; a :class:`Retry` option of None drops that option (the
+call's applies). Whatever
 it returns, every verdict comes from the engine (or a simulated counterexample) on that very
 cell; the coverage is the share of settled cells, so pieces must tile the cell they replace, as
 grids and halves do (a custom splitter's pieces are its own responsibility).
@@ -34,7 +38,8 @@ from percver.sets import Box
 
 @dataclass(frozen=True)
 class Retry:
-    """What :meth:`Adaptive.again` returns to run the same cell again with more engine settings."""
+    """What :meth:`Adaptive.again` returns to run the same cell again with other engine settings
+    (an option of None: the call's)."""
 
     options: dict
 
@@ -139,37 +144,45 @@ class Adaptive(Bisection):
     (then what is left is reported unknown, with its reason). What it learns from the cells
     settled so far (it never makes a verdict, only cells: every cell gets its own proof):
 
+    - How much to try inside a cell (its in-cell splits and forks, ``max_splits``): a cell runs
+      with ``explore`` of them until a verified cell near it (one it touches, else the nearest)
+      is at most ``reach`` halvings smaller; then with the call's. A cell far too big then fails
+      at the first loss of precision, cheaply, and is halved; one that could have been split
+      inside is not lost: a cell that cannot be halved further, or whose halvings stopped
+      gaining steps, runs again with the call's splits before it is given up.
     - Where cells must be small, and how small: a half that verified after its parent did not
       says that cells of its size are needed there; a cell that verified only after splits
-      inside it (``branches``) says that cells half its size are (an in-cell split costs more
-      than a cell of its own: on Mountain Car, a cell verified whole in about the time of one
-      split). A cell about to run that touches such a cell is cut to that size (along the
-      states where it is wider) instead of spending a run at a size that failed or split next
-      door. A cell cut ahead of its run that verifies whole proves nothing about its size, and
-      counting it would spread the smallest size over the whole set.
-    - Which state to halve: the one whose width moves the runs most up to the step where the
-      cell was lost (``probe``: the campaign simulates the runs from the centres of the cell's
-      opposite faces, :func:`percver.verification.falsify.spread`), else the one the engine
-      wanted to split; after a halving that did not push the loss of precision later (a deeper
-      ``steps_done`` or ``deepest_step`` than the parent's), the widest of the other states
-      relative to the initial set.
+      inside it (``branches``) says that cells half its size are (an in-cell split costs about
+      a cell of its own). A cell about to run is cut to the size needed where it is (by the
+      cells it touches, else by the nearest such cell: ``tile``; ``tile=False`` only by touching
+      ones), instead of spending runs on the sizes that failed there. A cell cut ahead of its run
+      that verifies whole proves nothing about its size, and counting it would spread the
+      smallest size over the whole set.
+    - Which state to halve: the one whose recent halvings pushed the loss of precision furthest
+      (the halves' ``deepest_step`` against their parent's), each state tried once first in
+      the order of the one whose width moves the runs most up to the step where the cell was
+      lost (``probe``: the campaign simulates the runs from the centres of the cell's opposite
+      faces, :func:`percver.verification.falsify.spread`), else of the engine's choice.
+      ``learn_states=False``: that first choice, and after a halving that gained no step the
+      widest other state relative to the initial set.
     - Where halving stops paying: a lineage that gains no step ``patience`` times per state it
       can halve in a row stops (the loss is not the cell's width).
     - Whether restarting from boxes pays (``rebox``, see :func:`percver.verify`): the first
-      ``patience`` unknown cells, and any cell lost because an operation left its domain
-      (``division is undefined``, a square root of a negative range) or an enclosure blew up
-      (remainders that feed back and grow make both), run again with ``rebox=True`` before
-      they are halved; a retry that gets deeper than the plain run wins, and its halves keep
-      ``rebox`` (so a loop where it decides, such as F1/10's LiDAR loop, runs reboxed from then
-      on). Retries go on while they win more often than not, and for the two reasons above
-      until they have lost ``patience`` times more often than won: a loop where reboxing does
-      not help pays a few runs for finding out. ``rebox=False`` never retries (``True`` is
-      ``pv.verify(rebox=True)``: every cell reboxed from the start).
+      unknown cells, and any cell lost because an operation left its domain (``division is
+      undefined``, a square root of a negative range) or an enclosure blew up (remainders that
+      feed back and grow make both), run again with ``rebox=True`` before they are halved. A
+      retry pays if it verifies, or gets deeper than the plain run at no more seconds per step
+      (a reboxed step carries a Taylor-model variable per state, so it can cost several plain
+      ones); the halves of one that paid keep ``rebox`` (so a loop where it decides, such as
+      F1/10's LiDAR loop, runs reboxed from then on), the others run plain. Retries go on while
+      they pay more often than not, and for the two reasons above until they have lost
+      ``patience`` times more often than paid; retries still running count as lost. ``rebox=False``
+      never retries (``True`` is ``pv.verify(rebox=True)``: every cell reboxed from the start).
 
     Decisions are journaled with the cells (:class:`~percver.verification.journal.Journal`): a
-    resumed run replays them (the same pieces for every cell the journal decided; none of its
-    cells runs again) and relearns from its cells; what the journal had not decided is decided
-    afresh from all of that."""
+    resumed run replays them (the same pieces, with their engine options, for every cell the
+    journal decided; none of its cells runs again) and relearns from its cells; what the journal
+    had not decided is decided afresh from all of that."""
 
     start: int = 1
     max_cells: int = 16384
