@@ -58,8 +58,9 @@ class Campaign:
     def take(self, n: int, stock: int = 0) -> list:
         """Up to n cells to run (falsifying up to max(n, stock) first), all with the same
         :meth:`options_of`; empty when none is left for now. Threads may take and stock at once:
-        cells are drawn under the lock, each by one thread."""
-        self.stock(max(n, stock))
+        cells are drawn under the lock, each by one thread. A splitter with a ``lookahead`` draws at
+        most that many ahead (one that learns from each outcome wants its next cells cut after it)."""
+        self.stock(max(n, min(stock, getattr(self.splitter, "lookahead", stock))))
         with self.lock:
             out = []
             while self.ready and len(out) < n and (not out or self.options_of(self.ready[0]) == self.options_of(out[0])):
@@ -76,7 +77,7 @@ class Campaign:
             with self.lock:
                 if len(self.ready) >= n or not (self.queue or self.left):
                     return
-                fresh = self._draw(min(self.chunk, max(n - len(self.ready), 8)))
+                fresh = self._draw(min(self.chunk, max(n - len(self.ready), min(n, 8))))
             found = falsify(self.loop, self.prop, [cell for cell, _ in fresh], self.prop.steps, 0, self.seed)
             with self.lock:
                 for (cell, options), cex in zip(fresh, found):

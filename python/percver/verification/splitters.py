@@ -184,6 +184,9 @@ class Adaptive(Bisection):
     journal decided; none of its cells runs again) and relearns from its cells; what the journal
     had not decided is decided afresh from all of that."""
 
+    # Cells drawn (and probed) ahead of a free thread: one, so that every outcome can reshape the next cell.
+    lookahead = 1
+
     start: int = 1
     max_cells: int = 16384
     patience: int = 4
