@@ -274,3 +274,31 @@ def test_adaptive_cuts_a_cell_to_the_nearest_size_needed_when_none_touches_it():
         (left, _), _ = a.again(parent, _cell(parent, "unknown", split="p"), init, False)
         a.learn(left, _cell(left, "verified"), init)
         assert len(a.prepare(far, init)) == pieces
+
+
+class _Recorded(pv.Adaptive):
+    """Adaptive, noting when a cell is drawn to run and when an outcome is learnt (a class list:
+    verify runs a copy of the splitter)."""
+
+    events: list = []
+
+    def prepare(self, cell, init):
+        pieces = super().prepare(cell, init)
+        if pieces == [cell]:
+            _Recorded.events.append("draw")
+        return pieces
+
+    def learn(self, cell, result, init):
+        _Recorded.events.append("learn")
+        super().learn(cell, result, init)
+
+
+def test_the_adaptive_default_draws_each_cell_after_the_outcomes_before_it():
+    """With one worker, no cell is drawn (and cut) before the previous cell's outcome is learnt:
+    a stock of cells drawn ahead would be cut before the outcomes that should shape them."""
+    loop, kwargs = _wall_problem()
+    _Recorded.events.clear()
+    result = pv.verify(loop, splitter=_Recorded(rebox=False), workers=1, **kwargs)
+    assert result.coverage == pytest.approx(1.0)
+    events = _Recorded.events
+    assert events.count("draw") > 3 and not any(a == b == "draw" for a, b in zip(events, events[1:]))

@@ -205,6 +205,8 @@ class Adaptive(Bisection):
     verified: list = field(default_factory=list, repr=False)  # (cell, halvings from the initial set) of every verified cell
     gains: dict = field(default_factory=dict, repr=False)  # state -> steps its halvings gained (latest last)
     halved: dict = field(default_factory=dict, repr=False)  # half's key -> (parent's deepest step, state halved), until it runs
+    halvings: int = field(default=0, repr=False)  # halvings decided so far
+    last: dict = field(default_factory=dict, repr=False)  # state -> the halving that last cut it
 
     def __post_init__(self):
         super().__post_init__()
@@ -289,6 +291,8 @@ class Adaptive(Bisection):
         state = self._state_to_halve(cell, result, init, widths, stalls, halved)
         options.pop("max_splits", None)
         halves = _halves(cell, cell.names.index(state))
+        self.halvings += 1
+        self.last[state] = self.halvings
         for half in halves:
             self.lineage[_key(half)] = (steps, deepest_step, stalls, state)
             self.halved[_key(half)] = (deepest_step, state)
@@ -317,7 +321,9 @@ class Adaptive(Bisection):
             hint = max(rel)[1]
         if not self.learn_states:
             return hint
-        untried = [n for n in candidates if not self.gains.get(n)]
+        # Untried, or not tried lately: a state whose halving gained nothing near the whole set
+        # may be the one that decides once the others are narrow.
+        untried = [n for n in candidates if not self.gains.get(n) or self.halvings - self.last.get(n, 0) > RECENT * len(candidates)]
         if untried:
             return hint if hint in untried else untried[0]
         return max(candidates, key=lambda n: (np.mean(self.gains[n][-RECENT:]), n == hint))
