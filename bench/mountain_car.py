@@ -225,6 +225,7 @@ def compare(args) -> None:
     journal_dir.mkdir(parents=True, exist_ok=True)
     options = {} if args.timeout_per_cell is None else {"timeout_per_cell": args.timeout_per_cell}
     labels = args.variants.split(",")
+    commit = _commit()  # at the start: the tree may change while a long comparison runs
     extras = {label: variant(label) for label in labels}
     for networks in args.networks.split(","):
         for noise in args.rows.split(","):
@@ -250,7 +251,7 @@ def compare(args) -> None:
                 k: e["row"]["cpu_seconds"] / first["cpu_seconds"] for k, e in runs.items() if k not in (labels[0], "ratio_wall")
             }
             runs["date"] = time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime())
-            runs["commit"] = _commit()
+            runs["commit"] = commit
             earlier = doc.get(key)  # a single comparison (written before --variants) becomes the first of the list
             doc[key] = {"runs": (earlier["runs"] if "runs" in earlier else [earlier]) if earlier else []}
             doc[key]["runs"].append(runs)

@@ -154,8 +154,9 @@ class Adaptive(Bisection):
       says that cells of its size are needed there; a cell that verified only after splits
       inside it (``branches``) says that cells half its size are (an in-cell split costs about
       a cell of its own). A cell about to run is cut to the size needed where it is (by the
-      cells it touches, else by the nearest such cell: ``tile``; ``tile=False`` only by touching
-      ones), instead of spending runs on the sizes that failed there. A cell cut ahead of its run
+      cells it touches; with ``tile=True`` also by the nearest one when it touches none, which
+      spreads the first size found over the whole set), instead of spending runs on the sizes
+      that failed there. A cell cut ahead of its run
       that verifies whole proves nothing about its size, and counting it would spread the
       smallest size over the whole set.
     - Which state to halve: the one whose recent halvings pushed the loss of precision furthest
@@ -194,7 +195,7 @@ class Adaptive(Bisection):
     explore: int = 0
     reach: int = 2
     learn_states: bool = True
-    tile: bool = True
+    tile: bool = False
     needed: list = field(default_factory=list, repr=False)  # (cell, widths needed there)
     probe: Optional[Callable] = field(default=None, repr=False)  # (cell, steps) -> {state: spread}, set by the campaign
     runs: int = field(default=0, repr=False)
