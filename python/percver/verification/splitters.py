@@ -156,9 +156,8 @@ class Adaptive(Bisection):
       a cell of its own). A cell about to run is cut to the size needed where it is (by the
       cells it touches; with ``tile=True`` also by the nearest one when it touches none, which
       spreads the first size found over the whole set), instead of spending runs on the sizes
-      that failed there. A cell cut ahead of its run
-      that verifies whole proves nothing about its size, and counting it would spread the
-      smallest size over the whole set.
+      that failed there. A cell cut ahead of its run that verifies whole proves nothing about
+      its size, and counting it would spread the smallest size over the whole set.
     - Which state to halve: the one whose recent halvings pushed the loss of precision furthest
       (the halves' ``deepest_step`` against their parent's), each state tried once first in
       the order of the one whose width moves the runs most up to the step where the cell was
@@ -301,8 +300,9 @@ class Adaptive(Bisection):
 
     def _state_to_halve(self, cell: Box, result, init: Box, widths: dict, stalls: int, halved: Optional[str]) -> str:
         """The state whose halvings have gained the most steps lately (each state above its
-        min_width tried once first, in the order of the probe's, else the engine's, choice); after
-        a halving that gained no step, the widest other state relative to the initial set."""
+        min_width tried first, and again when not halved lately, in the order of the probe's,
+        else the engine's, choice); with ``learn_states=False`` that choice, and after a halving
+        that gained no step the widest other state relative to the initial set."""
         above = above_min_width(cell, init, widths, 0)
         candidates = [n for ok, n in zip(above, cell.names) if ok]
         if stalls and not self.learn_states:
