@@ -239,7 +239,7 @@ class Adaptive(Bisection):
                 target[n] = min(target.get(n, np.inf), w)
         pieces = {}
         for n, (lo, hi) in zip(cell.names, cell.bounds):
-            if n in target and hi - lo > 1.5 * target[n]:
+            if target.get(n, 0.0) > 0.0 and hi - lo > 1.5 * target[n]:
                 pieces[n] = min(int(2 ** np.ceil(np.log2((hi - lo) / target[n]))), 64)
         if not pieces:
             return [cell]
