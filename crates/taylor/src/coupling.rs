@@ -23,7 +23,7 @@
 //! group whose step cannot be enclosed flows on from its entry box, bisected (see [`boxed_flow`]).
 use crate::error::{Result, TaylorError};
 use crate::expr::{Op, Program};
-use crate::flowpipe::{initial_affine, on_grid, reach_from_steps, time_grid, Ode, Segment, Settings, StepSize};
+use crate::flowpipe::{box_models, on_grid, reach_from_steps, time_grid, Ode, Segment, Settings, StepSize};
 use crate::interval::Interval;
 use crate::space::Space;
 use crate::tm::{Ctx, TaylorModel};
@@ -335,18 +335,7 @@ fn boxed_flow(ode: &Ode, start: &[Interval], settings: &Settings, splits: usize)
 fn box_flow(ode: &Ode, start: &[Interval], settings: &Settings) -> Option<Boxed> {
     let space = Space::get(start.len() + 1, settings.max_order(), 1).ok()?;
     let ctx = Ctx::new(space.clone(), settings.max_order(), settings.cutoff);
-    let models = start
-        .iter()
-        .enumerate()
-        .map(|(i, iv)| {
-            let (m, r) = initial_affine(iv);
-            if iv.lo() == iv.hi() {
-                TaylorModel::constant(m)
-            } else {
-                TaylorModel::affine(&ctx, m, i + 1, r)
-            }
-        })
-        .collect();
+    let models = box_models(start, &ctx);
     let mut ends = vec![(0.0, start.to_vec())];
     let fp = reach_from_steps(ode, models, &space, settings, &mut |t, _, state| {
         ends.push((t, state.iter().map(|m| m.bound(&space)).collect()));

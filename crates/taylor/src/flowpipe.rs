@@ -221,20 +221,23 @@ pub fn reach(ode: &Ode, init: &[Interval], settings: &Settings, observer: &mut d
     settings.validate(n)?;
     let space = Space::get(n + 1, settings.max_order(), 1)?;
     let full = Ctx::new(space.clone(), settings.max_order(), settings.cutoff);
-    // The initial box as models over z in [-1, 1]^n.
-    let state: Vec<TaylorModel> = init
-        .iter()
+    reach_from(ode, box_models(init, &full), &space, settings, observer)
+}
+
+/// The box `init` as models over z in [-1, 1]^n, side i over variable i + 1 (a point side is
+/// a constant).
+pub(crate) fn box_models(init: &[Interval], ctx: &Ctx) -> Vec<TaylorModel> {
+    init.iter()
         .enumerate()
         .map(|(i, iv)| {
             let (m, r) = initial_affine(iv);
             if iv.lo() == iv.hi() {
                 TaylorModel::constant(m)
             } else {
-                TaylorModel::affine(&full, m, i + 1, r)
+                TaylorModel::affine(ctx, m, i + 1, r)
             }
         })
-        .collect();
-    reach_from(ode, state, &space, settings, observer)
+        .collect()
 }
 
 /// Computes the flowpipe from a set given as Taylor models over variables 1..=m of `space`
