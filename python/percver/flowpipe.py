@@ -13,6 +13,15 @@ from percver.expr import ExprLike, as_expr, name_of
 from percver.sets import Box, BoxLike
 
 
+def _hull_in_mode(array: np.ndarray, modes: Sequence[str], names: Sequence[str], mode: Optional[str]) -> dict:
+    """Hull of the step boxes ``array`` (steps x variables x [lo, hi]) whose mode is ``mode`` (all if None)."""
+    keep = [i for i, m in enumerate(modes) if mode is None or m == mode]
+    if not keep:
+        raise InputError(f"no run reaches mode '{mode}' (modes reached: {sorted(set(modes))})")
+    part = array[keep]
+    return {v: (float(part[:, j, 0].min()), float(part[:, j, 1].max())) for j, v in enumerate(names)}
+
+
 class Flowpipe:
     """The reach set of an ODE: one box per integration step plus the final state's box.
 
@@ -83,11 +92,7 @@ class Flowpipe:
     def reach_box(self, mode: Optional[str] = None) -> dict:
         """Hull of the step boxes (of those in ``mode``, if given): every state the runs reach
         there, e.g. the outputs of a network's last, zero-dwell mode."""
-        keep = [i for i, m in enumerate(self.modes) if mode is None or m == mode]
-        if not keep:
-            raise InputError(f"no run reaches mode '{mode}' (modes reached: {sorted(set(self.modes))})")
-        part = self.array[keep]
-        return {v: (float(part[:, j, 0].min()), float(part[:, j, 1].max())) for j, v in enumerate(self.names)}
+        return _hull_in_mode(self.array, self.modes, self.names, mode)
 
     def contains(self, t: np.ndarray, states: np.ndarray, tol: float = 0.0) -> np.ndarray:
         """Whether states (N x n) at times t (N) lie in the box of a step whose closed time interval holds their time.
@@ -326,11 +331,7 @@ class HybridFlowpipe:
     def reach_box(self, mode: Optional[str] = None) -> dict:
         """Hull of the step boxes (of those in ``mode``, if given): every state the runs reach
         there, e.g. the outputs of a network's last, zero-dwell mode."""
-        keep = [i for i, m in enumerate(self.modes) if mode is None or m == mode]
-        if not keep:
-            raise InputError(f"no run reaches mode '{mode}' (modes reached: {sorted(set(self.modes))})")
-        part = self.array[keep]
-        return {v: (float(part[:, j, 0].min()), float(part[:, j, 1].max())) for j, v in enumerate(self.names)}
+        return _hull_in_mode(self.array, self.modes, self.names, mode)
 
     def contains(self, t: np.ndarray, states: np.ndarray, modes: Optional[Sequence[str]] = None, tol: float = 0.0) -> np.ndarray:
         """Whether states (N x n, the automaton's variables without the clock) at times t (N), in
