@@ -139,12 +139,12 @@ class Campaign:
                 pieces = self._again(cell, known)
                 self._place(cell, known, self.journal.decided[key] if key in self.journal.decided else pieces)
                 continue
+            # The splitter sees every cut, a replayed one too (what it learns may depend on it).
+            pieces = [_with_options(piece, options) for piece in self.splitter.prepare(cell, self.init)]
             if key in self.journal.cuts:
                 pieces = self.journal.cuts[key]
-            else:
-                pieces = [_with_options(piece, options) for piece in self.splitter.prepare(cell, self.init)]
-                if pieces != [(cell, options)]:
-                    self.journal.write_cut(cell.to_dict(), options, pieces)
+            elif pieces != [(cell, options)]:
+                self.journal.write_cut(cell.to_dict(), options, pieces)
             if pieces != [(cell, options)]:  # cut, or run with other options: looked up in the journal as such
                 self.queue += pieces
                 self.bar.settled(None, more=len(pieces))

@@ -166,7 +166,8 @@ class Adaptive(Bisection):
       ``learn_states=False``: that first choice, and after a halving that gained no step the
       widest other state relative to the initial set.
     - Where halving stops paying: a lineage that gains no step ``patience`` times per state it
-      can halve in a row stops (the loss is not the cell's width).
+      can halve in a row stops (the loss is not the cell's width). Once a cell is falsified the
+      loop is unsafe: unknown cells are no longer halved (the coverage is then a lower bound).
     - Whether restarting from boxes pays (``rebox``, see :func:`percver.verify`): the first
       unknown cells, and any cell lost because an operation left its domain (``division is
       undefined``, a square root of a negative range) or an enclosure blew up (remainders that
@@ -207,6 +208,8 @@ class Adaptive(Bisection):
     halved: dict = field(default_factory=dict, repr=False)  # half's key -> (parent's deepest step, state halved), until it runs
     halvings: int = field(default=0, repr=False)  # halvings decided so far
     last: dict = field(default_factory=dict, repr=False)  # state -> the halving that last cut it
+    falsified: bool = field(default=False, repr=False)  # a counterexample decided the loop: no more halvings
+    cut: set = field(default_factory=set, repr=False)  # keys of cells cut ahead of their run to a needed size
 
     def __post_init__(self):
         super().__post_init__()
@@ -237,17 +240,23 @@ class Adaptive(Bisection):
         for widths in _near(cell, self.needed, init) if self.tile else [w for box, w in self.needed if _touches(cell, box)]:
             for n, w in widths.items():
                 target[n] = min(target.get(n, np.inf), w)
-        pieces = {}
+        pieces, floor = {}, self._min(init)
         for n, (lo, hi) in zip(cell.names, cell.bounds):
             if target.get(n, 0.0) > 0.0 and hi - lo > 1.5 * target[n]:
-                pieces[n] = min(int(2 ** np.ceil(np.log2((hi - lo) / target[n]))), 64)
+                # Never below min_width: the floor the user set (or 1/1024 of the initial set).
+                most = 2 ** int(np.floor(np.log2((hi - lo) / floor[n]))) if floor[n] > 0 else 64
+                pieces[n] = min(int(2 ** np.ceil(np.log2((hi - lo) / target[n]))), 64, most)
+        pieces = {n: k for n, k in pieces.items() if k > 1}
         if not pieces:
             return [cell]
         cells, _ = grid(cell, pieces)
+        cells = list(cells)
+        self.cut.update(_key(piece) for piece in cells)
         return [(piece, self._budget(piece, init)) for piece in cells]
 
     def learn(self, cell: Box, result, init: Box) -> None:
         self.runs += 1
+        self.falsified |= result.verdict == "falsified"
         key = _key(cell)
         if key in self.halved:
             deepest, state = self.halved.pop(key)
@@ -258,14 +267,18 @@ class Adaptive(Bisection):
             self.pending.discard(key)
             self.rebox_score[0 if self._rebox_won(key, result) else 1] += 1
         if result.verdict == "verified" and (result.branches or key in self.lineage):
-            size = bisect(cell, init, self._min(init), result.split)[0] if result.branches else cell
+            # A cell already cut to the size needed near it that still branches (forks on a
+            # condition that crosses it at every size) keeps that size: halving it again would
+            # spread ever smaller sizes from cell to cell.
+            halve = result.branches and key not in self.cut
+            size = bisect(cell, init, self._min(init), result.split)[0] if halve else cell
             self.needed.append((cell, {n: hi - lo for n, (lo, hi) in zip(size.names, size.bounds)}))
 
     def again(self, cell: Box, result, init: Box, timed_out: bool):
         """A :class:`Retry` (with rebox, or with the call's in-cell splits), halves (with their
         options), or None (see the class doc)."""
         key = _key(cell)
-        if result.verdict != "unknown" or self.runs >= self.max_cells:
+        if result.verdict != "unknown" or self.runs >= self.max_cells or self.falsified:
             self.lineage.pop(key, None)
             return None
         if self._rebox_pays(key, result):
