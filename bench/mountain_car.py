@@ -201,30 +201,71 @@ def combine(doc: dict, noise: str, networks: str) -> dict:
 COMPARED = RESULTS / "mountain_car_adaptive.json"
 
 
-def compare(args) -> None:
-    """The hand layout and the adaptive default on the same rows, one after the other in one process
-    (the same machine and nearly the same load): wall, CPU seconds, engine runs, load average."""
+def variant(spec: str) -> dict:
+    """``verify`` keywords of a --variants entry: ``hand`` (the layout), ``adaptive`` (the default
+    splitter) or ``adaptive:key=value:...`` (``pv.Adaptive`` with those settings, e.g.
+    ``adaptive:reach=0:rebox=False``)."""
+    import ast
+
     import percver as pv
 
+    name, *settings = spec.split(":")
+    if name == "hand" and not settings:
+        return {}
+    if name != "adaptive":
+        raise SystemExit(f"unknown variant {spec!r}: give hand, adaptive or adaptive:key=value:...")
+    return {"splitter": pv.Adaptive(**{k: ast.literal_eval(v) for k, v in (s.split("=", 1) for s in settings)})}
+
+
+def compare(args) -> None:
+    """The hand layout and adaptive splitters (``--variants``) on the same rows, one after the other
+    in one process (the same machine and nearly the same load): wall, CPU seconds, engine runs,
+    load average. Ratios are each variant's against the first (``hand``)."""
     journal_dir = Path(args.journal_dir) / f"compare-{int(time.time())}"
     journal_dir.mkdir(parents=True, exist_ok=True)
     options = {} if args.timeout_per_cell is None else {"timeout_per_cell": args.timeout_per_cell}
+    labels = args.variants.split(",")
+    commit = _commit()  # at the start: the tree may change while a long comparison runs
+    extras = {label: variant(label) for label in labels}
     for networks in args.networks.split(","):
         for noise in args.rows.split(","):
-            pair = {}
-            for label, extra in (("hand", {}), ("adaptive", {"splitter": pv.Adaptive()})):
+            runs = {}
+            for label in labels:
                 entry = run(
-                    noise, networks, args.p0, args.workers, journal_dir, {**options, **extra}, controller=args.controller, label=label
+                    noise,
+                    networks,
+                    args.p0,
+                    args.workers,
+                    journal_dir,
+                    {**options, **extras[label]},
+                    controller=args.controller,
+                    label=label.replace(":", "_").replace("=", ""),
                 )
-                pair[label] = entry
+                runs[label] = entry
                 print(label, verification.format_row(noise, entry["row"], None), f"cpu s {entry['row']['cpu_seconds']:.0f}", flush=True)
             doc = json.loads(COMPARED.read_text()) if COMPARED.exists() else {}
             key = f"{noise}/{_networks_key(networks, args.controller)}" + ("" if args.p0 is None else f"/{args.p0[0]:g},{args.p0[1]:g}")
-            pair["ratio_wall"] = pair["adaptive"]["row"]["wall_seconds"] / pair["hand"]["row"]["wall_seconds"]
-            pair["ratio_cpu"] = pair["adaptive"]["row"]["cpu_seconds"] / pair["hand"]["row"]["cpu_seconds"]
-            pair["date"] = time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime())
-            doc[key] = pair
+            first = runs[labels[0]]["row"]
+            runs["ratio_wall"] = {k: e["row"]["wall_seconds"] / first["wall_seconds"] for k, e in runs.items() if k != labels[0]}
+            runs["ratio_cpu"] = {
+                k: e["row"]["cpu_seconds"] / first["cpu_seconds"] for k, e in runs.items() if k not in (labels[0], "ratio_wall")
+            }
+            runs["date"] = time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime())
+            runs["commit"] = commit
+            earlier = doc.get(key)  # a single comparison (written before --variants) becomes the first of the list
+            doc[key] = {"runs": (earlier["runs"] if "runs" in earlier else [earlier]) if earlier else []}
+            doc[key]["runs"].append(runs)
             COMPARED.write_text(json.dumps(doc, indent=1))
+
+
+def _commit() -> str:
+    """The worktree's commit (and whether it had changes): which code a comparison measured."""
+    import subprocess
+
+    def git(*a):
+        return subprocess.run(["git", *a], cwd=ROOT, capture_output=True, text=True).stdout.strip()
+
+    return git("rev-parse", "--short", "HEAD") + ("+changes" if git("status", "--porcelain", "--untracked-files=no") else "")
 
 
 def main() -> None:
@@ -247,8 +288,11 @@ def main() -> None:
     parser.add_argument(
         "--compare",
         action="store_true",
-        help="each row twice, back to back from fresh journals: the hand layout, then the adaptive splitter with no layout; "
-        "both in bench/results/mountain_car_adaptive.json",
+        help="each row once per --variants entry, back to back from fresh journals (the hand layout, adaptive splitters "
+        "with no layout); all in bench/results/mountain_car_adaptive.json",
+    )
+    parser.add_argument(
+        "--variants", default="hand,adaptive", help="for --compare: hand, adaptive, adaptive:key=value:... (comma-separated)"
     )
     args = parser.parse_args()
     out = Path(args.out)
