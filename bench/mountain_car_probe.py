@@ -67,8 +67,10 @@ def run(row: str, count: int) -> dict:
 def compare(doc: dict, before: str, after: str) -> None:
     a, b = doc[before], doc[after]
     same = [x["verdict"] == y["verdict"] for x, y in zip(a["cells"], b["cells"])]
-    print(f"{before}: {a['cpu_seconds']:.1f} CPU s, {after}: {b['cpu_seconds']:.1f} CPU s, ratio {a['cpu_seconds'] / b['cpu_seconds']:.2f}x")
-    print(f"verdicts identical: {all(same)} ({sum(same)}/{len(same)}); branches {sum(c['branches'] for c in a['cells'])} -> {sum(c['branches'] for c in b['cells'])}")
+    branches = [sum(c["branches"] for c in run["cells"]) for run in (a, b)]
+    ratio = a["cpu_seconds"] / b["cpu_seconds"]
+    print(f"{before}: {a['cpu_seconds']:.1f} CPU s, {after}: {b['cpu_seconds']:.1f} CPU s, ratio {ratio:.2f}x")
+    print(f"verdicts identical: {all(same)} ({sum(same)}/{len(same)}); branches {branches[0]} -> {branches[1]}")
 
 
 def main() -> None:
