@@ -3,7 +3,8 @@
 ``--cells`` paper-sized cells (y1 width 5e-5, the other states at the original model's start)
 spread evenly over y1 in [0.65, 0.85], run one after another in one thread straight through
 ``_core.verify_cells`` with the row's settings (``rebox=True``, 64 in-cell splits and forks,
-the engine's default order): no falsification, no campaign, so the CPU seconds are the engine's.
+``CELL_ORDER`` of ``pv.cases.f1tenth.verification`` unless ``--order``): no falsification, no
+campaign, so the CPU seconds are the engine's. ``--y1`` names the cells' lower ends instead.
 Records per cell the verdict, steps, branches and CPU seconds of this process, with the load
 average, into bench/results/f1tenth_probe.json under ``--label``; ``--compare A B`` prints the
 per-cell ratio of two labels and whether their verdicts agree.
@@ -41,14 +42,14 @@ def problem():
     return loop, loop.compile(safe=safe, goal=goal, within=True, steps=fv.STEPS)
 
 
-def probe(count: int) -> dict:
+def probe(lows: list, order=None) -> dict:
     from percver import _core
     from percver.cases.f1tenth import verification as fv
 
     loop, compiled = problem()
-    settings = _core.CellSettings(rebox=True, max_splits=64)
+    settings = _core.CellSettings(rebox=True, max_splits=64, order=order or fv.CELL_ORDER)
     cells = []
-    for lo in starts(count):
+    for lo in lows:
         box = loop.initial_box({**fv.INIT, "y1": (lo, lo + CELL)})
         cells.append([tuple(map(float, b)) for b in box.bounds])
     rows, clock = [], [time.process_time()]
@@ -73,6 +74,7 @@ def probe(count: int) -> dict:
     cpu = [r["cpu_seconds"] for r in rows]
     return {
         "date": time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime()),
+        "order": settings.order,
         "cells": len(rows),
         "verified": sum(r["verdict"] == "verified" for r in rows),
         "cpu_seconds": sum(cpu),
@@ -103,13 +105,15 @@ def main():
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--cells", type=int, default=40)
     ap.add_argument("--label", default="run")
+    ap.add_argument("--y1", type=float, nargs="+", help="the cells' lower y1 instead of the even spread")
+    ap.add_argument("--order", type=int, help="Taylor order (default: the row's, CELL_ORDER)")
     ap.add_argument("--compare", nargs=2, metavar=("A", "B"))
     args = ap.parse_args()
     doc = json.loads(OUT.read_text()) if OUT.exists() else {}
     if args.compare:
         print(json.dumps(compare(doc, *args.compare), indent=1))
         return
-    doc[args.label] = probe(args.cells)
+    doc[args.label] = probe(args.y1 or starts(args.cells), args.order)
     OUT.write_text(json.dumps(doc, indent=1))
     summary = {k: v for k, v in doc[args.label].items() if k != "rows"}
     print(json.dumps(summary, indent=1))

@@ -262,8 +262,14 @@ impl TaylorModel {
         }
         c.truncate(top + 1);
         let rounding = add_up(mul_up(gamma(la.min(lb)), mul_up(abs_sum(a), suffix[0])), ETA * (la as f64) * (lb as f64));
-        let (pa, pb) = (self.poly_bound(space), o.poly_bound(space));
-        let rem = pa * o.rem + self.rem * pb + self.rem * o.rem;
+        // A factor without remainder (Picard iterates, boxes' models) needs no bound of the
+        // other's polynomial: its terms would be exact zeros.
+        let rem = match (self.rem == Interval::ZERO, o.rem == Interval::ZERO) {
+            (true, true) => Interval::ZERO,
+            (true, false) => self.poly_bound(space) * o.rem,
+            (false, true) => self.rem * o.poly_bound(space),
+            (false, false) => self.poly_bound(space) * o.rem + self.rem * o.poly_bound(space) + self.rem * o.rem,
+        };
         let mut t = TaylorModel { coef: c, rem: rem.inflate(add_up(trunc, rounding)) };
         t.sweep(ctx);
         t
