@@ -489,7 +489,7 @@ fn nonlinear_gradient_dot(m: &TaylorModel, space: &Space, shift: &[f64]) -> f64 
 /// starts the refinement near its fixed point: from the settings' estimate (a tolerance, orders
 /// of magnitude wider) the refinement took 7 more applications of the operator per step to
 /// converge (bench/README.md, issue 30). Where that guess is not verified, the step goes on
-/// from the estimate as before.
+/// from the estimate as before; the guess never exceeds the estimate.
 #[allow(clippy::too_many_arguments)]
 fn picard_step(
     ode: &Ode,
@@ -548,7 +548,10 @@ fn picard_step(
         None => apply(&vec![Interval::ZERO; x0.len()])?,
     };
     if near.iter().all(|r| r.is_bounded()) {
-        let guess: Vec<Interval> = near.iter().map(|r| Interval::symmetric(mul_up(2.0, r.mag()))).collect();
+        // Capped at the estimate, which stays the tolerance that rejects a step (adaptive
+        // steps halve there instead of going on with a wider remainder).
+        let guess: Vec<Interval> =
+            near.iter().zip(&settings.remainder_estimate).map(|(r, &e)| Interval::symmetric(mul_up(2.0, r.mag()).min(e))).collect();
         let image = apply(&guess)?;
         if image.iter().zip(&guess).all(|(j, i)| i.contains_interval(j)) {
             verified = Some(image);
