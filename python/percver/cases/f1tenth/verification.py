@@ -39,7 +39,7 @@ INIT = {"y1": (0.65, 0.85), "y2": (9.0, 9.0), "y3": (0.0, 0.0), "y4": (0.0, 0.0)
 PAPER_CELL = 5e-5
 # Taylor order of the uniform cells: in cells this small (and the boxes they are reboxed to),
 # terms of degree 4 and 5 are mostly under the engine's cutoff, so order 3 decides the same
-# cells with fewer forks at under half the cost of the engine's default 5 (bench/README.md,
+# cells with fewer forks at about half the cost of the engine's default 5 (bench/README.md,
 # "F1/10 cost per cell").
 CELL_ORDER = 3
 # Table 1 of the paper, F1/10 row.
