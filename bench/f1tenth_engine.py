@@ -1,4 +1,4 @@
-"""Benchmark (run by hand): the F1/10 row in the engine (``mode="engine"``, ``rebox=True``).
+"""Benchmark (run by hand): the F1/10 row in the engine (the paper's uniform cells, ``rebox=True``).
 
 Verifies ``--sample`` paper-sized cells (y1 width 5e-5) spread evenly over y1 in [0.65, 0.85],
 ``--jobs`` processes at once, and writes bench/results/f1tenth_engine.json: per-cell verdict,
@@ -30,7 +30,7 @@ def one(lo: float) -> dict:
     from percver.cases.f1tenth import verification as fv
 
     t = time.time()
-    cell = fv.verify((lo, lo + CELL), mode="engine", cell=CELL, rebox=True, max_splits=64, progress=False, workers=1, falsify=4).cells[0]
+    cell = fv.verify((lo, lo + CELL), cell=CELL, progress=False, workers=1, falsify=4).cells[0]
     return {
         "y1": lo,
         "verdict": cell.verdict,

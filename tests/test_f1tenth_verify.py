@@ -12,6 +12,7 @@ import pytest
 import percver as pv
 from percver.cases.f1tenth import data, world
 from percver.cases.f1tenth import verification as V
+from percver.verification.solve import DEFAULTS
 
 
 @pytest.fixture(scope="module")
@@ -62,6 +63,18 @@ def test_a_paper_cell_is_verified_at_the_defaults_and_contains_1000_trajectories
     assert inside(traj, cell.boxes)
     row = V.row(res)
     assert row["intervals"] == 1 and row["coverage"] == 1.0 and row["avg_nn_seconds"] <= row["avg_seconds"]
+
+
+def test_a_uniform_paper_cell_at_the_rows_order_is_verified_and_contains_1000_trajectories(loop):
+    # The row's uniform cells (cell=PAPER_CELL: reboxed, order CELL_ORDER, forks), at y1 = 0.691,
+    # whose undecided knock-outs fork: every sampled run stays inside the per-step boxes.
+    res = V.verify((0.691, 0.69105), cell=V.PAPER_CELL, progress=False, workers=1, falsify=4)
+    cell = res.cells[0]
+    assert res.settings["order"] == V.CELL_ORDER < DEFAULTS.order
+    assert cell.verdict == "verified" and cell.steps_done > 40, cell.reason
+    assert cell.branches > 0, cell  # the cell forks on knock-outs, which this test is about
+    traj = loop.simulate(starts(0.691, 0.69105, 1000, seed=3), cell.steps_done)
+    assert inside(traj, cell.boxes)
 
 
 def test_engine_mode_boxes_contain_1000_trajectories():

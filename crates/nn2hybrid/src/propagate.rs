@@ -762,6 +762,8 @@ fn compose(q: &[f64], centre: f64, scale: f64, p: &[f64], ctx: &Ctx) -> TaylorMo
     for j in (0..len).rev() {
         suffix[j] = suffix[j + 1] + t[j].abs();
     }
+    // Only T's non-zero terms take part (a small cell's models keep few of their monomials).
+    let nonzero: Vec<u32> = (0..len as u32).filter(|&j| t[j as usize] != 0.0).collect();
     let grow = 1.0 + gamma(2 * len + 2);
     let g = gamma(len + 2);
     let d = q.len() - 1;
@@ -778,8 +780,9 @@ fn compose(q: &[f64], centre: f64, scale: f64, p: &[f64], ctx: &Ctx) -> TaylorMo
             sa += ai.abs();
             let lim = len.min(space.len_upto(ctx.order - space.deg[i] as usize));
             // The pairs of i list j = 0, 1, ... in order: the first lim are those with t_j.
-            for (&(_, out), &tj) in space.pairs_of(i)[..lim].iter().zip(&t[..lim]) {
-                next[out as usize] += ai * tj;
+            let pairs = space.pairs_of(i);
+            for &j in nonzero.iter().take_while(|&&j| (j as usize) < lim) {
+                next[pairs[j as usize].1 as usize] += ai * t[j as usize];
             }
             dropped += ai.abs() * suffix[lim];
         }

@@ -231,6 +231,10 @@ impl TaylorModel {
         for j in (0..lb).rev() {
             suffix[j] = add_up(suffix[j + 1], b[j].abs());
         }
+        // Only b's non-zero terms take part: models of small cells keep few of the monomials
+        // below their last one (most products of the cell's radii fall under the cutoff).
+        let nonzero: Vec<u32> = (0..lb as u32).filter(|&j| b[j as usize] != 0.0).collect();
+        let mut top = 0; // the highest index written
         let mut trunc = 0.0;
         for i in 0..la {
             let ai = a[i];
@@ -243,18 +247,29 @@ impl TaylorModel {
                 continue;
             }
             let lim = lb.min(space.len_upto(ctx.order - di));
-            for &(j, k) in space.pairs_of(i) {
+            // The pairs of i list j = 0, 1, ... in order.
+            let pairs = space.pairs_of(i);
+            for &j in &nonzero {
                 let j = j as usize;
                 if j >= lim {
                     break;
                 }
-                c[k as usize] += ai * b[j];
+                let k = pairs[j].1 as usize;
+                c[k] += ai * b[j];
+                top = top.max(k);
             }
             trunc = add_up(trunc, mul_up(ai.abs(), suffix[lim]));
         }
+        c.truncate(top + 1);
         let rounding = add_up(mul_up(gamma(la.min(lb)), mul_up(abs_sum(a), suffix[0])), ETA * (la as f64) * (lb as f64));
-        let (pa, pb) = (self.poly_bound(space), o.poly_bound(space));
-        let rem = pa * o.rem + self.rem * pb + self.rem * o.rem;
+        // A factor without remainder (Picard iterates, boxes' models) needs no bound of the
+        // other's polynomial: its terms would be exact zeros.
+        let rem = match (self.rem == Interval::ZERO, o.rem == Interval::ZERO) {
+            (true, true) => Interval::ZERO,
+            (true, false) => self.poly_bound(space) * o.rem,
+            (false, true) => self.rem * o.poly_bound(space),
+            (false, false) => self.poly_bound(space) * o.rem + self.rem * o.poly_bound(space) + self.rem * o.rem,
+        };
         let mut t = TaylorModel { coef: c, rem: rem.inflate(add_up(trunc, rounding)) };
         t.sweep(ctx);
         t
@@ -469,6 +484,50 @@ mod tests {
             ((state >> 11) as f64) / ((1u64 << 53) as f64)
         };
         (0..count).map(|_| (0..ctx.nvars()).map(|v| if ctx.space.is_unit(v) { next() } else { 2.0 * next() - 1.0 }).collect()).collect()
+    }
+
+    #[test]
+    fn sparse_products_enclose_and_drop_no_term() {
+        // Factors with most coefficients zero (as a small cell's models are), some terms above
+        // the order and under the cutoff: the product holds the pointwise product, and its
+        // polynomial part is the dense schoolbook product's (truncated and swept alike).
+        let c = Ctx::new(Space::get(4, 5, 1).unwrap(), 5, 1e-12);
+        let mut state = 5u64;
+        let mut next = || {
+            state = state.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+            ((state >> 11) as f64) / ((1u64 << 53) as f64)
+        };
+        for _ in 0..20 {
+            let mut factor = || {
+                let coef: Vec<f64> = (0..c.space.len())
+                    .map(|_| if next() < 0.15 { (next() - 0.5) * if next() < 0.3 { 1e-13 } else { 1.0 } } else { 0.0 })
+                    .collect();
+                let mut t = TaylorModel { coef, rem: Interval::symmetric(1e-9 * next()) };
+                t.trim();
+                t
+            };
+            let (a, b) = (factor(), factor());
+            let ab = a.mul(&b, &c);
+            let mut dense = vec![0.0; c.space.len()];
+            for i in 0..a.coef.len() {
+                for j in 0..b.coef.len() {
+                    if (c.space.deg[i] + c.space.deg[j]) as usize <= c.order {
+                        let k = c.space.pairs_of(i)[j].1 as usize;
+                        dense[k] += a.coef[i] * b.coef[j];
+                    }
+                }
+            }
+            for (k, &d) in dense.iter().enumerate() {
+                let kept = ab.coef.get(k).copied().unwrap_or(0.0);
+                assert!(kept == 0.0 || (kept - d).abs() <= 1e-15 * (1.0 + d.abs()), "term {k}: {kept} against {d}");
+            }
+            for p in sample_points(&c, 300, 17) {
+                let x: Vec<Interval> = p.iter().map(|&t| Interval::point(t)).collect();
+                let truth = a.eval_poly(&c.space, &p) * b.eval_poly(&c.space, &p);
+                let enclosure = ab.eval_interval(&c.space, &x).inflate(1e-12);
+                assert!(enclosure.contains(truth), "{enclosure} misses {truth}");
+            }
+        }
     }
 
     #[test]
