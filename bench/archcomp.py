@@ -60,7 +60,9 @@ def one(name: str, variant: str, journal: Optional[str] = None) -> dict:
         Path(journal).mkdir(parents=True, exist_ok=True)
         kwargs["journal"] = str(Path(journal) / f"{label(name, variant).replace(':', '-')}.jsonl")
     settings = {
-        k: v for k, v in kwargs.items() if k in ("split", "order", "max_splits", "steps", "rebox", "state_symbols", "timeout_per_cell")
+        k: v
+        for k, v in kwargs.items()
+        if k in ("split", "refine", "order", "max_splits", "steps", "rebox", "state_symbols", "timeout_per_cell")
     }
     start, usage = time.perf_counter(), resource.getrusage(resource.RUSAGE_SELF)
     result = pv.verify(loop, progress=False, **kwargs)
