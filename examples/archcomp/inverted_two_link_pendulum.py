@@ -34,9 +34,9 @@ def problem(variant: str = "less_robust"):
     kwargs = dict(init={s: (1.0, 1.3) for s in states}, steps=20, safe=pv.Box({s: (lo, hi) for s in states}), order=4, max_splits=16)
     if less:
         # JuliaReach's grid (2 x 2 x 3 x 6 pieces), each cell halved until it verifies whole at
-        # order 3: cells of 1/16-1/32 of JuliaReach's are needed where the controller turns t1
-        # back, and in-cell splits (which continue from the lost step) did not get there at
-        # order 4 (19 cells unknown, bench/README.md).
+        # order 3: the cells that verify are 2-8x narrower than JuliaReach's in t1 and t2, and
+        # in-cell splits (which continue from the lost step) did not get there at order 4 (19
+        # cells unknown, bench/README.md).
         kwargs.update(split={"t1": 2, "t2": 2, "w1": 3, "w2": 6}, refine=True, order=3, max_splits=0, state_symbols=True)
     return pv.ClosedLoop(plant, [stage]), kwargs
 
