@@ -481,16 +481,7 @@ mod tests {
             refinements: 10,
             symbolic_queue: 50,
         };
-        let mut segments = vec![];
-        let mut last = (0.0, vec![]);
-        let failure = coupling
-            .flow(start, &space, &settings, &mut |t, seg, state| {
-                segments.push(seg.clone());
-                last = (t, state);
-                true
-            })
-            .unwrap();
-        assert!(failure.is_none(), "{failure:?}");
+        let (segments, last) = flow_through(&coupling, start, &space, &settings);
         assert_eq!(last.0, 1.5);
         for a in 0..=10 {
             for b in 0..=10 {
@@ -546,16 +537,7 @@ mod tests {
         let one = ode(&[("z", "a * (1 - z * z)"), ("a", "0")]);
         let lone = reach(&one, &[Interval::ZERO, Interval::new(-8.0, 8.0).unwrap()], &settings_for(&settings, 2), &mut |_| true).unwrap();
         assert!(lone.failure.is_some());
-        let mut segments = vec![];
-        let mut last = (0.0, vec![]);
-        let failure = coupling
-            .flow(start, &space, &settings, &mut |t, seg, state| {
-                segments.push(seg.clone());
-                last = (t, state);
-                true
-            })
-            .unwrap();
-        assert!(failure.is_none(), "{failure:?}");
+        let (segments, last) = flow_through(&coupling, start, &space, &settings);
         assert_eq!(last.0, 1.0);
         for k in 0..=200 {
             let (a1, a2) = (-8.0 + 0.08 * k as f64, 1.0 * k as f64 / 200.0);
@@ -570,6 +552,26 @@ mod tests {
         // A box, loose but bounded: within 2.5 times the true range [-tanh 8, tanh 8] (the
         // pieces' remainders grow where the neuron saturates).
         assert!(last.1[0].bound(&space).width() < 5.0, "{}", last.1[0].bound(&space));
+    }
+
+    /// Every segment of a coupled flow that must not fail, and its last time and models.
+    fn flow_through(
+        coupling: &Coupling,
+        start: Vec<TaylorModel>,
+        space: &Arc<Space>,
+        settings: &Settings,
+    ) -> (Vec<Segment>, (f64, Vec<TaylorModel>)) {
+        let mut segments = vec![];
+        let mut last = (0.0, vec![]);
+        let failure = coupling
+            .flow(start, space, settings, &mut |t, seg, state| {
+                segments.push(seg.clone());
+                last = (t, state);
+                true
+            })
+            .unwrap();
+        assert!(failure.is_none(), "{failure:?}");
+        (segments, last)
     }
 
     fn settings_for(s: &Settings, n: usize) -> Settings {
