@@ -1,5 +1,5 @@
 """``percver verify CONFIG.toml`` and ``percver import-verisig``: a Verisig benchmark imported and
-verified, a known-unsafe start falsified with a replaying counterexample, a Python plant with a
+verified (Mountain Car and F1/10, at the defaults), a known-unsafe start falsified with a replaying counterexample, a Python plant with a
 reward and a journal, a Flow* model, and bad configs refused with one line and exit status 1."""
 
 import json
@@ -43,6 +43,22 @@ def test_import_verisig_then_verify(tmp_path):
     r = percver("import-verisig", MODEL, NET, NET, "-o", "two.toml", cwd=tmp_path)
     assert r.returncode == 1 and "2 network(s)" in r.stderr and r.stderr.count("\n") == 1
     assert not (tmp_path / "two.toml").exists()
+
+
+def test_f1tenth_benchmark_imported_and_verified_at_the_defaults(tmp_path):
+    """Verisig 2.0's F1/10 benchmark as a new user runs it: import, then verify with no option.
+    The whole set is lost at step 31 as it is; the adaptive default retries it with rebox."""
+    f1tenth = SUITE / "f1tenth"
+    r = percver(
+        "import-verisig", f1tenth / "f1tenth_tanh_verisig.model", "--networks", f1tenth / "tanh64x64.yml", "-o", "f1.toml", cwd=tmp_path
+    )
+    assert r.returncode == 0, r.stderr
+    r = percver("verify", "f1.toml", "--no-progress", cwd=tmp_path)
+    assert r.returncode == 0, r.stderr
+    assert "verdict: verified (100.00%" in r.stdout
+    doc = json.loads((tmp_path / "f1.result.json").read_text())
+    assert doc["verdict"] == "verified" and doc["coverage"] == 1.0
+    assert [c["options"] for c in doc["cells"]] == [{"rebox": True}]
 
 
 def test_known_unsafe_start_exits_4_with_a_counterexample_that_replays(tmp_path):
