@@ -8,6 +8,7 @@ pub mod activation;
 pub mod crown;
 pub mod error;
 pub mod network;
+pub mod prefix;
 pub mod propagate;
 pub mod verisig;
 
