@@ -288,6 +288,48 @@ mod tests {
         assert!(ratios.iter().all(|&q| q < 1.05), "prefix / dense widths {ratios:?}");
     }
 
+    /// A closed loop's state: the inputs carry error symbols (pinned, read back by `to_state`),
+    /// shared between p and q. At every sampled point of the domain and the symbols, the output
+    /// models of the composed path hold the float network of the inputs' values there.
+    #[test]
+    fn composed_prefix_keeps_the_state_error_symbols() {
+        let net = chain(8);
+        let symbols = taylor::error_symbols::ErrorSymbols::new(2, vec![0, 1], 4, 1e-15).unwrap();
+        let ctx = &symbols.ctx;
+        let space = &ctx.space;
+        let var = |v: usize, c: f64| TaylorModel::var(ctx, v).scale(c);
+        let p = var(0, 0.04).add(&var(0, 0.02).mul(&var(1, 1.0), ctx)).add(&var(2, 0.003)).add(&var(3, -0.001)).add_constant(0.3);
+        let p = p.add_interval(Interval::symmetric(1e-5));
+        let q = var(1, 0.05).add(&var(2, -0.002)).add(&var(3, 0.004)).add_constant(-0.2);
+        let settings = Settings { order: 4, ..Settings::default() };
+        let activate = |m: &Models, layer: &Layer, _, ranges: Option<&[Interval]>| crate::propagate::activate(m, layer, &settings, ranges);
+        let input = Models::from_state(&[p.clone(), q.clone()], &symbols).unwrap();
+        assert!(net.prefix().is_some());
+        let fast = crate::propagate::propagate(&net, &input, &settings).unwrap().to_state(&symbols);
+        let dense = propagate_with(&net, &input, settings.back_substitution(), &activate).unwrap().to_state(&symbols);
+        let mut state = 17;
+        for _ in 0..3000 {
+            let z: Vec<f64> = (0..4).map(|_| noise(&mut state)).collect();
+            let at: Vec<Interval> = z.iter().map(|&v| Interval::point(v)).collect();
+            let inputs = [p.eval_poly(space, &z) + 1e-5 * noise(&mut state), q.eval_poly(space, &z)];
+            for (k, &v) in net.eval(&inputs).unwrap().iter().enumerate() {
+                for (label, model) in [("prefix", &fast[k]), ("dense", &dense[k])] {
+                    let enclosure = model.eval_interval(space, &at);
+                    assert!(enclosure.contains(v), "{label} output {k} at {z:?}: {v} outside {enclosure}");
+                }
+            }
+        }
+        for (a, b) in fast.iter().zip(&dense) {
+            let (wa, wb) = (a.bound(space).width(), b.bound(space).width());
+            assert!(wa < 1.05 * wb, "prefix {wa} against dense {wb}");
+            // The symbols stay variables of the outputs, with the dense path's gains.
+            for v in 2..4 {
+                let (ga, gb) = (a.linear_coefficient(space, v), b.linear_coefficient(space, v));
+                assert!(gb != 0.0 && (ga - gb).abs() <= 0.05 * gb.abs(), "symbol {v}: {ga} against dense {gb}");
+            }
+        }
+    }
+
     #[test]
     fn no_prefix_without_a_smooth_neuron_reading_one_input_alone() {
         let layer =
