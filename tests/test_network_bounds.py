@@ -176,3 +176,42 @@ def test_verisig_reports_divergence_as_blow_up():
     net = pv.Network([(rng.normal(scale=8, size=(20, 2)), rng.normal(size=20), "tanh"), (rng.normal(size=(20, 20)), np.zeros(20), "tanh")])
     with pytest.raises(BlowUpError, match="Verisig translation, layer"):
         net.bounds([(-1, 1), (-1, 1)], method="verisig", order=3)
+
+
+def _one_input_prefix(rng) -> pv.Network:
+    """Inputs (p, q): p -> 8 tanh -> 12 sigmoid with q carried as an identity neuron, then 4 tanh
+    reading both, then 2 outputs: the engine takes the first two layers over p's range as one
+    variable (a generator and its noise model in miniature)."""
+    w1 = np.zeros((9, 2))
+    w1[:8, 0], w1[8, 1] = rng.normal(scale=3.0, size=8), 1.0
+    w2 = np.zeros((13, 9))
+    w2[:12, :8], w2[12, 8] = rng.normal(scale=1.5, size=(12, 8)), 1.0
+    return pv.Network(
+        [
+            (w1, rng.normal(scale=0.5, size=9), ("tanh",) * 8 + ("identity",)),
+            (w2, rng.normal(scale=0.5, size=13), ("sigmoid",) * 12 + ("identity",)),
+            (rng.normal(size=(4, 13)), rng.normal(scale=0.2, size=4), "tanh"),
+            (rng.normal(size=(2, 4)), [0.1, -0.1], "identity"),
+        ],
+        scale=[2.0, 0.5],
+    )
+
+
+@pytest.mark.parametrize("half_width", [1e-3, 0.05, 0.4])
+def test_one_input_prefix_encloses_samples(half_width):
+    """Models of (p, q) from a first network (polynomials with error symbols) through a network
+    whose first layers read p alone: the float forward passes of both lie inside the bounds, which
+    are tight on small boxes (on wide ones Taylor models are loose either way)."""
+    rng = np.random.default_rng(31)
+    first = pv.Network([(rng.normal(size=(2, 2)), rng.normal(scale=0.3, size=2), "tanh")])
+    net = _one_input_prefix(rng)
+    box = [(0.2 - half_width, 0.2 + half_width), (-0.3 - half_width, -0.3 + half_width)]
+    x = samples(rng, box, 5000)
+    y = net(first(x))
+    bounds = net.bounds(first.taylor_models(box, order=5), order=5)
+    assert_inside(bounds, y, f"one-input prefix +-{half_width}")
+    assert_inside(net.bounds(first.taylor_models(box, order=3), order=3), y, f"one-input prefix order 3 +-{half_width}")
+    spread = y.max(axis=0) - y.min(axis=0)
+    widths = np.diff(np.array(bounds), axis=1)[:, 0]
+    if half_width <= 0.05:
+        assert (widths <= 2.0 * spread + 1e-9).all(), f"{widths} against sampled {spread}"

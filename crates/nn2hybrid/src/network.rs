@@ -6,7 +6,9 @@
 //! layer then mixes, say, 50 tanh neurons with 2 identity neurons. Python parses the files;
 //! this IR only receives arrays and validates them.
 use crate::error::{NetworkError, Result};
+use crate::prefix::Prefix;
 use nalgebra::DMatrix;
+use std::sync::{Arc, OnceLock};
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
 pub enum Activation {
@@ -96,6 +98,9 @@ pub struct Network {
     layers: Vec<Layer>,
     scale: Option<Vec<f64>>,
     offset: Option<Vec<f64>>,
+    /// Its one-input prefix ([`crate::prefix`]), found on first use: a closed loop propagates
+    /// the same network at every step.
+    prefix: OnceLock<Option<Arc<Prefix>>>,
 }
 
 fn check_finite(values: &[f64], layer: usize, field: &'static str) -> Result<()> {
@@ -159,7 +164,7 @@ impl Network {
                 check_finite(values, last, field)?;
             }
         }
-        Ok(Network { layers: built, scale, offset })
+        Ok(Network { layers: built, scale, offset, prefix: OnceLock::new() })
     }
 
     pub fn layers(&self) -> &[Layer] {
@@ -176,6 +181,12 @@ impl Network {
     }
     pub fn offset(&self) -> Option<&[f64]> {
         self.offset.as_deref()
+    }
+
+    /// The layers up to the first that mixes one input's nonlinear part with the other inputs,
+    /// when they exist (see [`crate::prefix`]).
+    pub(crate) fn prefix(&self) -> Option<&Prefix> {
+        self.prefix.get_or_init(|| Prefix::find(self).map(Arc::new)).as_deref()
     }
 
     /// Float forward pass of one input (not rigorous: the sampling reference).

@@ -152,21 +152,21 @@ pub struct Models {
     /// Polynomial coefficients per neuron: space.len_upto(order).
     pub(crate) m: usize,
     /// (m + shared symbols) x neurons, column-major: a neuron's coefficients are contiguous.
-    coef: DMatrix<f64>,
+    pub(crate) coef: DMatrix<f64>,
     /// Symbols of one neuron each, as an activation creates them: own[i] is neuron i's
     /// coefficient of its own symbol (0: none). Kept apart from `coef` until the next affine
     /// map mixes them, because as rows of `coef` they would be a diagonal block (600 new symbols
     /// of a 600-wide layer: a 600 x 600 block, and a product 600 times larger than needed).
-    own: Option<Vec<f64>>,
+    pub(crate) own: Option<Vec<f64>>,
     pub(crate) rem: Vec<Interval>,
     /// For models built from a box: input i = centre + radius x_v for (i, v, centre, radius).
     pub variables: Vec<(usize, usize, f64, f64)>,
     /// The variable over [0, 1] that the Verisig ODEs integrate over, once added. Kept apart from
     /// the space's other unit variables (a closed loop's own time), which it must not reuse.
-    time_var: Option<usize>,
+    pub(crate) time_var: Option<usize>,
     /// The first `pinned` shared symbols are a closed loop's state error symbols: never dropped
     /// or reordered, so that the outputs can be read back over the same symbols.
-    pinned: usize,
+    pub(crate) pinned: usize,
 }
 
 fn iv(lo: f64, hi: f64) -> Interval {
@@ -207,7 +207,7 @@ impl Models {
     }
 
     /// The same models with the neurons' own symbols moved into rows of `coef`.
-    fn materialized(&self) -> Models {
+    pub(crate) fn materialized(&self) -> Models {
         let Some(own) = &self.own else { return self.clone() };
         let owners: Vec<usize> = (0..own.len()).filter(|&i| own[i] != 0.0).collect();
         let rows = self.coef.nrows();
@@ -217,6 +217,16 @@ impl Models {
             coef[(rows + k, i)] = own[i];
         }
         Models { coef, own: None, ..self.clone() }
+    }
+
+    /// The models of neurons `which`, in that order, own symbols as rows.
+    pub(crate) fn columns(&self, which: &[usize]) -> Models {
+        let all = self.materialized();
+        let mut coef = DMatrix::zeros(all.coef.nrows(), which.len());
+        for (k, &i) in which.iter().enumerate() {
+            coef.column_mut(k).copy_from(&all.coef.column(i));
+        }
+        Models { coef, rem: which.iter().map(|&i| all.rem[i]).collect(), ..all }
     }
 
     /// |coefficient| of neuron i's own symbol.
@@ -972,18 +982,36 @@ pub fn propagate_with(net: &Network, input: &Models, back_substitution: Option<u
     if input.n() != net.n_in() {
         return Err(NetworkError::input(format!("the network takes {} inputs but {} were given", net.n_in(), input.n())));
     }
-    let mut models = input.clone();
+    propagate_from(net, input.clone(), 0, back_substitution, activate)
+}
+
+/// Propagates the outputs of layer `start - 1` through the layers from `start` on and the
+/// output map.
+pub(crate) fn propagate_from(
+    net: &Network,
+    mut models: Models,
+    start: usize,
+    back_substitution: Option<usize>,
+    activate: &Activate,
+) -> Result<Models> {
     let mut crown = back_substitution.map(|steps| (steps, None));
-    for (index, layer) in net.layers().iter().enumerate() {
+    for (index, layer) in net.layers().iter().enumerate().skip(start) {
         models = layer_step(&models, layer, index + 1, &mut crown, false, activate)?.0;
     }
     Ok(models.output_map(net.scale(), net.offset()))
 }
 
-/// Direct Taylor-model propagation of `input` through the network.
+/// Direct Taylor-model propagation of `input` through the network; a prefix that reads one
+/// input alone goes over that input's range as one variable ([`crate::prefix`]).
 pub fn propagate(net: &Network, input: &Models, settings: &Settings) -> Result<Models> {
     settings.validate()?;
-    propagate_with(net, input, settings.back_substitution(), &|m: &Models, layer: &Layer, _, ranges| activate(m, layer, settings, ranges))
+    let activate = |m: &Models, layer: &Layer, _, ranges: Option<&[Interval]>| activate(m, layer, settings, ranges);
+    if let Some(prefix) = net.prefix().filter(|_| input.n() == net.n_in() && input.time_var.is_none()) {
+        if let Some(out) = prefix.propagate(net, input, settings, &activate)? {
+            return Ok(out);
+        }
+    }
+    propagate_with(net, input, settings.back_substitution(), &activate)
 }
 
 /// The network applied to Taylor models in `ctx` (e.g. a closed loop's state): the outputs as
