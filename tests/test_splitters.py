@@ -98,19 +98,33 @@ def test_bad_splitters_are_clear_errors():
 
 
 def test_adaptive_retries_with_rebox_where_precision_was_lost_and_stops_when_it_does_not_help():
-    init = Box(("x", "y"), ((0.0, 1.0), (0.0, 1.0)))
+    init = Box(("x",), ((0.0, 1.0),))
     a = pv.Adaptive(patience=2)
     lost = "step 31: division is undefined on [-1, 1]: the divisor's range contains zero (after 16 splits)"
     retry = a.again(init, _cell(init, "unknown", steps_done=30, deepest_step=31, reason=lost), init, False)
     assert retry == Retry({"rebox": True})
-    # The retry went deeper: its halves keep rebox.
-    a.learn(init, _cell(init, "unknown", steps_done=40, deepest_step=41, reason="goal undecided", options={"rebox": True}), init)
-    halves = a.again(init, _cell(init, "unknown", steps_done=40, deepest_step=41, split="x", options={"rebox": True}), init, False)
-    assert [options.get("rebox") for _, options in halves] == [True] * 2
-    assert [box.bounds[0] for box, _ in halves] == [(0.0, 0.5), (0.5, 1.0)]
+    # The retry went 10 steps deeper: nothing to compare with until a plain halving has run, so
+    # its halves run plain.
+    deeper = _cell(init, "unknown", steps_done=40, deepest_step=41, split="x", options={"rebox": True})
+    a.learn(init, deeper, init)
+    halves = a.again(init, deeper, init, False)
+    assert not any("rebox" in options for _, options in halves) and a.rebox_score(init) == (0, 1)
+    # A plain half gains 2 steps on its parent: the retry's 10 are more than twice that, so it
+    # paid, and every new cell runs reboxed (a plain cell left unknown is retried first).
+    (left, _), (right, _) = halves
+    a.learn(left, _cell(left, "unknown", steps_done=33, deepest_step=33, reason="goal undecided"), init)
+    assert a.rebox_score(init) == (1, 0)
+    assert a.again(left, _cell(left, "unknown", steps_done=33, deepest_step=33, split="x"), init, False) == Retry({"rebox": True})
+    assert all(
+        options.get("rebox")
+        for _, options in a.again(
+            right, _cell(right, "unknown", steps_done=33, deepest_step=33, split="x", options={"rebox": True}), init, False
+        )
+    )
     # The first `patience` unknown cells are retried whatever the reason; retries that go no
     # deeper stop after them, and their halves run plain.
     b = pv.Adaptive(patience=2)
+    init = Box(("x", "y"), ((0.0, 1.0), (0.0, 1.0)))
     blew = "step 9: the enclosure of 'x' blew up (3e6); split the cell or raise the order"
     for k, reason in enumerate(("step 3: goal undecided", blew, "step 3: goal undecided")):
         cell = Box(("x", "y"), ((0.0, 1.0), (k / 3, (k + 1) / 3)))
@@ -240,21 +254,25 @@ def test_adaptive_halves_the_state_whose_halvings_gained_the_most_steps():
     assert state == "d" and a.gains == {"p": [1], "d": [30]}
 
 
-def test_a_reboxed_retry_that_costs_more_per_step_than_it_gains_does_not_pay():
-    """Deeper is not enough: twice as deep at 3.5 times the seconds loses to halving, and the
-    halves run plain; a retry that verifies always pays."""
+def test_a_reboxed_retry_pays_by_steps_gained_against_halving_not_by_seconds():
+    """Twice as deep is not enough where a plain halving gains as much (a reboxed step costs
+    about two plain ones), however few seconds the retry took: the first runs last a fraction of
+    a second and their seconds are the load's. Where halving gains little, it pays; a retry that
+    verifies always pays."""
     init = Box(("x",), ((0.0, 1.0),))
-    a = pv.Adaptive(patience=2)
-    plain = _cell(init, "unknown", seconds=1.0, steps_done=33, deepest_step=33)
-    assert a.again(init, plain, init, False) == Retry({"rebox": True})
-    costly = _cell(init, "unknown", seconds=3.5, steps_done=65, deepest_step=65, split="x", options={"rebox": True})
-    a.learn(init, costly, init)
-    halves = a.again(init, costly, init, False)
-    assert a.rebox_score == [0, 1] and not any("rebox" in o for _, o in halves)
+    for half_gain, paid in ((31, False), (1, True)):
+        a = pv.Adaptive(patience=2)
+        plain = _cell(init, "unknown", seconds=1.0, steps_done=33, deepest_step=33)
+        assert a.again(init, plain, init, False) == Retry({"rebox": True})
+        deeper = _cell(init, "unknown", seconds=0.1, steps_done=65, deepest_step=65, split="x", options={"rebox": True})
+        a.learn(init, deeper, init)
+        (half, options), _ = a.again(init, deeper, init, False)
+        a.learn(half, _cell(half, "unknown", seconds=1.0, steps_done=33 + half_gain, deepest_step=33 + half_gain, options=options), init)
+        assert a.rebox_score(init) == ((1, 0) if paid else (0, 1))
     b = pv.Adaptive(patience=2)
     b.again(init, plain, init, False)
     b.learn(init, _cell(init, "verified", seconds=9.0, steps_done=92, deepest_step=92, options={"rebox": True}), init)
-    assert b.rebox_score == [1, 0]
+    assert b.rebox_score(init) == (1, 0)
 
 
 def test_cells_run_side_by_side_are_not_all_retried_before_a_retry_shows_whether_it_pays():

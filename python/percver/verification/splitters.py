@@ -172,13 +172,18 @@ class Adaptive(Bisection):
       unknown cells, and any cell lost because an operation left its domain (``division is
       undefined``, a square root of a negative range) or an enclosure blew up (remainders that
       feed back and grow make both), run again with ``rebox=True`` before they are halved. A
-      retry pays if it verifies, or gets deeper than the plain run at no more seconds per step
-      (a reboxed step carries a Taylor-model variable per state, so it can cost several plain
-      ones); the halves of one that paid keep ``rebox`` (so a loop where it decides, such as
-      F1/10's LiDAR loop, runs reboxed from then on), the others run plain. Retries go on while
-      they pay more often than not, and for the two reasons above until they have lost
-      ``patience`` times more often than paid; retries still running count as lost. ``rebox=False``
-      never retries (``True`` is ``pv.verify(rebox=True)``: every cell reboxed from the start).
+      retry pays if it verifies, or if it gets more steps deeper than the plain run than
+      ``REBOX_COST`` times what a plain halving gains (the mean of the latest, for the state
+      where halving gains most, once every state has been halved plain): a reboxed step carries a
+      Taylor-model variable per state and costs about two plain ones, while halving moves the
+      loss of precision later at no such cost. Steps, not seconds, decide: the first runs last a
+      fraction of a second, and their seconds say more about the load than about the method. The
+      halves of a retry that paid keep ``rebox`` (so a loop where it decides, such as F1/10's
+      LiDAR loop, runs reboxed from then on), the others run plain. Retries go on while they pay
+      more often than not, and for the two reasons above until they have lost ``patience`` times
+      more often than paid; retries still running, or not yet comparable with a halving, count
+      as lost. ``rebox=False`` never retries (``True`` is ``pv.verify(rebox=True)``: every cell
+      reboxed from the start).
 
     Decisions are journaled with the cells (:class:`~percver.verification.journal.Journal`): a
     resumed run replays them (the same pieces, with their engine options, for every cell the
@@ -200,11 +205,12 @@ class Adaptive(Bisection):
     probe: Optional[Callable] = field(default=None, repr=False)  # (cell, steps) -> {state: spread}, set by the campaign
     runs: int = field(default=0, repr=False)
     lineage: dict = field(default_factory=dict, repr=False)  # half's key -> (parent's steps, deepest step, stalls, state halved)
-    retried: dict = field(default_factory=dict, repr=False)  # cell key -> (steps done, deepest step, seconds) of the plain run
-    rebox_score: list = field(default_factory=lambda: [0, 0], repr=False)  # retries that paid, and not
+    retried: dict = field(default_factory=dict, repr=False)  # cell key -> (steps done, deepest step) of the plain run
+    tried: dict = field(default_factory=dict, repr=False)  # cell key -> steps its reboxed retry gained (inf: verified)
     pending: set = field(default_factory=set, repr=False)  # keys of reboxed retries not yet run
     verified: list = field(default_factory=list, repr=False)  # (cell, halvings from the initial set) of every verified cell
     gains: dict = field(default_factory=dict, repr=False)  # state -> steps its halvings gained (latest last)
+    plain_gains: dict = field(default_factory=dict, repr=False)  # the same, of halves that ran without rebox
     halved: dict = field(default_factory=dict, repr=False)  # half's key -> (parent's deepest step, state halved), until it runs
     halvings: int = field(default=0, repr=False)  # halvings decided so far
     last: dict = field(default_factory=dict, repr=False)  # state -> the halving that last cut it
@@ -252,7 +258,7 @@ class Adaptive(Bisection):
         cells, _ = grid(cell, pieces)
         cells = list(cells)
         self.cut.update(_key(piece) for piece in cells)
-        return [(piece, self._budget(piece, init)) for piece in cells]
+        return [(piece, self._options(piece, init)) for piece in cells]
 
     def learn(self, cell: Box, result, init: Box) -> None:
         self.runs += 1
@@ -261,11 +267,13 @@ class Adaptive(Bisection):
         if key in self.halved:
             deepest, state = self.halved.pop(key)
             self.gains.setdefault(state, []).append(result.deepest_step - deepest)
+            if not result.options.get("rebox"):
+                self.plain_gains.setdefault(state, []).append(result.deepest_step - deepest)
         if result.verdict == "verified":
             self.verified.append((cell, _halvings(cell, init)))
         if key in self.retried and result.options.get("rebox") and key in self.pending:
             self.pending.discard(key)
-            self.rebox_score[0 if self._rebox_won(key, result) else 1] += 1
+            self.tried[key] = np.inf if result.verdict == "verified" else result.deepest_step - self.retried[key][1]
         if result.verdict == "verified" and (result.branches or key in self.lineage):
             # A cell already cut to the size needed near it that still branches (forks on a
             # condition that crosses it at every size) keeps that size: halving it again would
@@ -281,8 +289,8 @@ class Adaptive(Bisection):
         if result.verdict != "unknown" or self.runs >= self.max_cells or self.falsified:
             self.lineage.pop(key, None)
             return None
-        if self._rebox_pays(key, result):
-            self.retried[key] = (result.steps_done, result.deepest_step, result.seconds)
+        if self._rebox_pays(key, result, init):
+            self.retried[key] = (result.steps_done, result.deepest_step)
             self.pending.add(key)
             return Retry({"rebox": True})
         explored = "max_splits" in result.options  # ran with the small budget: the call's is left to try
@@ -291,7 +299,7 @@ class Adaptive(Bisection):
             return Retry({"max_splits": None}) if explored else None
         options = dict(result.options)
         steps, deepest_step = result.steps_done, result.deepest_step
-        if options.get("rebox") and key in self.retried and not self._rebox_won(key, result):
+        if options.get("rebox") and key in self.tried and not self._rebox_won(self.tried[key], init):
             options.pop("rebox")  # the retry did not pay: the halves run plain, and compare with the plain run
             steps, deepest_step = self.retried[key][:2]
         reached, deepest, stalls, halved = self.lineage.pop(key, (-1, -1, 0, None))
@@ -309,7 +317,7 @@ class Adaptive(Bisection):
         for half in halves:
             self.lineage[_key(half)] = (steps, deepest_step, stalls, state)
             self.halved[_key(half)] = (deepest_step, state)
-        return [(half, {**options, **self._budget(half, init)}) for half in halves]
+        return [(half, {**options, **self._options(half, init)}) for half in halves]
 
     def _state_to_halve(self, cell: Box, result, init: Box, widths: dict, stalls: int, halved: Optional[str]) -> str:
         """The state whose halvings have gained the most steps lately (each state above its
@@ -342,6 +350,11 @@ class Adaptive(Bisection):
             return hint if hint in untried else untried[0]
         return max(candidates, key=lambda n: (np.mean(self.gains[n][-RECENT:]), n == hint))
 
+    def _options(self, cell: Box, init: Box) -> dict:
+        """A new cell's engine options: its in-cell budget, and rebox once retries have paid more
+        often than not (a plain run first would only be lost)."""
+        return {**self._budget(cell, init), **({"rebox": True} if self._reboxing(init) else {})}
+
     def _budget(self, cell: Box, init: Box) -> dict:
         """The in-cell splits of a cell about to run: the call's when a verified cell near it (one
         it touches, else the nearest) is at most ``reach`` halvings smaller, else ``explore`` (a
@@ -349,23 +362,35 @@ class Adaptive(Bisection):
         near = _near(cell, self.verified, init)
         return {} if near and max(near) - _halvings(cell, init) <= self.reach else {"max_splits": self.explore}
 
-    def _rebox_won(self, key: tuple, result) -> bool:
-        """Whether a reboxed retry paid: it verified, or it got deeper than the plain run at no
-        more seconds per step (rebox keeps a Taylor-model variable per state, so its steps can
-        cost several times the plain ones: on Mountain Car twice as deep at 3.5 times the
-        seconds, which halving the plain cell beats)."""
-        _, deepest, seconds = self.retried[key]
-        return result.verdict == "verified" or (result.deepest_step > deepest and result.deepest_step * seconds >= deepest * result.seconds)
+    def rebox_score(self, init: Box) -> tuple:
+        """Reboxed retries that paid, and not (see the class doc)."""
+        wins = sum(self._rebox_won(gain, init) for gain in self.tried.values())
+        return wins, len(self.tried) - wins
 
-    def _rebox_pays(self, key: tuple, result) -> bool:
+    def _rebox_won(self, gain: float, init: Box) -> bool:
+        """Whether a reboxed retry that gained ``gain`` steps over the plain run (inf: it
+        verified) paid against halving the plain cell (undecided until every state the initial
+        set is wide in has been halved plain: counted as lost)."""
+        if gain == np.inf:
+            return True
+        states = [n for ok, n in zip(above_min_width(init, init, self._min(init), 0), init.names) if ok]
+        if not states or not all(self.plain_gains.get(n) for n in states):
+            return False
+        return gain > REBOX_COST * max(np.mean(self.plain_gains[n][-RECENT:]) for n in states)
+
+    def _reboxing(self, init: Box) -> bool:
+        wins, losses = self.rebox_score(init)
+        return self.rebox is not False and wins > losses
+
+    def _rebox_pays(self, key: tuple, result, init: Box) -> bool:
         if self.rebox is False or result.options.get("rebox") or key in self.retried:
             return False
-        wins, losses = self.rebox_score
+        wins, losses = self.rebox_score(init)
         lost = any(words in (result.reason or "") for words in PRECISION_LOST)
         # Retries still running count as lost until they end: cells that run side by side must
         # not all be retried before the first retry has shown whether it pays.
         losses += len(self.pending)
-        return wins + losses < REBOX_TRIALS or wins > losses or (lost and losses - wins < self.patience)
+        return wins + losses < REBOX_TRIALS or wins > losses - len(self.pending) or (lost and losses - wins < self.patience)
 
 
 # Reasons (the engine's words) after which a cell is retried with rebox: an operation left its
@@ -374,6 +399,7 @@ PRECISION_LOST = (" is undefined on ", " blew up ")
 
 
 REBOX_TRIALS = 2  # unknown cells retried with rebox whatever the reason, to find out whether it pays
+REBOX_COST = 2  # plain steps a reboxed step costs, about (Mountain Car: 1.75 at its verified cell size)
 RECENT = 4  # halvings of a state whose gains choose the next state to halve
 
 
