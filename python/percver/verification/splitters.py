@@ -12,7 +12,7 @@ cut again. A splitter is a parameter of :func:`percver.verify` (``splitter=``), 
 
 A splitter has four methods: ``initial(init)`` (the first cells, lazily, and their count),
 ``prepare(cell, init)`` (the cell cut before it runs), ``learn(cell, result, init)`` (every cell
-settled or split) and ``again(cell, result, init, timed_out)`` (None: the verdict is final; else
+settled or split; a cell settled unknown that random runs then falsify is learnt again, falsified) and ``again(cell, result, init, timed_out)`` (None: the verdict is final; else
 the cells replacing it, or a :class:`Retry`). Cells given by ``initial``, ``prepare`` and
 ``again`` are each a Box (with the options of the cell it comes from) or ``(Box, engine
 options)``, e.g. ``{"max_splits": 0}``; a :class:`Retry` option of None drops that option (the
