@@ -207,6 +207,7 @@ class Adaptive(Bisection):
     lineage: dict = field(default_factory=dict, repr=False)  # half's key -> (parent's steps, deepest step, stalls, state halved)
     retried: dict = field(default_factory=dict, repr=False)  # cell key -> (steps done, deepest step) of the plain run
     tried: dict = field(default_factory=dict, repr=False)  # cell key -> steps its reboxed retry gained (inf: verified)
+    paid: dict = field(default_factory=dict, repr=False)  # cell key -> whether that retry paid, once decided
     pending: set = field(default_factory=set, repr=False)  # keys of reboxed retries not yet run
     verified: list = field(default_factory=list, repr=False)  # (cell, halvings from the initial set) of every verified cell
     gains: dict = field(default_factory=dict, repr=False)  # state -> steps its halvings gained (latest last)
@@ -299,7 +300,7 @@ class Adaptive(Bisection):
             return Retry({"max_splits": None}) if explored else None
         options = dict(result.options)
         steps, deepest_step = result.steps_done, result.deepest_step
-        if options.get("rebox") and key in self.tried and not self._rebox_won(self.tried[key], init):
+        if options.get("rebox") and key in self.tried and not self._rebox_won(key, init):
             options.pop("rebox")  # the retry did not pay: the halves run plain, and compare with the plain run
             steps, deepest_step = self.retried[key][:2]
         reached, deepest, stalls, halved = self.lineage.pop(key, (-1, -1, 0, None))
@@ -364,19 +365,21 @@ class Adaptive(Bisection):
 
     def rebox_score(self, init: Box) -> tuple:
         """Reboxed retries that paid, and not (see the class doc)."""
-        wins = sum(self._rebox_won(gain, init) for gain in self.tried.values())
+        wins = sum(self._rebox_won(key, init) for key in self.tried)
         return wins, len(self.tried) - wins
 
-    def _rebox_won(self, gain: float, init: Box) -> bool:
-        """Whether a reboxed retry that gained ``gain`` steps over the plain run (inf: it
-        verified) paid against halving the plain cell (undecided until every state the initial
-        set is wide in has been halved plain: counted as lost)."""
-        if gain == np.inf:
-            return True
-        states = [n for ok, n in zip(above_min_width(init, init, self._min(init), 0), init.names) if ok]
-        if not states or not all(self.plain_gains.get(n) for n in states):
-            return False
-        return gain > REBOX_COST * max(np.mean(self.plain_gains[n][-RECENT:]) for n in states)
+    def _rebox_won(self, key: tuple, init: Box) -> bool:
+        """Whether the reboxed retry of cell ``key`` paid against halving the plain cell. Decided
+        once every state the initial set is wide in has been halved plain (until then: lost), and
+        then kept: halvings of smaller cells later gain fewer steps, which says nothing about the
+        retry's size."""
+        if key not in self.paid:
+            gain = self.tried[key]
+            states = [n for ok, n in zip(above_min_width(init, init, self._min(init), 0), init.names) if ok]
+            if gain != np.inf and not (states and all(self.plain_gains.get(n) for n in states)):
+                return False
+            self.paid[key] = gain == np.inf or gain > REBOX_COST * max(np.mean(self.plain_gains[n][-RECENT:]) for n in states)
+        return self.paid[key]
 
     def _reboxing(self, init: Box) -> bool:
         wins, losses = self.rebox_score(init)
