@@ -8,7 +8,6 @@ import os
 import sys
 import threading
 from collections import deque
-from dataclasses import replace
 from typing import Optional
 
 from percver import _core
@@ -154,41 +153,19 @@ class Campaign:
         return fresh
 
     def record(self, cell: Box, outcome: _core.CellOutcome, peak_rss_mb: Optional[float]):
-        """A cell's outcome from the engine (``run_cells``). One left unknown is sampled (outside
-        the lock: the simulation must not hold up other threads' outcomes) once the splitter
-        settles it, not when it cuts it: its pieces are probed, and the cells the adaptive
-        splitter halves on its way down are many (on a Mountain Car slice their random runs took
-        more time than the engine). An engine verdict of "violated" is sampled first."""
-        if outcome.verdict == "violated":
-            cex = self._sample(cell) if self.falsify > 0 else None
-            with self.lock:
-                self._record(cell, outcome, peak_rss_mb, cex)
-            return
+        """A cell's outcome from the engine (``run_cells``); one not verified is sampled first
+        (outside the lock: the simulation must not hold up other threads' outcomes)."""
+        cex = None
+        if outcome.verdict != "verified" and self.falsify > 0:
+            cex = falsify(self.loop, self.prop, [cell], self.prop.steps, self.falsify, self.seed, probe=False)[0]
         with self.lock:
-            c = self._cell(cell, outcome, peak_rss_mb, None)
-            self.splitter.learn(cell, c, self.init)
-            pieces = self._again(cell, c)
-            if pieces or c.verdict == "verified" or self.falsify <= 0:
-                self._finish(cell, c, pieces)
-                return
-        cex = self._sample(cell)
-        with self.lock:
-            if cex is not None:
-                c = self._falsified(c, cex)
-                self.splitter.learn(cell, c, self.init)  # settled after all as falsified
-            self._finish(cell, c, None)
-
-    def _sample(self, cell: Box) -> Optional[Counterexample]:
-        return falsify(self.loop, self.prop, [cell], self.prop.steps, self.falsify, self.seed, probe=False)[0]
+            self._record(cell, outcome, peak_rss_mb, cex)
 
     def _record(self, cell: Box, outcome: _core.CellOutcome, peak_rss_mb: Optional[float], cex: Optional[Counterexample]):
-        c = self._cell(cell, outcome, peak_rss_mb, cex)
-        self.splitter.learn(cell, c, self.init)
-        self._finish(cell, c, self._again(cell, c))
-
-    def _cell(self, cell: Box, outcome: _core.CellOutcome, peak_rss_mb: Optional[float], cex: Optional[Counterexample]) -> Cell:
-        verdict = outcome.verdict
-        if verdict == "violated" and cex is None:
+        verdict, reason = outcome.verdict, outcome.reason
+        if cex is not None:
+            verdict, reason = "falsified", f"simulation violates {cex.violated} at step {cex.step}; the engine: {reason}"
+        elif verdict == "violated":
             # The engine says every state violates, yet no simulation did: say unknown
             # rather than claim a counterexample we do not have.
             verdict = "unknown"
@@ -199,8 +176,8 @@ class Campaign:
             outcome.nn_seconds,
             outcome.branches,
             outcome.steps_done,
-            outcome.reason,
-            None,
+            reason,
+            cex,
             outcome.boxes,
             peak_rss_mb,
             None if outcome.split is None else self.init.names[outcome.split],
@@ -209,14 +186,8 @@ class Campaign:
         )
         self.cell_seconds[0] += c.seconds
         self.cell_seconds[1] += 1
-        return c if cex is None else self._falsified(c, cex)
-
-    @staticmethod
-    def _falsified(c: Cell, cex: Counterexample) -> Cell:
-        reason = f"simulation violates {cex.violated} at step {cex.step}; the engine: {c.reason}"
-        return replace(c, verdict="falsified", reason=reason, counterexample=cex)
-
-    def _finish(self, cell: Box, c: Cell, pieces: Optional[list]):
+        self.splitter.learn(cell, c, self.init)
+        pieces = self._again(cell, c)
         if self._timed_out(c) and not pieces:
             c.reason += "; not split further: the cell is at min_width"
         self.journal.write(c, pieces)
