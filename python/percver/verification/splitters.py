@@ -242,11 +242,11 @@ class Adaptive(Bisection):
         return {n: self.min_width.get(n, (hi - lo) / 1024) for n, (lo, hi) in zip(init.names, init.bounds)}
 
     def prepare(self, cell: Box, init: Box) -> list:
-        """``cell`` cut to one shape its settled neighbours needed (where it is narrower): the
-        smallest of them; the narrowest width of each state over several shapes would make cells
-        smaller than any that was needed."""
-        shapes = _near(cell, self.needed, init) if self.tile else [w for box, w in self.needed if _touches(cell, box)]
-        target = min(shapes, key=lambda widths: _volume(widths, init), default={})
+        """``cell`` cut to the widths its settled neighbours needed (where they are narrower)."""
+        target = {}
+        for widths in _near(cell, self.needed, init) if self.tile else [w for box, w in self.needed if _touches(cell, box)]:
+            for n, w in widths.items():
+                target[n] = min(target.get(n, np.inf), w)
         pieces, floor = {}, self._min(init)
         for n, (lo, hi) in zip(cell.names, cell.bounds):
             if target.get(n, 0.0) > 0.0 and hi - lo > 1.5 * target[n]:
@@ -409,11 +409,6 @@ RECENT = 4  # halvings of a state whose gains choose the next state to halve
 def _halvings(cell: Box, init: Box) -> float:
     """How many halvings of the initial set make the cell (log2 of the volume ratio, over the states the initial set is wide in)."""
     return float(sum(np.log2((ihi - ilo) / (hi - lo)) for (lo, hi), (ilo, ihi) in zip(cell.bounds, init.bounds) if ihi > ilo and hi > lo))
-
-
-def _volume(widths: dict, init: Box) -> float:
-    """The share of the initial set a cell of these widths covers (over the states it is wide in)."""
-    return float(np.prod([widths[n] / (hi - lo) for n, (lo, hi) in zip(init.names, init.bounds) if hi > lo and widths.get(n, 0.0) > 0.0]))
 
 
 def _near(cell: Box, entries: list, init: Box) -> list:
