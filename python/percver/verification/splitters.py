@@ -388,12 +388,14 @@ class Adaptive(Bisection):
     def _rebox_pays(self, key: tuple, result, init: Box) -> bool:
         if self.rebox is False or result.options.get("rebox") or key in self.retried:
             return False
+        if self._reboxing(init):
+            return True  # a plain cell drawn before the retries paid
         wins, losses = self.rebox_score(init)
         lost = any(words in (result.reason or "") for words in PRECISION_LOST)
         # Retries still running count as lost until they end: cells that run side by side must
         # not all be retried before the first retry has shown whether it pays.
         losses += len(self.pending)
-        return wins + losses < REBOX_TRIALS or wins > losses - len(self.pending) or (lost and losses - wins < self.patience)
+        return wins + losses < REBOX_TRIALS or (lost and losses - wins < self.patience)
 
 
 # Reasons (the engine's words) after which a cell is retried with rebox: an operation left its
