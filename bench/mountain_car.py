@@ -98,6 +98,10 @@ def run(
     row["engine_seconds_all_attempts"] = sum(c.seconds for c in attempts)
     row["cpu_seconds"] = sum(s.get("cpu_seconds", 0.0) for s in sessions)
     row["engine_runs"] = len(attempts)
+    # The deepest step of every run, plain and reboxed apart (a reboxed step costs about two
+    # plain ones): the engine's work in a measure the load cannot change.
+    row["engine_steps"] = sum(c.deepest_step for c in attempts if not c.options.get("rebox"))
+    row["engine_steps_reboxed"] = sum(c.deepest_step for c in attempts if c.options.get("rebox"))
     plot = RESULTS / f"mountain_car_{tag}.png"
     verification.plot_coverage(result, plot)
     noise_states = verification.NOISE_STATES[noise]
@@ -242,13 +246,21 @@ def compare(args) -> None:
                     label=label.replace(":", "_").replace("=", ""),
                 )
                 runs[label] = entry
-                print(label, verification.format_row(noise, entry["row"], None), f"cpu s {entry['row']['cpu_seconds']:.0f}", flush=True)
+                row = entry["row"]
+                steps = f"steps {row['engine_steps']} (+{row['engine_steps_reboxed']} reboxed)"
+                print(label, verification.format_row(noise, row, None), f"cpu s {row['cpu_seconds']:.0f}", steps, flush=True)
             doc = json.loads(COMPARED.read_text()) if COMPARED.exists() else {}
             key = f"{noise}/{_networks_key(networks, args.controller)}" + ("" if args.p0 is None else f"/{args.p0[0]:g},{args.p0[1]:g}")
             first = runs[labels[0]]["row"]
             runs["ratio_wall"] = {k: e["row"]["wall_seconds"] / first["wall_seconds"] for k, e in runs.items() if k != labels[0]}
             runs["ratio_cpu"] = {
                 k: e["row"]["cpu_seconds"] / first["cpu_seconds"] for k, e in runs.items() if k not in (labels[0], "ratio_wall")
+            }
+            runs["ratio_steps"] = {
+                k: (e["row"]["engine_steps"] + 2 * e["row"]["engine_steps_reboxed"])
+                / (first["engine_steps"] + 2 * first["engine_steps_reboxed"])
+                for k, e in runs.items()
+                if k not in (labels[0], "ratio_wall", "ratio_cpu")
             }
             runs["date"] = time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime())
             runs["commit"] = commit

@@ -182,11 +182,12 @@ def test_f1tenth_loads_as_a_continuous_loop_with_lidar_stage():
 
 def test_f1tenth_verifies_at_the_defaults():
     """Lost at step 31 as it is (a division by a range containing zero), the whole set is
-    retried with rebox by the adaptive default and verified."""
+    retried with rebox by the adaptive default and verified, still as one cell (whatever in-cell
+    budget the splitter gave it: the options say how the cell ran)."""
     problem = load("f1tenth")
     result = problem.verify(progress=False)
     assert result.verdict == "verified" and result.coverage == pytest.approx(1.0)
-    assert [c.options for c in result.cells] == [{"rebox": True}]
+    assert [c.options.get("rebox") for c in result.cells] == [True]
 
 
 def test_f1tenth_lidar_matches_ray_casting():

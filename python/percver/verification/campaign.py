@@ -58,8 +58,9 @@ class Campaign:
     def take(self, n: int, stock: int = 0) -> list:
         """Up to n cells to run (falsifying up to max(n, stock) first), all with the same
         :meth:`options_of`; empty when none is left for now. Threads may take and stock at once:
-        cells are drawn under the lock, each by one thread."""
-        self.stock(max(n, stock))
+        cells are drawn under the lock, each by one thread. A splitter with a ``lookahead`` draws at
+        most that many ahead (one that learns from each outcome wants its next cells cut after it)."""
+        self.stock(max(n, min(stock, getattr(self.splitter, "lookahead", stock))))
         with self.lock:
             out = []
             while self.ready and len(out) < n and (not out or self.options_of(self.ready[0]) == self.options_of(out[0])):
@@ -76,7 +77,7 @@ class Campaign:
             with self.lock:
                 if len(self.ready) >= n or not (self.queue or self.left):
                     return
-                fresh = self._draw(min(self.chunk, max(n - len(self.ready), 8)))
+                fresh = self._draw(min(self.chunk, max(n - len(self.ready), min(n, 8))))
             found = falsify(self.loop, self.prop, [cell for cell, _ in fresh], self.prop.steps, 0, self.seed)
             with self.lock:
                 for (cell, options), cex in zip(fresh, found):
@@ -129,7 +130,7 @@ class Campaign:
             if self.queue:
                 cell, options = self.queue.pop()
             else:
-                cell, options = next(self.grid), {}
+                cell, options = _with_options(next(self.grid))
                 self.left -= 1
             key = cell_key(cell.to_dict(), options)
             known = self.journal.done.get(key)
@@ -138,13 +139,13 @@ class Campaign:
                 pieces = self._again(cell, known)
                 self._place(cell, known, self.journal.decided[key] if key in self.journal.decided else pieces)
                 continue
+            # The splitter sees every cut, a replayed one too (what it learns may depend on it).
+            pieces = [_with_options(piece, options) for piece in self.splitter.prepare(cell, self.init)]
             if key in self.journal.cuts:
                 pieces = self.journal.cuts[key]
-            else:
-                pieces = [(piece, options) for piece in self.splitter.prepare(cell, self.init)]
-                if len(pieces) > 1:
-                    self.journal.write_cut(cell.to_dict(), options, pieces)
-            if len(pieces) > 1:
+            elif pieces != [(cell, options)]:
+                self.journal.write_cut(cell.to_dict(), options, pieces)
+            if pieces != [(cell, options)]:  # cut, or run with other options: looked up in the journal as such
                 self.queue += pieces
                 self.bar.settled(None, more=len(pieces))
             else:
@@ -202,7 +203,7 @@ class Campaign:
         same box with more options."""
         pieces = self.splitter.again(cell, c, self.init, self._timed_out(c))
         if isinstance(pieces, Retry):
-            return [(cell, {**c.options, **pieces.options})]
+            return [(cell, {k: v for k, v in {**c.options, **pieces.options}.items() if v is not None})]
         return None if not pieces else [piece if isinstance(piece, tuple) else (piece, c.options) for piece in pieces]
 
     def _place(self, cell: Box, c: Cell, pieces: Optional[list]):
@@ -213,6 +214,11 @@ class Campaign:
         else:
             self.cells.append(c)
             self.bar.settled(c.verdict)
+
+
+def _with_options(piece, options: Optional[dict] = None) -> tuple:
+    """A splitter's cell as ``(box, options)``: a bare Box takes ``options`` (none given: {})."""
+    return piece if isinstance(piece, tuple) else (piece, options or {})
 
 
 class Progress:

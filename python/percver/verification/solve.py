@@ -108,7 +108,9 @@ def verify(
     part) is split where its enclosure was last precise and continued from there, and a condition
     (``pv.where``, in a stage or a discrete plant, e.g. a wall that some runs hit at this step) that
     holds on part of the set forks into one part per side, up to ``max_splits`` splits and forks
-    per cell (0: never; conditions then take the hull of both sides); they count as branches. An
+    per cell (0: never; conditions then take the hull of both sides; the adaptive default gives
+    cells far larger than those verified near them fewer, see :class:`~percver.Adaptive`); they
+    count as branches. An
     unknown cell's reach boxes end at the last step every part reached (``Cell.steps_done``); its
     ``Cell.deepest_step`` is the deepest step a part reached, where it gave up. While cells run,
     the progress bar shows the step each has reached (``steps=18/40 3/40``). ``rebox=True`` restarts

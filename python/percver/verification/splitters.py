@@ -4,15 +4,19 @@ cut again. A splitter is a parameter of :func:`percver.verify` (``splitter=``), 
 - :class:`Grid`: a uniform grid (``split={state: pieces}``); a cell's verdict is final.
 - :class:`Bisection`: a grid whose unknown cells are halved (along the state the engine wanted
   to split, else the widest relative to the initial set) down to ``min_width``.
-- :class:`Adaptive` (the default): no layout to give. It starts from the whole set, halves what
-  stays unknown while halving pushes the loss of precision later, cuts cells ahead of their run
-  to the size their settled neighbours needed, and retries a cell lost to a domain error or a
-  blow-up with ``rebox`` (see its doc).
+- :class:`Adaptive` (the default): no layout to give. It starts from the whole set with few
+  in-cell splits, halves what stays unknown along the state whose halvings pushed the loss of
+  precision furthest, cuts cells ahead of their run to the size needed nearby, gives cells near
+  that size the call's in-cell splits, and retries a cell with ``rebox`` where that pays (see
+  its doc).
 
 A splitter has four methods: ``initial(init)`` (the first cells, lazily, and their count),
 ``prepare(cell, init)`` (the cell cut before it runs), ``learn(cell, result, init)`` (every cell
 settled or split) and ``again(cell, result, init, timed_out)`` (None: the verdict is final; else
-the cells replacing it, each a Box or ``(Box, engine options)``, or a :class:`Retry`). Whatever
+the cells replacing it, or a :class:`Retry`). Cells given by ``initial``, ``prepare`` and
+``again`` are each a Box (with the options of the cell it comes from) or ``(Box, engine
+options)``, e.g. ``{"max_splits": 0}``; a :class:`Retry` option of None drops that option (the
+call's applies). Whatever
 it returns, every verdict comes from the engine (or a simulated counterexample) on that very
 cell; the coverage is the share of settled cells, so pieces must tile the cell they replace, as
 grids and halves do (a custom splitter's pieces are its own responsibility).
@@ -34,7 +38,8 @@ from percver.sets import Box
 
 @dataclass(frozen=True)
 class Retry:
-    """What :meth:`Adaptive.again` returns to run the same cell again with more engine settings."""
+    """What :meth:`Adaptive.again` returns to run the same cell again with other engine settings
+    (an option of None: the call's)."""
 
     options: dict
 
@@ -139,48 +144,79 @@ class Adaptive(Bisection):
     (then what is left is reported unknown, with its reason). What it learns from the cells
     settled so far (it never makes a verdict, only cells: every cell gets its own proof):
 
+    - How much to try inside a cell (its in-cell splits and forks, ``max_splits``): a cell runs
+      with ``explore`` of them until a verified cell near it (one it touches, else the nearest)
+      is at most ``reach`` halvings smaller; then with the call's. A cell far too big then fails
+      at the first loss of precision, cheaply, and is halved; one that could have been split
+      inside is not lost: a cell that cannot be halved further, or whose halvings stopped
+      gaining steps, runs again with the call's splits before it is given up.
     - Where cells must be small, and how small: a half that verified after its parent did not
       says that cells of its size are needed there; a cell that verified only after splits
-      inside it (``branches``) says that cells half its size are (an in-cell split costs more
-      than a cell of its own: on Mountain Car, a cell verified whole in about the time of one
-      split). A cell about to run that touches such a cell is cut to that size (along the
-      states where it is wider) instead of spending a run at a size that failed or split next
-      door. A cell cut ahead of its run that verifies whole proves nothing about its size, and
-      counting it would spread the smallest size over the whole set.
-    - Which state to halve: the one whose width moves the runs most up to the step where the
-      cell was lost (``probe``: the campaign simulates the runs from the centres of the cell's
-      opposite faces, :func:`percver.verification.falsify.spread`), else the one the engine
-      wanted to split; after a halving that did not push the loss of precision later (a deeper
-      ``steps_done`` or ``deepest_step`` than the parent's), the widest of the other states
-      relative to the initial set.
+      inside it (``branches``) says that cells half its size are (an in-cell split costs about
+      a cell of its own). A cell about to run is cut to the size needed where it is (by the
+      cells it touches; with ``tile=True`` also by the nearest one when it touches none, which
+      spreads the first size found over the whole set), instead of spending runs on the sizes
+      that failed there. A cell cut ahead of its run that verifies whole proves nothing about
+      its size, and counting it would spread the smallest size over the whole set.
+    - Which state to halve: the one whose recent halvings pushed the loss of precision furthest
+      (the halves' ``deepest_step`` against their parent's), each state tried once first in
+      the order of the one whose width moves the runs most up to the step where the cell was
+      lost (``probe``: the campaign simulates the runs from the centres of the cell's opposite
+      faces, :func:`percver.verification.falsify.spread`), else of the engine's choice.
+      ``learn_states=False``: that first choice, and after a halving that gained no step the
+      widest other state relative to the initial set.
     - Where halving stops paying: a lineage that gains no step ``patience`` times per state it
-      can halve in a row stops (the loss is not the cell's width).
+      can halve in a row stops (the loss is not the cell's width). Once a cell is falsified the
+      loop is unsafe: unknown cells are no longer halved (the coverage is then a lower bound).
     - Whether restarting from boxes pays (``rebox``, see :func:`percver.verify`): the first
-      ``patience`` unknown cells, and any cell lost because an operation left its domain
-      (``division is undefined``, a square root of a negative range) or an enclosure blew up
-      (remainders that feed back and grow make both), run again with ``rebox=True`` before
-      they are halved; a retry that gets deeper than the plain run wins, and its halves keep
-      ``rebox`` (so a loop where it decides, such as F1/10's LiDAR loop, runs reboxed from then
-      on). Retries go on while they win more often than not, and for the two reasons above
-      until they have lost ``patience`` times more often than won: a loop where reboxing does
-      not help pays a few runs for finding out. ``rebox=False`` never retries (``True`` is
-      ``pv.verify(rebox=True)``: every cell reboxed from the start).
+      unknown cells, and any cell lost because an operation left its domain (``division is
+      undefined``, a square root of a negative range) or an enclosure blew up (remainders that
+      feed back and grow make both), run again with ``rebox=True`` before they are halved. A
+      retry pays if it verifies, or if it gets more steps deeper than the plain run than
+      ``REBOX_COST`` times what a plain halving gains (the mean of the latest, for the state
+      where halving gains most, once every state has been halved plain): a reboxed step carries a
+      Taylor-model variable per state and costs about two plain ones, while halving moves the
+      loss of precision later at no such cost. Steps, not seconds, decide: the first runs last a
+      fraction of a second, and their seconds say more about the load than about the method. The
+      halves of a retry that paid keep ``rebox`` (so a loop where it decides, such as F1/10's
+      LiDAR loop, runs reboxed from then on), the others run plain. Retries go on while they pay
+      more often than not, and for the two reasons above until they have lost ``patience`` times
+      more often than paid; retries still running, or not yet comparable with a halving, count
+      as lost. ``rebox=False`` never retries (``True`` is ``pv.verify(rebox=True)``: every cell
+      reboxed from the start).
 
     Decisions are journaled with the cells (:class:`~percver.verification.journal.Journal`): a
-    resumed run replays them (the same pieces for every cell the journal decided; none of its
-    cells runs again) and relearns from its cells; what the journal had not decided is decided
-    afresh from all of that."""
+    resumed run replays them (the same pieces, with their engine options, for every cell the
+    journal decided; none of its cells runs again) and relearns from its cells; what the journal
+    had not decided is decided afresh from all of that."""
+
+    # Cells drawn (and probed) ahead of a free thread: one, so that every outcome can reshape the next cell.
+    lookahead = 1
 
     start: int = 1
     max_cells: int = 16384
     patience: int = 4
     rebox: Optional[bool] = None
+    explore: int = 0
+    reach: int = 2
+    learn_states: bool = True
+    tile: bool = False
     needed: list = field(default_factory=list, repr=False)  # (cell, widths needed there)
     probe: Optional[Callable] = field(default=None, repr=False)  # (cell, steps) -> {state: spread}, set by the campaign
     runs: int = field(default=0, repr=False)
     lineage: dict = field(default_factory=dict, repr=False)  # half's key -> (parent's steps, deepest step, stalls, state halved)
-    retried: dict = field(default_factory=dict, repr=False)  # cell key -> steps the plain run reached
-    rebox_score: list = field(default_factory=lambda: [0, 0], repr=False)  # retries that went deeper, and not
+    retried: dict = field(default_factory=dict, repr=False)  # cell key -> (steps done, deepest step) of the plain run
+    tried: dict = field(default_factory=dict, repr=False)  # cell key -> steps its reboxed retry gained (inf: verified)
+    paid: dict = field(default_factory=dict, repr=False)  # cell key -> whether that retry paid, once decided
+    pending: set = field(default_factory=set, repr=False)  # keys of reboxed retries not yet run
+    verified: list = field(default_factory=list, repr=False)  # (cell, halvings from the initial set) of every verified cell
+    gains: dict = field(default_factory=dict, repr=False)  # state -> steps its halvings gained (latest last)
+    plain_gains: dict = field(default_factory=dict, repr=False)  # the same, of halves that ran without rebox
+    halved: dict = field(default_factory=dict, repr=False)  # half's key -> (parent's deepest step, state halved), until it runs
+    halvings: int = field(default=0, repr=False)  # halvings decided so far
+    last: dict = field(default_factory=dict, repr=False)  # state -> the halving that last cut it
+    falsified: bool = field(default=False, repr=False)  # a counterexample decided the loop: no more halvings
+    cut: set = field(default_factory=set, repr=False)  # keys of cells cut ahead of their run to a needed size
 
     def __post_init__(self):
         super().__post_init__()
@@ -190,12 +226,17 @@ class Adaptive(Bisection):
             raise InputError(f"Adaptive(max_cells=...) must be a positive integer, got {self.max_cells!r}")
         if not (isinstance(self.patience, int) and self.patience >= 1):
             raise InputError(f"Adaptive(patience=...) must be a positive integer, got {self.patience!r}")
+        for name in ("explore", "reach"):
+            value = getattr(self, name)
+            if not (isinstance(value, int) and value >= 0):
+                raise InputError(f"Adaptive({name}=...) must be a non-negative integer, got {value!r}")
 
     def initial(self, init: Box):
         if self.rebox:
             raise InputError("Adaptive(rebox=True) is pv.verify(rebox=True): give that instead")
         widest = [n for n, (lo, hi) in zip(init.names, init.bounds) if hi > lo][:6]
-        return grid(init, {n: self.start for n in widest})
+        cells, count = grid(init, {n: self.start for n in widest})
+        return ((cell, self._budget(cell, init)) for cell in cells), count
 
     def _min(self, init: Box) -> dict:
         return {n: self.min_width.get(n, (hi - lo) / 1024) for n, (lo, hi) in zip(init.names, init.bounds)}
@@ -203,77 +244,194 @@ class Adaptive(Bisection):
     def prepare(self, cell: Box, init: Box) -> list:
         """``cell`` cut to the widths its settled neighbours needed (where they are narrower)."""
         target = {}
-        for box, widths in self.needed:
-            if _touches(cell, box):
-                for n, w in widths.items():
-                    target[n] = min(target.get(n, np.inf), w)
-        pieces = {}
+        for widths in _near(cell, self.needed, init) if self.tile else [w for box, w in self.needed if _touches(cell, box)]:
+            for n, w in widths.items():
+                target[n] = min(target.get(n, np.inf), w)
+        pieces, floor = {}, self._min(init)
         for n, (lo, hi) in zip(cell.names, cell.bounds):
-            if n in target and hi - lo > 1.5 * target[n]:
-                pieces[n] = min(int(2 ** np.ceil(np.log2((hi - lo) / target[n]))), 64)
+            if target.get(n, 0.0) > 0.0 and hi - lo > 1.5 * target[n]:
+                # Never below min_width: the floor the user set (or 1/1024 of the initial set).
+                most = 2 ** int(np.floor(np.log2((hi - lo) / floor[n]))) if floor[n] > 0 else 64
+                pieces[n] = min(int(2 ** np.ceil(np.log2((hi - lo) / target[n]))), 64, most)
+        pieces = {n: k for n, k in pieces.items() if k > 1}
         if not pieces:
             return [cell]
         cells, _ = grid(cell, pieces)
-        return list(cells)
+        cells = list(cells)
+        self.cut.update(_key(piece) for piece in cells)
+        return [(piece, self._options(piece, init)) for piece in cells]
 
     def learn(self, cell: Box, result, init: Box) -> None:
         self.runs += 1
+        self.falsified |= result.verdict == "falsified"
         key = _key(cell)
-        if key in self.retried and result.options.get("rebox"):
-            self.rebox_score[0 if result.verdict == "verified" or result.steps_done > self.retried[key] else 1] += 1
+        if key in self.halved:
+            deepest, state = self.halved.pop(key)
+            self.gains.setdefault(state, []).append(result.deepest_step - deepest)
+            if not result.options.get("rebox"):
+                self.plain_gains.setdefault(state, []).append(result.deepest_step - deepest)
+        if result.verdict == "verified":
+            self.verified.append((cell, _halvings(cell, init)))
+        if key in self.retried and result.options.get("rebox") and key in self.pending:
+            self.pending.discard(key)
+            self.tried[key] = np.inf if result.verdict == "verified" else result.deepest_step - self.retried[key][1]
         if result.verdict == "verified" and (result.branches or key in self.lineage):
-            size = bisect(cell, init, self._min(init), result.split)[0] if result.branches else cell
+            # A cell already cut to the size needed near it that still branches (forks on a
+            # condition that crosses it at every size) keeps that size: halving it again would
+            # spread ever smaller sizes from cell to cell.
+            halve = result.branches and key not in self.cut
+            size = bisect(cell, init, self._min(init), result.split)[0] if halve else cell
             self.needed.append((cell, {n: hi - lo for n, (lo, hi) in zip(size.names, size.bounds)}))
 
     def again(self, cell: Box, result, init: Box, timed_out: bool):
-        """A :class:`Retry` with rebox, halves (with their options), or None (see the class doc)."""
+        """A :class:`Retry` (with rebox, or with the call's in-cell splits), halves (with their
+        options), or None (see the class doc)."""
         key = _key(cell)
-        if result.verdict != "unknown" or self.runs >= self.max_cells:
+        if result.verdict != "unknown" or self.runs >= self.max_cells or self.falsified:
             self.lineage.pop(key, None)
             return None
-        if self._rebox_pays(key, result):
-            self.retried[key] = result.steps_done
+        if self._rebox_pays(key, result, init):
+            self.retried[key] = (result.steps_done, result.deepest_step)
+            self.pending.add(key)
             return Retry({"rebox": True})
-        if not splittable(cell, init, self._min(init), 0):
-            return None
+        explored = "max_splits" in result.options  # ran with the small budget: the call's is left to try
         widths = self._min(init)
+        if not splittable(cell, init, widths, 0):
+            return Retry({"max_splits": None}) if explored else None
+        options = dict(result.options)
+        steps, deepest_step = result.steps_done, result.deepest_step
+        if options.get("rebox") and key in self.tried and not self._rebox_won(key, init):
+            options.pop("rebox")  # the retry did not pay: the halves run plain, and compare with the plain run
+            steps, deepest_step = self.retried[key][:2]
         reached, deepest, stalls, halved = self.lineage.pop(key, (-1, -1, 0, None))
-        stalls = stalls + 1 if result.steps_done <= reached and result.deepest_step <= deepest else 0
+        stalls = stalls + 1 if steps <= reached and deepest_step <= deepest else 0
         if stalls >= self.patience * sum(above_min_width(init, init, widths, 0)):
+            if explored:
+                self.lineage[key] = (reached, deepest, stalls - 1, halved)  # the retry stops the lineage unless it goes deeper
+                return Retry({"max_splits": None})
             return None
-        hint = result.split
-        if self.probe is not None:
-            moves = self.probe(cell, result.deepest_step)
-            above = above_min_width(cell, init, widths, 0)
-            hint = max(((moves.get(n, 0.0), n) for ok, n in zip(above, cell.names) if ok), default=(0.0, hint))[1]
-        if stalls:
-            above = above_min_width(cell, init, widths, 0)
+        state = self._state_to_halve(cell, result, init, widths, stalls, halved)
+        options.pop("max_splits", None)
+        halves = _halves(cell, cell.names.index(state))
+        self.halvings += 1
+        self.last[state] = self.halvings
+        for half in halves:
+            self.lineage[_key(half)] = (steps, deepest_step, stalls, state)
+            self.halved[_key(half)] = (deepest_step, state)
+        return [(half, {**options, **self._options(half, init)}) for half in halves]
+
+    def _state_to_halve(self, cell: Box, result, init: Box, widths: dict, stalls: int, halved: Optional[str]) -> str:
+        """The state whose halvings have gained the most steps lately (each state above its
+        min_width tried first, and again when not halved lately, in the order of the probe's,
+        else the engine's, choice); with ``learn_states=False`` that choice, and after a halving
+        that gained no step the widest other state relative to the initial set."""
+        above = above_min_width(cell, init, widths, 0)
+        candidates = [n for ok, n in zip(above, cell.names) if ok]
+        if stalls and not self.learn_states:
             others = [
                 ((hi - lo) / (ihi - ilo), n)
-                for ok, n, (lo, hi), (ilo, ihi) in zip(above, cell.names, cell.bounds, init.bounds)
-                if ok and n != halved
+                for n, (lo, hi), (ilo, ihi) in zip(cell.names, cell.bounds, init.bounds)
+                if n in candidates and n != halved
             ]
-            hint = max(others)[1] if others else hint
-        options = dict(result.options)
-        if options.get("rebox") and key in self.retried and result.steps_done <= self.retried[key]:
-            options.pop("rebox")  # the retry went no deeper than the plain run: the halves run plain
-        halves = bisect(cell, init, widths, hint)
-        j = next(j for j, (a, b) in enumerate(zip(halves[0].bounds, cell.bounds)) if a != b)
-        for half in halves:
-            self.lineage[_key(half)] = (result.steps_done, result.deepest_step, stalls, cell.names[j])
-        return [(half, options) for half in halves]
+            if others:
+                return max(others)[1]
+        hint = result.split if result.split in candidates else None
+        if self.probe is not None:
+            moves = self.probe(cell, result.deepest_step)
+            hint = max(((moves.get(n, 0.0), n) for n in candidates), default=(0.0, hint))[1]
+        if hint is None:
+            rel = [((hi - lo) / (ihi - ilo), n) for n, (lo, hi), (ilo, ihi) in zip(cell.names, cell.bounds, init.bounds) if n in candidates]
+            hint = max(rel)[1]
+        if not self.learn_states:
+            return hint
+        # Untried, or not tried lately: a state whose halving gained nothing near the whole set
+        # may be the one that decides once the others are narrow.
+        untried = [n for n in candidates if not self.gains.get(n) or self.halvings - self.last.get(n, 0) > RECENT * len(candidates)]
+        if untried:
+            return hint if hint in untried else untried[0]
+        return max(candidates, key=lambda n: (np.mean(self.gains[n][-RECENT:]), n == hint))
 
-    def _rebox_pays(self, key: tuple, result) -> bool:
+    def _options(self, cell: Box, init: Box) -> dict:
+        """A new cell's engine options: its in-cell budget, and rebox once retries have paid more
+        often than not (a plain run first would only be lost)."""
+        return {**self._budget(cell, init), **({"rebox": True} if self._reboxing(init) else {})}
+
+    def _budget(self, cell: Box, init: Box) -> dict:
+        """The in-cell splits of a cell about to run: the call's when a verified cell near it (one
+        it touches, else the nearest) is at most ``reach`` halvings smaller, else ``explore`` (a
+        cell far too big fails fast and is halved, instead of splitting inside many times)."""
+        near = _near(cell, self.verified, init)
+        return {} if near and max(near) - _halvings(cell, init) <= self.reach else {"max_splits": self.explore}
+
+    def rebox_score(self, init: Box) -> tuple:
+        """Reboxed retries that paid, and not (see the class doc)."""
+        wins = sum(self._rebox_won(key, init) for key in self.tried)
+        return wins, len(self.tried) - wins
+
+    def _rebox_won(self, key: tuple, init: Box) -> bool:
+        """Whether the reboxed retry of cell ``key`` paid against halving the plain cell. Decided
+        once every state the initial set is wide in has been halved plain (until then: lost), and
+        then kept: halvings of smaller cells later gain fewer steps, which says nothing about the
+        retry's size."""
+        if key not in self.paid:
+            gain = self.tried[key]
+            states = [n for ok, n in zip(above_min_width(init, init, self._min(init), 0), init.names) if ok]
+            if gain != np.inf and not (states and all(self.plain_gains.get(n) for n in states)):
+                return False
+            self.paid[key] = gain == np.inf or gain > REBOX_COST * max(np.mean(self.plain_gains[n][-RECENT:]) for n in states)
+        return self.paid[key]
+
+    def _reboxing(self, init: Box) -> bool:
+        wins, losses = self.rebox_score(init)
+        return self.rebox is not False and wins > losses
+
+    def _rebox_pays(self, key: tuple, result, init: Box) -> bool:
         if self.rebox is False or result.options.get("rebox") or key in self.retried:
             return False
-        wins, losses = self.rebox_score
+        if self._reboxing(init):
+            return True  # a plain cell drawn before the retries paid
+        wins, losses = self.rebox_score(init)
         lost = any(words in (result.reason or "") for words in PRECISION_LOST)
-        return wins + losses < self.patience or wins > losses or (lost and losses - wins < self.patience)
+        # Retries still running count as lost until they end: cells that run side by side must
+        # not all be retried before the first retry has shown whether it pays.
+        losses += len(self.pending)
+        return wins + losses < REBOX_TRIALS or (lost and losses - wins < self.patience)
 
 
 # Reasons (the engine's words) after which a cell is retried with rebox: an operation left its
 # domain (taylor's Domain error: division, sqrt, log) or an enclosure blew up.
 PRECISION_LOST = (" is undefined on ", " blew up ")
+
+
+REBOX_TRIALS = 2  # unknown cells retried with rebox whatever the reason, to find out whether it pays
+REBOX_COST = 2  # plain steps a reboxed step costs, about (Mountain Car: 1.75 at its verified cell size)
+RECENT = 4  # halvings of a state whose gains choose the next state to halve
+
+
+def _halvings(cell: Box, init: Box) -> float:
+    """How many halvings of the initial set make the cell (log2 of the volume ratio, over the states the initial set is wide in)."""
+    return float(sum(np.log2((ihi - ilo) / (hi - lo)) for (lo, hi), (ilo, ihi) in zip(cell.bounds, init.bounds) if ihi > ilo and hi > lo))
+
+
+def _near(cell: Box, entries: list, init: Box) -> list:
+    """The values of the ``(box, value)`` entries whose boxes touch ``cell``, else of the nearest ones."""
+    touching = [value for box, value in entries if _touches(cell, box)]
+    if touching or not entries:
+        return touching
+    gaps = [(_gap(cell, box, init), value) for box, value in entries]
+    nearest = min(g for g, _ in gaps)
+    return [value for g, value in gaps if g == nearest]
+
+
+def _gap(a: Box, b: Box, init: Box) -> float:
+    """The distance between two boxes, per state relative to the initial set's width (0: they touch)."""
+    return float(
+        sum(
+            max(0.0, blo - ahi, alo - bhi) / (ihi - ilo)
+            for (alo, ahi), (blo, bhi), (ilo, ihi) in zip(a.bounds, b.bounds, init.bounds)
+            if ihi > ilo
+        )
+    )
 
 
 def _key(box: Box) -> tuple:
