@@ -12,7 +12,9 @@
 //! wide arguments), the interval image is returned as a constant model.
 use crate::error::Result;
 use crate::interval::Interval;
+use crate::space::MAX_ORDER;
 use crate::tm::{Ctx, TaylorModel};
+use std::sync::OnceLock;
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
 pub enum Func {
@@ -193,14 +195,13 @@ impl Func {
             }
             Func::Tan | Func::Tanh | Func::Sigmoid => {
                 let y = self.eval_interval(c)?;
-                let mut p = vec![Interval::ZERO, Interval::ONE]; // P_0(y) = y
+                let p = self.derivative_polynomials();
                 let mut f = Interval::ONE;
                 for j in 0..=k {
                     if j > 0 {
-                        p = self.next_derivative(&p);
                         f = f * Interval::point(j as f64).recip()?;
                     }
-                    a.push(horner(&p, y) * f);
+                    a.push(horner(&p[j], y) * f);
                 }
             }
             Func::Abs => unreachable!("abs is handled by cases"),
@@ -240,13 +241,27 @@ impl Func {
             }
             Func::Tan | Func::Tanh | Func::Sigmoid => {
                 let y = self.eval_interval(x)?;
-                let mut p = vec![Interval::ZERO, Interval::ONE];
-                for _ in 0..n {
-                    p = self.next_derivative(&p);
-                }
-                horner(&p, y) * inv_fact
+                horner(&self.derivative_polynomials()[n], y) * inv_fact
             }
             Func::Abs => unreachable!("abs is handled by cases"),
+        })
+    }
+
+    /// P_0 = y, ..., P_(MAX_ORDER + 1) for tan, tanh or sigmoid (see `next_derivative`):
+    /// constants of the function, built once instead of at every evaluation of a Taylor model.
+    fn derivative_polynomials(&self) -> &'static [Vec<Interval>] {
+        static TABLES: [OnceLock<Vec<Vec<Interval>>>; 3] = [const { OnceLock::new() }; 3];
+        let slot = match self {
+            Func::Tan => 0,
+            Func::Tanh => 1,
+            _ => 2,
+        };
+        TABLES[slot].get_or_init(|| {
+            let mut p = vec![vec![Interval::ZERO, Interval::ONE]];
+            for n in 0..=MAX_ORDER {
+                p.push(self.next_derivative(&p[n]));
+            }
+            p
         })
     }
 
