@@ -125,7 +125,8 @@ impl Func {
         // Horner: (((a_k d + a_{k-1}) d + ...) d + a_0.
         let mut acc = TaylorModel::from_interval(coefficients[k]);
         for j in (0..k).rev() {
-            acc = acc.mul(&d, ctx).add(&TaylorModel::from_interval(coefficients[j]));
+            acc = acc.mul(&d, ctx);
+            acc.add_interval_in_place(coefficients[j]);
         }
         acc.rem = acc.rem + lagrange;
         Ok(prefer_image(acc, image, space))
@@ -327,7 +328,8 @@ pub fn powf_tm(x: &TaylorModel, r: f64, ctx: &Ctx) -> Result<TaylorModel> {
     let lagrange = power_coefficient(r, k + 1)? * (Interval::point(c) + dev).powf(r - (k + 1) as f64)? * dev.powi(k as i32 + 1)?;
     let mut acc = TaylorModel::from_interval(a[k]);
     for j in (0..k).rev() {
-        acc = acc.mul(&d, ctx).add(&TaylorModel::from_interval(a[j]));
+        acc = acc.mul(&d, ctx);
+        acc.add_interval_in_place(a[j]);
     }
     acc.rem = acc.rem + lagrange;
     Ok(prefer_image(acc, image, space))

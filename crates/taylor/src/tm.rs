@@ -9,7 +9,7 @@
 //! the monomial's range. The invariant is: for every point of the domain, the function being
 //! modelled lies in `poly(point) + rem`.
 use crate::interval::{add_up, mul_up, Interval};
-use crate::space::Space;
+use crate::space::{Space, MAX_ORDER};
 use std::sync::Arc;
 
 /// Unit roundoff of binary64.
@@ -189,6 +189,20 @@ impl TaylorModel {
         self.add(&TaylorModel::constant(c))
     }
 
+    /// self + iv in place: the midpoint joins the constant term (its rounding, at most
+    /// 2u |sum|, and the radius join the remainder). The other terms are untouched, so unlike
+    /// `add` this needs no new vector and no error term for them (Horner steps of elementary
+    /// functions add a constant after every product).
+    pub fn add_interval_in_place(&mut self, iv: Interval) {
+        let m = iv.mid();
+        let sum = self.constant_term() + m;
+        match self.coef.first_mut() {
+            Some(c0) => *c0 = sum,
+            None => self.coef.push(sum),
+        }
+        self.rem = (self.rem + (iv - Interval::point(m))).inflate(mul_up(2.0 * U, sum.abs()));
+    }
+
     pub fn add_interval(&self, iv: Interval) -> TaylorModel {
         let mut t = self.clone();
         t.rem = t.rem + iv;
@@ -226,14 +240,35 @@ impl TaylorModel {
         let (a, b) = (&self.coef, &o.coef);
         let out_deg = (self.degree(space) + o.degree(space)).min(ctx.order);
         let mut c = vec![0.0; space.len_upto(out_deg)];
-        // suffix[j] = sum of |b_k| for k >= j, rounded up: the truncated part of a row.
-        let mut suffix = vec![0.0; lb + 1];
-        for j in (0..lb).rev() {
-            suffix[j] = add_up(suffix[j + 1], b[j].abs());
+        // A row i keeps b's terms below len_upto(order - deg i) and drops the rest: their sum of
+        // |b_j| is `beyond[order - deg i]`, from sums per degree (rounded up). Only b's non-zero
+        // terms take part: models of small cells keep few of the monomials below their last one
+        // (most products of the cell's radii fall under the cutoff). Both on the stack for the
+        // usual sizes: this product runs millions of times per cell.
+        let mut by_degree = [0.0f64; MAX_ORDER + 1];
+        let mut stack = [0u32; 256];
+        let mut heap = Vec::new();
+        let nonzero: &mut [u32] = if lb <= stack.len() {
+            &mut stack[..lb]
+        } else {
+            heap.resize(lb, 0);
+            &mut heap[..]
+        };
+        let mut count = 0;
+        for (j, &bj) in b.iter().enumerate() {
+            if bj != 0.0 {
+                let d = space.deg[j] as usize;
+                by_degree[d] = add_up(by_degree[d], bj.abs());
+                nonzero[count] = j as u32;
+                count += 1;
+            }
         }
-        // Only b's non-zero terms take part: models of small cells keep few of the monomials
-        // below their last one (most products of the cell's radii fall under the cutoff).
-        let nonzero: Vec<u32> = (0..lb as u32).filter(|&j| b[j as usize] != 0.0).collect();
+        let nonzero = &nonzero[..count];
+        let mut beyond = [0.0f64; MAX_ORDER + 1];
+        for d in (0..space.order).rev() {
+            beyond[d] = add_up(beyond[d + 1], by_degree[d + 1]);
+        }
+        let b_abs = add_up(beyond[0], by_degree[0]);
         let mut top = 0; // the highest index written
         let mut trunc = 0.0;
         for i in 0..la {
@@ -243,13 +278,14 @@ impl TaylorModel {
             }
             let di = space.deg[i] as usize;
             if di > ctx.order {
-                trunc = add_up(trunc, mul_up(ai.abs(), suffix[0]));
+                trunc = add_up(trunc, mul_up(ai.abs(), b_abs));
                 continue;
             }
-            let lim = lb.min(space.len_upto(ctx.order - di));
+            let room = ctx.order - di;
+            let lim = lb.min(space.len_upto(room));
             // The pairs of i list j = 0, 1, ... in order.
             let pairs = space.pairs_of(i);
-            for &j in &nonzero {
+            for &j in nonzero {
                 let j = j as usize;
                 if j >= lim {
                     break;
@@ -258,10 +294,12 @@ impl TaylorModel {
                 c[k] += ai * b[j];
                 top = top.max(k);
             }
-            trunc = add_up(trunc, mul_up(ai.abs(), suffix[lim]));
+            if lim < lb {
+                trunc = add_up(trunc, mul_up(ai.abs(), beyond[room]));
+            }
         }
         c.truncate(top + 1);
-        let rounding = add_up(mul_up(gamma(la.min(lb)), mul_up(abs_sum(a), suffix[0])), ETA * (la as f64) * (lb as f64));
+        let rounding = add_up(mul_up(gamma(la.min(lb)), mul_up(abs_sum(a), b_abs)), ETA * (la as f64) * (lb as f64));
         // A factor without remainder (Picard iterates, boxes' models) needs no bound of the
         // other's polynomial: its terms would be exact zeros.
         let rem = match (self.rem == Interval::ZERO, o.rem == Interval::ZERO) {
@@ -490,14 +528,14 @@ mod tests {
     fn sparse_products_enclose_and_drop_no_term() {
         // Factors with most coefficients zero (as a small cell's models are), some terms above
         // the order and under the cutoff: the product holds the pointwise product, and its
-        // polynomial part is the dense schoolbook product's (truncated and swept alike).
-        let c = Ctx::new(Space::get(4, 5, 1).unwrap(), 5, 1e-12);
+        // polynomial part is the dense schoolbook product's (truncated and swept alike). The
+        // second space has more monomials than the product keeps on its stack.
         let mut state = 5u64;
         let mut next = || {
             state = state.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
             ((state >> 11) as f64) / ((1u64 << 53) as f64)
         };
-        for _ in 0..20 {
+        for (c, round) in (0..40).map(|r| (Ctx::new(Space::get(if r < 20 { 4 } else { 7 }, 5, 1).unwrap(), 5, 1e-12), r)) {
             let mut factor = || {
                 let coef: Vec<f64> = (0..c.space.len())
                     .map(|_| if next() < 0.15 { (next() - 0.5) * if next() < 0.3 { 1e-13 } else { 1.0 } } else { 0.0 })
@@ -521,7 +559,7 @@ mod tests {
                 let kept = ab.coef.get(k).copied().unwrap_or(0.0);
                 assert!(kept == 0.0 || (kept - d).abs() <= 1e-15 * (1.0 + d.abs()), "term {k}: {kept} against {d}");
             }
-            for p in sample_points(&c, 300, 17) {
+            for p in sample_points(&c, 300, 17 + round) {
                 let x: Vec<Interval> = p.iter().map(|&t| Interval::point(t)).collect();
                 let truth = a.eval_poly(&c.space, &p) * b.eval_poly(&c.space, &p);
                 let enclosure = ab.eval_interval(&c.space, &x).inflate(1e-12);
@@ -600,6 +638,31 @@ mod tests {
         t.sweep(&c);
         assert_eq!(t.coef, vec![1.0]);
         assert!(t.rem.contains(1e-4) && t.rem.contains(-1e-4));
+    }
+
+    #[test]
+    fn adding_an_interval_in_place_holds_every_shifted_value() {
+        // p + r + c for r in the remainder and c in the interval, at sampled points: the
+        // constant 0.1 + 0.2 is inexact, so the constant term's rounding must be in the remainder.
+        let c = ctx(2, 3, 0);
+        let mut t = TaylorModel::affine(&c, 0.1, 0, 0.3).mul(&TaylorModel::affine(&c, -0.7, 1, 0.2), &c);
+        t.rem = Interval::new(-1e-9, 2e-9).unwrap();
+        let before = t.clone();
+        let iv = Interval::new(0.2, 0.2 + 1e-12).unwrap();
+        t.add_interval_in_place(iv);
+        let mut empty = TaylorModel::zero();
+        empty.add_interval_in_place(iv);
+        assert!(empty.bound(&c.space).contains_interval(&iv));
+        for pt in sample_points(&c, 500, 3) {
+            let x: Vec<Interval> = pt.iter().map(|&v| Interval::point(v)).collect();
+            let old = before.eval_interval(&c.space, &x) + iv;
+            let new = t.eval_interval(&c.space, &x);
+            for f in [-1.0, -0.5, 0.0, 0.5, 1.0] {
+                // A value of the old model plus the constant, well inside `old`'s own roundings.
+                let truth = old.mid() + f * 0.999 * old.radius();
+                assert!(new.contains(truth), "{new} misses {truth}");
+            }
+        }
     }
 
     #[test]
