@@ -106,7 +106,8 @@ impl Func {
         if let Some(first) = d.coef.first_mut() {
             *first = 0.0;
         }
-        let dev = d.bound(space);
+        let d_poly = d.poly_bound(space);
+        let dev = d_poly + d.rem;
         if *self == Func::Abs || !range.is_bounded() {
             // |x| is not smooth at 0; away from 0 it is +-x.
             return Ok(if *self == Func::Abs && range.lo() >= 0.0 {
@@ -125,7 +126,7 @@ impl Func {
         // Horner: (((a_k d + a_{k-1}) d + ...) d + a_0.
         let mut acc = TaylorModel::from_interval(coefficients[k]);
         for j in (0..k).rev() {
-            acc = acc.mul(&d, ctx);
+            acc = acc.mul_bounded(&d, Some(d_poly), ctx);
             acc.add_interval_in_place(coefficients[j]);
         }
         acc.rem = acc.rem + lagrange;

@@ -19,14 +19,54 @@ const ETA: f64 = 5e-324;
 
 /// gamma_n = n u / (1 - n u), rounded up.
 pub fn gamma(n: usize) -> f64 {
+    GAMMAS.get(n).copied().unwrap_or_else(|| gamma_of(n))
+}
+
+const fn gamma_of(n: usize) -> f64 {
     let nu = (n as f64 + 1.0) * U;
     (nu / (1.0 - nu)).next_up()
 }
+
+/// gamma_n for the lengths of most models and rows, built at compile time: error bounds ask for
+/// it several times per Taylor-model operation, and a division each time showed in profiles.
+static GAMMAS: [f64; 1024] = {
+    let mut table = [0.0; 1024];
+    let mut n = 0;
+    while n < table.len() {
+        table[n] = gamma_of(n);
+        n += 1;
+    }
+    table
+};
 
 /// Sum of |x| rounded up.
 pub fn abs_sum(v: &[f64]) -> f64 {
     let s: f64 = v.iter().map(|x| x.abs()).sum();
     mul_up(s, 1.0 + gamma(v.len()))
+}
+
+/// [`TaylorModel::poly_bound`] of the coefficients `coef` (a neuron's column, without a copy).
+pub fn poly_bound_of(coef: &[f64], space: &Space) -> Interval {
+    let Some((&c0, rest)) = coef.split_first() else { return Interval::ZERO };
+    let (mut both, mut pos, mut neg) = (0.0f64, 0.0f64, 0.0f64);
+    for (&c, &nonneg) in rest.iter().zip(&space.nonneg[1..coef.len()]) {
+        let a = c.abs();
+        both += if nonneg { 0.0 } else { a };
+        pos += if nonneg { 0.5 * (a + c) } else { 0.0 };
+        neg += if nonneg { 0.5 * (a - c) } else { 0.0 };
+    }
+    if !(c0 + both + pos + neg).is_finite() {
+        let (mut lo, mut hi) = (c0, c0);
+        for (i, &c) in coef.iter().enumerate().skip(1) {
+            add_term_range(&mut lo, &mut hi, c, space.nonneg[i]);
+        }
+        return Interval::raw(lo, hi);
+    }
+    // Two more roundings: adding `both` to each one-sided sum.
+    let grow = 1.0 + gamma(coef.len() + 1);
+    let below = mul_up(both + neg, grow);
+    let above = mul_up(both + pos, grow);
+    Interval::raw((c0 - below).next_down(), (c0 + above).next_up())
 }
 
 /// The truncation order, cutoff and monomial space in force for an operation.
@@ -102,26 +142,7 @@ impl TaylorModel {
     /// vectorises (it runs several times per neuron). Infinite or NaN coefficients take the
     /// term-by-term loop, which keeps them apart.
     pub fn poly_bound(&self, space: &Space) -> Interval {
-        let Some((&c0, rest)) = self.coef.split_first() else { return Interval::ZERO };
-        let (mut both, mut pos, mut neg) = (0.0f64, 0.0f64, 0.0f64);
-        for (&c, &nonneg) in rest.iter().zip(&space.nonneg[1..self.coef.len()]) {
-            let a = c.abs();
-            both += if nonneg { 0.0 } else { a };
-            pos += if nonneg { 0.5 * (a + c) } else { 0.0 };
-            neg += if nonneg { 0.5 * (a - c) } else { 0.0 };
-        }
-        if !(c0 + both + pos + neg).is_finite() {
-            let (mut lo, mut hi) = (c0, c0);
-            for (i, &c) in self.coef.iter().enumerate().skip(1) {
-                add_term_range(&mut lo, &mut hi, c, space.nonneg[i]);
-            }
-            return Interval::raw(lo, hi);
-        }
-        // Two more roundings: adding `both` to each one-sided sum.
-        let grow = 1.0 + gamma(self.coef.len() + 1);
-        let below = mul_up(both + neg, grow);
-        let above = mul_up(both + pos, grow);
-        Interval::raw((c0 - below).next_down(), (c0 + above).next_up())
+        poly_bound_of(&self.coef, space)
     }
 
     /// Range of polynomial plus remainder.
@@ -231,10 +252,17 @@ impl TaylorModel {
 
     /// The product, truncated at `ctx.order`, with cutoff applied.
     pub fn mul(&self, o: &TaylorModel, ctx: &Ctx) -> TaylorModel {
+        self.mul_bounded(o, None, ctx)
+    }
+
+    /// The product, given `o`'s polynomial bound where the caller has it (a factor that
+    /// multiplies many models, as an elementary function's argument in its Horner steps).
+    pub(crate) fn mul_bounded(&self, o: &TaylorModel, o_poly: Option<Interval>, ctx: &Ctx) -> TaylorModel {
         let space = &ctx.space;
+        let o_poly = || o_poly.unwrap_or_else(|| o.poly_bound(space));
         let (la, lb) = (self.coef.len(), o.coef.len());
         if la == 0 || lb == 0 {
-            let rem = self.bound(space) * o.bound(space);
+            let rem = self.bound(space) * (o_poly() + o.rem);
             return TaylorModel { coef: vec![], rem };
         }
         let (a, b) = (&self.coef, &o.coef);
@@ -305,8 +333,8 @@ impl TaylorModel {
         let rem = match (self.rem == Interval::ZERO, o.rem == Interval::ZERO) {
             (true, true) => Interval::ZERO,
             (true, false) => self.poly_bound(space) * o.rem,
-            (false, true) => self.rem * o.poly_bound(space),
-            (false, false) => self.poly_bound(space) * o.rem + self.rem * o.poly_bound(space) + self.rem * o.rem,
+            (false, true) => self.rem * o_poly(),
+            (false, false) => self.poly_bound(space) * o.rem + self.rem * o_poly() + self.rem * o.rem,
         };
         let mut t = TaylorModel { coef: c, rem: rem.inflate(add_up(trunc, rounding)) };
         t.sweep(ctx);
@@ -522,6 +550,15 @@ mod tests {
             ((state >> 11) as f64) / ((1u64 << 53) as f64)
         };
         (0..count).map(|_| (0..ctx.nvars()).map(|v| if ctx.space.is_unit(v) { next() } else { 2.0 * next() - 1.0 }).collect()).collect()
+    }
+
+    #[test]
+    fn gamma_table_matches_the_formula_and_bounds_n_u() {
+        for n in [0, 1, 2, 7, 100, 1023, 1024, 5000] {
+            let nu = (n as f64 + 1.0) * U;
+            assert_eq!(gamma(n), (nu / (1.0 - nu)).next_up());
+            assert!(gamma(n) > nu);
+        }
     }
 
     #[test]
