@@ -139,13 +139,7 @@ impl Func {
         match self {
             Func::Exp => {
                 let e = c.exp();
-                let mut f = Interval::ONE;
-                for j in 0..=k {
-                    if j > 0 {
-                        f = f * Interval::point(j as f64).recip()?;
-                    }
-                    a.push(e * f);
-                }
+                a.extend(inverse_factorials()[..=k].iter().map(|&f| e * f));
             }
             Func::Log => {
                 a.push(c.ln()?);
@@ -169,13 +163,7 @@ impl Func {
             Func::Sin | Func::Cos => {
                 let (s, co) = (c.sin(), c.cos());
                 let cycle = if *self == Func::Sin { [s, co, -s, -co] } else { [co, -s, -co, s] };
-                let mut f = Interval::ONE;
-                for j in 0..=k {
-                    if j > 0 {
-                        f = f * Interval::point(j as f64).recip()?;
-                    }
-                    a.push(cycle[j % 4] * f);
-                }
+                a.extend(inverse_factorials()[..=k].iter().enumerate().map(|(j, &f)| cycle[j % 4] * f));
             }
             Func::Atan => {
                 // 1 / (1 + (c + t)^2) = sum s_m t^m with (1 + c^2) s_m = -(2 c s_{m-1} + s_{m-2}).
@@ -198,13 +186,7 @@ impl Func {
             Func::Tan | Func::Tanh | Func::Sigmoid => {
                 let y = self.eval_interval(c)?;
                 let p = self.derivative_polynomials();
-                let mut f = Interval::ONE;
-                for j in 0..=k {
-                    if j > 0 {
-                        f = f * Interval::point(j as f64).recip()?;
-                    }
-                    a.push(horner(&p[j], y) * f);
-                }
+                a.extend(inverse_factorials()[..=k].iter().enumerate().map(|(j, &f)| horner(&p[j], y) * f));
             }
             Func::Abs => unreachable!("abs is handled by cases"),
         }
@@ -214,8 +196,7 @@ impl Func {
     /// An enclosure of phi^(k+1)(xi) / (k+1)! over xi in `x`.
     fn lagrange(&self, x: Interval, k: usize) -> Result<Interval> {
         let n = k + 1;
-        let inv_fact =
-            (1..=n).try_fold(Interval::ONE, |f, j| Ok::<_, crate::error::TaylorError>(f * Interval::point(j as f64).recip()?))?;
+        let inv_fact = inverse_factorials()[n];
         Ok(match self {
             Func::Exp => x.exp() * inv_fact,
             // log^(n)(x) / n! = (-1)^(n+1) / (n x^n)
@@ -287,6 +268,19 @@ impl Func {
         }
         out
     }
+}
+
+/// Enclosures of 1 / j! for j = 0..=MAX_ORDER + 1, each the last times [1 / j] (as the
+/// coefficients and Lagrange terms were built at every evaluation before): built once.
+fn inverse_factorials() -> &'static [Interval] {
+    static TABLE: OnceLock<Vec<Interval>> = OnceLock::new();
+    TABLE.get_or_init(|| {
+        let mut f = vec![Interval::ONE];
+        for j in 1..=MAX_ORDER + 1 {
+            f.push(f[j - 1] * Interval::point(j as f64).recip().expect("j >= 1"));
+        }
+        f
+    })
 }
 
 /// Interval Horner evaluation of a polynomial with interval coefficients.

@@ -183,13 +183,13 @@ impl TaylorModel {
     }
 
     fn combine(&self, o: &TaylorModel, sign: f64) -> TaylorModel {
-        let n = self.coef.len().max(o.coef.len());
-        let mut coef = vec![0.0; n];
-        for (i, c) in coef.iter_mut().enumerate() {
-            let a = self.coef.get(i).copied().unwrap_or(0.0);
-            let b = o.coef.get(i).copied().unwrap_or(0.0);
-            *c = a + sign * b;
-        }
+        let (a, b) = (&self.coef, &o.coef);
+        let shared = a.len().min(b.len());
+        let mut coef = Vec::with_capacity(a.len().max(b.len()));
+        coef.extend(a[..shared].iter().zip(&b[..shared]).map(|(x, y)| x + sign * y));
+        // Past the shorter one, a term is one factor's own (0 + s y is s y exactly).
+        coef.extend_from_slice(&a[shared..]);
+        coef.extend(b[shared..].iter().map(|y| sign * y));
         // fl(a + b) is within u |fl(a + b)| / (1 - u) of a + b; bounded by 2u |c|.
         let err = mul_up(abs_sum(&coef), 2.0 * U);
         let rem = if sign > 0.0 { self.rem + o.rem } else { self.rem - o.rem };
