@@ -311,10 +311,16 @@ fn interpolation(d: usize) -> &'static Interpolation {
 /// Truncating the Chebyshev series rather than the power series: for the same error the degree
 /// is lower (power coefficients of a smooth function are larger by up to 2^(m-1)), and every
 /// degree less halves the cost of composing the polynomial with a neuron's Taylor model.
-fn interpolate(f: Smooth, c: f64, s: f64, d: usize, budget: f64) -> (Vec<f64>, f64) {
+/// Also returns a lower bound of phi's rise over the nodes (see `enclose`).
+fn interpolate(f: Smooth, c: f64, s: f64, d: usize, budget: f64) -> (Vec<f64>, f64, f64) {
     let table = interpolation(d);
     let mut values = [0.0; taylor::space::MAX_ORDER + 3];
     table.nodes.iter().zip(values.iter_mut()).for_each(|(&x, v)| *v = f.eval(c + x / s));
+    let nodes = &values[..table.nodes.len()];
+    let (low, high) = nodes.iter().fold((f64::INFINITY, f64::NEG_INFINITY), |(l, h), &v| (l.min(v), h.max(v)));
+    // Each float value is within a few ulps of phi at its node (libm's tanh and exp, one
+    // division): 16 ulps of the largest value cover both ends with room.
+    let rise = (high - low) - 16.0 * f64::EPSILON * high.abs().max(low.abs());
     let mut cheb = [0.0; taylor::space::MAX_ORDER + 3];
     cheb.iter_mut().zip(&table.rows).for_each(|(c, row)| *c = row.iter().zip(&values).map(|(r, v)| r * v).sum());
     let cheb = &cheb[..table.rows.len()];
@@ -328,7 +334,7 @@ fn interpolate(f: Smooth, c: f64, s: f64, d: usize, budget: f64) -> (Vec<f64>, f
     for (c, row) in cheb.iter().zip(chebyshev_to_power()).take(degree + 1) {
         power.iter_mut().zip(row).for_each(|(p, t)| *p += c * t);
     }
-    (power, estimate)
+    (power, estimate, rise)
 }
 
 /// Coefficients of q(tau_p + w) in w (repeated synthetic division).
@@ -414,8 +420,10 @@ fn ln_pieces() -> &'static [f64; PIECES.len()] {
 /// The enclosure of phi on `range` by a polynomial of degree at most `degree`, lower where the
 /// degrees dropped cost at most about `budget` (see `interpolate`; 0 drops only zero ones).
 pub fn enclose(f: Smooth, range: Interval, degree: usize, budget: f64) -> PolyEnclosure {
-    let image = f.image(range);
-    let constant = || PolyEnclosure { centre: range.mid(), scale: 0.0, coef: vec![image.mid()], err: image.radius() };
+    let constant = || {
+        let image = f.image(range);
+        PolyEnclosure { centre: range.mid(), scale: 0.0, coef: vec![image.mid()], err: image.radius() }
+    };
     let c = range.mid();
     let h = (range.hi() - c).max(c - range.lo()).next_up();
     if h.is_nan() || h <= 0.0 || !h.is_finite() {
@@ -423,7 +431,7 @@ pub fn enclose(f: Smooth, range: Interval, degree: usize, budget: f64) -> PolyEn
     }
     // s <= 1 / h, so that |s (y - c)| <= 1 on the range.
     let s = Interval::point(h).recip().expect("h > 0").lo();
-    let (q, estimate) = interpolate(f, c, s, degree, budget);
+    let (q, estimate, rise) = interpolate(f, c, s, degree, budget);
     let tail = (estimate * TAIL_FRACTION).max(TAIL_MIN);
     let distance = range.mig();
     let Some((pieces, k, disc)) = plan(f, h, distance, tail, q.len() - 1) else { return constant() };
@@ -436,7 +444,10 @@ pub fn enclose(f: Smooth, range: Interval, degree: usize, budget: f64) -> PolyEn
         let h_p = (b - c_p).max(c_p - a).next_up();
         err = err.max(piece_bound(f, &q, c, s, c_p, h_p, k, disc));
     }
-    if err.is_nan() || err >= image.radius() {
+    // The polynomial is kept unless its error reaches the radius of phi's image. phi increases,
+    // so half the nodes' rise is below that radius: the image's two enclosures of phi are
+    // computed only when the error comes near it (this runs for every neuron).
+    if err.is_nan() || (!(err < 0.5 * rise) && err >= f.image(range).radius()) {
         return constant();
     }
     PolyEnclosure { centre: c, scale: s, coef: q, err }

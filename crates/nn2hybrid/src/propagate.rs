@@ -46,7 +46,7 @@ use rayon::prelude::*;
 use std::sync::Arc;
 use taylor::error_symbols::ErrorSymbols;
 use taylor::interval::{add_up, mul_up};
-use taylor::tm::{gamma, U};
+use taylor::tm::{gamma, poly_bound_of, U};
 use taylor::{Ctx, Interval, Space, TaylorModel};
 
 /// Smallest subnormal: the absolute error a product may lose to underflow.
@@ -247,8 +247,7 @@ impl Models {
     /// The range of neuron i: its polynomial's bound plus symbols and remainder (what a ReLU's
     /// relaxation starts from).
     pub(crate) fn range(&self, i: usize) -> Interval {
-        let p = TaylorModel { coef: self.poly(i).to_vec(), rem: Interval::ZERO };
-        p.poly_bound(&self.ctx.space) + self.rem[i].inflate(self.sym_mag(i))
+        poly_bound_of(self.poly(i), &self.ctx.space) + self.rem[i].inflate(self.sym_mag(i))
     }
 
     /// Models of the box `input`: the `max_vars` widest non-degenerate inputs become polynomial
@@ -826,8 +825,8 @@ const TRUNCATION_SHARE: f64 = 0.001;
 /// One smooth neuron: phi(p + delta) in q(s (p - c)) +- e + phi'(Y) delta.
 fn smooth_neuron(f: Smooth, models: &Models, i: usize) -> NeuronOut {
     let ctx = &models.ctx;
-    let p = TaylorModel { coef: models.poly(i).to_vec(), rem: Interval::ZERO };
-    let range = p.poly_bound(&ctx.space);
+    let p = models.poly(i);
+    let range = poly_bound_of(p, &ctx.space);
     let symbols = models.sym_mag(i);
     let delta = models.rem[i].inflate(symbols);
     let y = range + delta;
@@ -842,8 +841,7 @@ fn smooth_neuron(f: Smooth, models: &Models, i: usize) -> NeuronOut {
         return constant();
     }
     let enc = enclose(f, range, ctx.order, TRUNCATION_SHARE * slope.mag() * delta.mag());
-    let mut poly =
-        if enc.scale == 0.0 { TaylorModel::constant(enc.coef[0]) } else { compose(&enc.coef, enc.centre, enc.scale, &p.coef, ctx) };
+    let mut poly = if enc.scale == 0.0 { TaylorModel::constant(enc.coef[0]) } else { compose(&enc.coef, enc.centre, enc.scale, p, ctx) };
     let mut error = Interval::symmetric(enc.err) + poly.rem;
     poly.rem = Interval::ZERO;
     let mut sym_factor = 0.0;

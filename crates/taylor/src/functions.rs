@@ -12,7 +12,9 @@
 //! wide arguments), the interval image is returned as a constant model.
 use crate::error::Result;
 use crate::interval::Interval;
+use crate::space::MAX_ORDER;
 use crate::tm::{Ctx, TaylorModel};
+use std::sync::OnceLock;
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
 pub enum Func {
@@ -104,7 +106,8 @@ impl Func {
         if let Some(first) = d.coef.first_mut() {
             *first = 0.0;
         }
-        let dev = d.bound(space);
+        let d_poly = d.poly_bound(space);
+        let dev = d_poly + d.rem;
         if *self == Func::Abs || !range.is_bounded() {
             // |x| is not smooth at 0; away from 0 it is +-x.
             return Ok(if *self == Func::Abs && range.lo() >= 0.0 {
@@ -123,7 +126,8 @@ impl Func {
         // Horner: (((a_k d + a_{k-1}) d + ...) d + a_0.
         let mut acc = TaylorModel::from_interval(coefficients[k]);
         for j in (0..k).rev() {
-            acc = acc.mul(&d, ctx).add(&TaylorModel::from_interval(coefficients[j]));
+            acc = acc.mul_bounded(&d, Some(d_poly), ctx);
+            acc.add_interval_in_place(coefficients[j]);
         }
         acc.rem = acc.rem + lagrange;
         Ok(prefer_image(acc, image, space))
@@ -135,13 +139,7 @@ impl Func {
         match self {
             Func::Exp => {
                 let e = c.exp();
-                let mut f = Interval::ONE;
-                for j in 0..=k {
-                    if j > 0 {
-                        f = f * Interval::point(j as f64).recip()?;
-                    }
-                    a.push(e * f);
-                }
+                a.extend(inverse_factorials()[..=k].iter().map(|&f| e * f));
             }
             Func::Log => {
                 a.push(c.ln()?);
@@ -165,13 +163,7 @@ impl Func {
             Func::Sin | Func::Cos => {
                 let (s, co) = (c.sin(), c.cos());
                 let cycle = if *self == Func::Sin { [s, co, -s, -co] } else { [co, -s, -co, s] };
-                let mut f = Interval::ONE;
-                for j in 0..=k {
-                    if j > 0 {
-                        f = f * Interval::point(j as f64).recip()?;
-                    }
-                    a.push(cycle[j % 4] * f);
-                }
+                a.extend(inverse_factorials()[..=k].iter().enumerate().map(|(j, &f)| cycle[j % 4] * f));
             }
             Func::Atan => {
                 // 1 / (1 + (c + t)^2) = sum s_m t^m with (1 + c^2) s_m = -(2 c s_{m-1} + s_{m-2}).
@@ -193,15 +185,8 @@ impl Func {
             }
             Func::Tan | Func::Tanh | Func::Sigmoid => {
                 let y = self.eval_interval(c)?;
-                let mut p = vec![Interval::ZERO, Interval::ONE]; // P_0(y) = y
-                let mut f = Interval::ONE;
-                for j in 0..=k {
-                    if j > 0 {
-                        p = self.next_derivative(&p);
-                        f = f * Interval::point(j as f64).recip()?;
-                    }
-                    a.push(horner(&p, y) * f);
-                }
+                let p = self.derivative_polynomials();
+                a.extend(inverse_factorials()[..=k].iter().enumerate().map(|(j, &f)| horner(&p[j], y) * f));
             }
             Func::Abs => unreachable!("abs is handled by cases"),
         }
@@ -211,8 +196,7 @@ impl Func {
     /// An enclosure of phi^(k+1)(xi) / (k+1)! over xi in `x`.
     fn lagrange(&self, x: Interval, k: usize) -> Result<Interval> {
         let n = k + 1;
-        let inv_fact =
-            (1..=n).try_fold(Interval::ONE, |f, j| Ok::<_, crate::error::TaylorError>(f * Interval::point(j as f64).recip()?))?;
+        let inv_fact = inverse_factorials()[n];
         Ok(match self {
             Func::Exp => x.exp() * inv_fact,
             // log^(n)(x) / n! = (-1)^(n+1) / (n x^n)
@@ -240,13 +224,27 @@ impl Func {
             }
             Func::Tan | Func::Tanh | Func::Sigmoid => {
                 let y = self.eval_interval(x)?;
-                let mut p = vec![Interval::ZERO, Interval::ONE];
-                for _ in 0..n {
-                    p = self.next_derivative(&p);
-                }
-                horner(&p, y) * inv_fact
+                horner(&self.derivative_polynomials()[n], y) * inv_fact
             }
             Func::Abs => unreachable!("abs is handled by cases"),
+        })
+    }
+
+    /// P_0 = y, ..., P_(MAX_ORDER + 1) for tan, tanh or sigmoid (see `next_derivative`):
+    /// constants of the function, built once instead of at every evaluation of a Taylor model.
+    fn derivative_polynomials(&self) -> &'static [Vec<Interval>] {
+        static TABLES: [OnceLock<Vec<Vec<Interval>>>; 3] = [const { OnceLock::new() }; 3];
+        let slot = match self {
+            Func::Tan => 0,
+            Func::Tanh => 1,
+            _ => 2,
+        };
+        TABLES[slot].get_or_init(|| {
+            let mut p = vec![vec![Interval::ZERO, Interval::ONE]];
+            for n in 0..=MAX_ORDER {
+                p.push(self.next_derivative(&p[n]));
+            }
+            p
         })
     }
 
@@ -270,6 +268,19 @@ impl Func {
         }
         out
     }
+}
+
+/// Enclosures of 1 / j! for j = 0..=MAX_ORDER + 1, each the last times [1 / j] (as the
+/// coefficients and Lagrange terms were built at every evaluation before): built once.
+fn inverse_factorials() -> &'static [Interval] {
+    static TABLE: OnceLock<Vec<Interval>> = OnceLock::new();
+    TABLE.get_or_init(|| {
+        let mut f = vec![Interval::ONE];
+        for j in 1..=MAX_ORDER + 1 {
+            f.push(f[j - 1] * Interval::point(j as f64).recip().expect("j >= 1"));
+        }
+        f
+    })
 }
 
 /// Interval Horner evaluation of a polynomial with interval coefficients.
@@ -312,7 +323,8 @@ pub fn powf_tm(x: &TaylorModel, r: f64, ctx: &Ctx) -> Result<TaylorModel> {
     let lagrange = power_coefficient(r, k + 1)? * (Interval::point(c) + dev).powf(r - (k + 1) as f64)? * dev.powi(k as i32 + 1)?;
     let mut acc = TaylorModel::from_interval(a[k]);
     for j in (0..k).rev() {
-        acc = acc.mul(&d, ctx).add(&TaylorModel::from_interval(a[j]));
+        acc = acc.mul(&d, ctx);
+        acc.add_interval_in_place(a[j]);
     }
     acc.rem = acc.rem + lagrange;
     Ok(prefer_image(acc, image, space))

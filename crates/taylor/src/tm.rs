@@ -9,7 +9,7 @@
 //! the monomial's range. The invariant is: for every point of the domain, the function being
 //! modelled lies in `poly(point) + rem`.
 use crate::interval::{add_up, mul_up, Interval};
-use crate::space::Space;
+use crate::space::{Space, MAX_ORDER};
 use std::sync::Arc;
 
 /// Unit roundoff of binary64.
@@ -19,14 +19,54 @@ const ETA: f64 = 5e-324;
 
 /// gamma_n = n u / (1 - n u), rounded up.
 pub fn gamma(n: usize) -> f64 {
+    GAMMAS.get(n).copied().unwrap_or_else(|| gamma_of(n))
+}
+
+const fn gamma_of(n: usize) -> f64 {
     let nu = (n as f64 + 1.0) * U;
     (nu / (1.0 - nu)).next_up()
 }
+
+/// gamma_n for the lengths of most models and rows, built at compile time: error bounds ask for
+/// it several times per Taylor-model operation, and a division each time showed in profiles.
+static GAMMAS: [f64; 1024] = {
+    let mut table = [0.0; 1024];
+    let mut n = 0;
+    while n < table.len() {
+        table[n] = gamma_of(n);
+        n += 1;
+    }
+    table
+};
 
 /// Sum of |x| rounded up.
 pub fn abs_sum(v: &[f64]) -> f64 {
     let s: f64 = v.iter().map(|x| x.abs()).sum();
     mul_up(s, 1.0 + gamma(v.len()))
+}
+
+/// [`TaylorModel::poly_bound`] of the coefficients `coef` (a neuron's column, without a copy).
+pub fn poly_bound_of(coef: &[f64], space: &Space) -> Interval {
+    let Some((&c0, rest)) = coef.split_first() else { return Interval::ZERO };
+    let (mut both, mut pos, mut neg) = (0.0f64, 0.0f64, 0.0f64);
+    for (&c, &nonneg) in rest.iter().zip(&space.nonneg[1..coef.len()]) {
+        let a = c.abs();
+        both += if nonneg { 0.0 } else { a };
+        pos += if nonneg { 0.5 * (a + c) } else { 0.0 };
+        neg += if nonneg { 0.5 * (a - c) } else { 0.0 };
+    }
+    if !(c0 + both + pos + neg).is_finite() {
+        let (mut lo, mut hi) = (c0, c0);
+        for (i, &c) in coef.iter().enumerate().skip(1) {
+            add_term_range(&mut lo, &mut hi, c, space.nonneg[i]);
+        }
+        return Interval::raw(lo, hi);
+    }
+    // Two more roundings: adding `both` to each one-sided sum.
+    let grow = 1.0 + gamma(coef.len() + 1);
+    let below = mul_up(both + neg, grow);
+    let above = mul_up(both + pos, grow);
+    Interval::raw((c0 - below).next_down(), (c0 + above).next_up())
 }
 
 /// The truncation order, cutoff and monomial space in force for an operation.
@@ -102,26 +142,7 @@ impl TaylorModel {
     /// vectorises (it runs several times per neuron). Infinite or NaN coefficients take the
     /// term-by-term loop, which keeps them apart.
     pub fn poly_bound(&self, space: &Space) -> Interval {
-        let Some((&c0, rest)) = self.coef.split_first() else { return Interval::ZERO };
-        let (mut both, mut pos, mut neg) = (0.0f64, 0.0f64, 0.0f64);
-        for (&c, &nonneg) in rest.iter().zip(&space.nonneg[1..self.coef.len()]) {
-            let a = c.abs();
-            both += if nonneg { 0.0 } else { a };
-            pos += if nonneg { 0.5 * (a + c) } else { 0.0 };
-            neg += if nonneg { 0.5 * (a - c) } else { 0.0 };
-        }
-        if !(c0 + both + pos + neg).is_finite() {
-            let (mut lo, mut hi) = (c0, c0);
-            for (i, &c) in self.coef.iter().enumerate().skip(1) {
-                add_term_range(&mut lo, &mut hi, c, space.nonneg[i]);
-            }
-            return Interval::raw(lo, hi);
-        }
-        // Two more roundings: adding `both` to each one-sided sum.
-        let grow = 1.0 + gamma(self.coef.len() + 1);
-        let below = mul_up(both + neg, grow);
-        let above = mul_up(both + pos, grow);
-        Interval::raw((c0 - below).next_down(), (c0 + above).next_up())
+        poly_bound_of(&self.coef, space)
     }
 
     /// Range of polynomial plus remainder.
@@ -162,13 +183,13 @@ impl TaylorModel {
     }
 
     fn combine(&self, o: &TaylorModel, sign: f64) -> TaylorModel {
-        let n = self.coef.len().max(o.coef.len());
-        let mut coef = vec![0.0; n];
-        for (i, c) in coef.iter_mut().enumerate() {
-            let a = self.coef.get(i).copied().unwrap_or(0.0);
-            let b = o.coef.get(i).copied().unwrap_or(0.0);
-            *c = a + sign * b;
-        }
+        let (a, b) = (&self.coef, &o.coef);
+        let shared = a.len().min(b.len());
+        let mut coef = Vec::with_capacity(a.len().max(b.len()));
+        coef.extend(a[..shared].iter().zip(&b[..shared]).map(|(x, y)| x + sign * y));
+        // Past the shorter one, a term is one factor's own (0 + s y is s y exactly).
+        coef.extend_from_slice(&a[shared..]);
+        coef.extend(b[shared..].iter().map(|y| sign * y));
         // fl(a + b) is within u |fl(a + b)| / (1 - u) of a + b; bounded by 2u |c|.
         let err = mul_up(abs_sum(&coef), 2.0 * U);
         let rem = if sign > 0.0 { self.rem + o.rem } else { self.rem - o.rem };
@@ -187,6 +208,20 @@ impl TaylorModel {
 
     pub fn add_constant(&self, c: f64) -> TaylorModel {
         self.add(&TaylorModel::constant(c))
+    }
+
+    /// self + iv in place: the midpoint joins the constant term (its rounding, at most
+    /// 2u |sum|, and the radius join the remainder). The other terms are untouched, so unlike
+    /// `add` this needs no new vector and no error term for them (Horner steps of elementary
+    /// functions add a constant after every product).
+    pub fn add_interval_in_place(&mut self, iv: Interval) {
+        let m = iv.mid();
+        let sum = self.constant_term() + m;
+        match self.coef.first_mut() {
+            Some(c0) => *c0 = sum,
+            None => self.coef.push(sum),
+        }
+        self.rem = (self.rem + (iv - Interval::point(m))).inflate(mul_up(2.0 * U, sum.abs()));
     }
 
     pub fn add_interval(&self, iv: Interval) -> TaylorModel {
@@ -217,23 +252,51 @@ impl TaylorModel {
 
     /// The product, truncated at `ctx.order`, with cutoff applied.
     pub fn mul(&self, o: &TaylorModel, ctx: &Ctx) -> TaylorModel {
+        self.mul_bounded(o, None, ctx)
+    }
+
+    /// The product, given `o`'s polynomial bound where the caller has it (a factor that
+    /// multiplies many models, as an elementary function's argument in its Horner steps).
+    pub(crate) fn mul_bounded(&self, o: &TaylorModel, o_poly: Option<Interval>, ctx: &Ctx) -> TaylorModel {
         let space = &ctx.space;
+        let o_poly = || o_poly.unwrap_or_else(|| o.poly_bound(space));
         let (la, lb) = (self.coef.len(), o.coef.len());
         if la == 0 || lb == 0 {
-            let rem = self.bound(space) * o.bound(space);
+            let rem = self.bound(space) * (o_poly() + o.rem);
             return TaylorModel { coef: vec![], rem };
         }
         let (a, b) = (&self.coef, &o.coef);
         let out_deg = (self.degree(space) + o.degree(space)).min(ctx.order);
         let mut c = vec![0.0; space.len_upto(out_deg)];
-        // suffix[j] = sum of |b_k| for k >= j, rounded up: the truncated part of a row.
-        let mut suffix = vec![0.0; lb + 1];
-        for j in (0..lb).rev() {
-            suffix[j] = add_up(suffix[j + 1], b[j].abs());
+        // A row i keeps b's terms below len_upto(order - deg i) and drops the rest: their sum of
+        // |b_j| is `beyond[order - deg i]`, from sums per degree (rounded up). Only b's non-zero
+        // terms take part: models of small cells keep few of the monomials below their last one
+        // (most products of the cell's radii fall under the cutoff). Both on the stack for the
+        // usual sizes: this product runs millions of times per cell.
+        let mut by_degree = [0.0f64; MAX_ORDER + 1];
+        let mut stack = [0u32; 256];
+        let mut heap = Vec::new();
+        let nonzero: &mut [u32] = if lb <= stack.len() {
+            &mut stack[..lb]
+        } else {
+            heap.resize(lb, 0);
+            &mut heap[..]
+        };
+        let mut count = 0;
+        for (j, &bj) in b.iter().enumerate() {
+            if bj != 0.0 {
+                let d = space.deg[j] as usize;
+                by_degree[d] = add_up(by_degree[d], bj.abs());
+                nonzero[count] = j as u32;
+                count += 1;
+            }
         }
-        // Only b's non-zero terms take part: models of small cells keep few of the monomials
-        // below their last one (most products of the cell's radii fall under the cutoff).
-        let nonzero: Vec<u32> = (0..lb as u32).filter(|&j| b[j as usize] != 0.0).collect();
+        let nonzero = &nonzero[..count];
+        let mut beyond = [0.0f64; MAX_ORDER + 1];
+        for d in (0..space.order).rev() {
+            beyond[d] = add_up(beyond[d + 1], by_degree[d + 1]);
+        }
+        let b_abs = add_up(beyond[0], by_degree[0]);
         let mut top = 0; // the highest index written
         let mut trunc = 0.0;
         for i in 0..la {
@@ -243,13 +306,14 @@ impl TaylorModel {
             }
             let di = space.deg[i] as usize;
             if di > ctx.order {
-                trunc = add_up(trunc, mul_up(ai.abs(), suffix[0]));
+                trunc = add_up(trunc, mul_up(ai.abs(), b_abs));
                 continue;
             }
-            let lim = lb.min(space.len_upto(ctx.order - di));
+            let room = ctx.order - di;
+            let lim = lb.min(space.len_upto(room));
             // The pairs of i list j = 0, 1, ... in order.
             let pairs = space.pairs_of(i);
-            for &j in &nonzero {
+            for &j in nonzero {
                 let j = j as usize;
                 if j >= lim {
                     break;
@@ -258,17 +322,19 @@ impl TaylorModel {
                 c[k] += ai * b[j];
                 top = top.max(k);
             }
-            trunc = add_up(trunc, mul_up(ai.abs(), suffix[lim]));
+            if lim < lb {
+                trunc = add_up(trunc, mul_up(ai.abs(), beyond[room]));
+            }
         }
         c.truncate(top + 1);
-        let rounding = add_up(mul_up(gamma(la.min(lb)), mul_up(abs_sum(a), suffix[0])), ETA * (la as f64) * (lb as f64));
+        let rounding = add_up(mul_up(gamma(la.min(lb)), mul_up(abs_sum(a), b_abs)), ETA * (la as f64) * (lb as f64));
         // A factor without remainder (Picard iterates, boxes' models) needs no bound of the
         // other's polynomial: its terms would be exact zeros.
         let rem = match (self.rem == Interval::ZERO, o.rem == Interval::ZERO) {
             (true, true) => Interval::ZERO,
             (true, false) => self.poly_bound(space) * o.rem,
-            (false, true) => self.rem * o.poly_bound(space),
-            (false, false) => self.poly_bound(space) * o.rem + self.rem * o.poly_bound(space) + self.rem * o.rem,
+            (false, true) => self.rem * o_poly(),
+            (false, false) => self.poly_bound(space) * o.rem + self.rem * o_poly() + self.rem * o.rem,
         };
         let mut t = TaylorModel { coef: c, rem: rem.inflate(add_up(trunc, rounding)) };
         t.sweep(ctx);
@@ -487,17 +553,26 @@ mod tests {
     }
 
     #[test]
+    fn gamma_table_matches_the_formula_and_bounds_n_u() {
+        for n in [0, 1, 2, 7, 100, 1023, 1024, 5000] {
+            let nu = (n as f64 + 1.0) * U;
+            assert_eq!(gamma(n), (nu / (1.0 - nu)).next_up());
+            assert!(gamma(n) > nu);
+        }
+    }
+
+    #[test]
     fn sparse_products_enclose_and_drop_no_term() {
         // Factors with most coefficients zero (as a small cell's models are), some terms above
         // the order and under the cutoff: the product holds the pointwise product, and its
-        // polynomial part is the dense schoolbook product's (truncated and swept alike).
-        let c = Ctx::new(Space::get(4, 5, 1).unwrap(), 5, 1e-12);
+        // polynomial part is the dense schoolbook product's (truncated and swept alike). The
+        // second space has more monomials than the product keeps on its stack.
         let mut state = 5u64;
         let mut next = || {
             state = state.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
             ((state >> 11) as f64) / ((1u64 << 53) as f64)
         };
-        for _ in 0..20 {
+        for (c, round) in (0..40).map(|r| (Ctx::new(Space::get(if r < 20 { 4 } else { 7 }, 5, 1).unwrap(), 5, 1e-12), r)) {
             let mut factor = || {
                 let coef: Vec<f64> = (0..c.space.len())
                     .map(|_| if next() < 0.15 { (next() - 0.5) * if next() < 0.3 { 1e-13 } else { 1.0 } } else { 0.0 })
@@ -521,7 +596,7 @@ mod tests {
                 let kept = ab.coef.get(k).copied().unwrap_or(0.0);
                 assert!(kept == 0.0 || (kept - d).abs() <= 1e-15 * (1.0 + d.abs()), "term {k}: {kept} against {d}");
             }
-            for p in sample_points(&c, 300, 17) {
+            for p in sample_points(&c, 300, 17 + round) {
                 let x: Vec<Interval> = p.iter().map(|&t| Interval::point(t)).collect();
                 let truth = a.eval_poly(&c.space, &p) * b.eval_poly(&c.space, &p);
                 let enclosure = ab.eval_interval(&c.space, &x).inflate(1e-12);
@@ -600,6 +675,31 @@ mod tests {
         t.sweep(&c);
         assert_eq!(t.coef, vec![1.0]);
         assert!(t.rem.contains(1e-4) && t.rem.contains(-1e-4));
+    }
+
+    #[test]
+    fn adding_an_interval_in_place_holds_every_shifted_value() {
+        // p + r + c for r in the remainder and c in the interval, at sampled points: the
+        // constant 0.1 + 0.2 is inexact, so the constant term's rounding must be in the remainder.
+        let c = ctx(2, 3, 0);
+        let mut t = TaylorModel::affine(&c, 0.1, 0, 0.3).mul(&TaylorModel::affine(&c, -0.7, 1, 0.2), &c);
+        t.rem = Interval::new(-1e-9, 2e-9).unwrap();
+        let before = t.clone();
+        let iv = Interval::new(0.2, 0.2 + 1e-12).unwrap();
+        t.add_interval_in_place(iv);
+        let mut empty = TaylorModel::zero();
+        empty.add_interval_in_place(iv);
+        assert!(empty.bound(&c.space).contains_interval(&iv));
+        for pt in sample_points(&c, 500, 3) {
+            let x: Vec<Interval> = pt.iter().map(|&v| Interval::point(v)).collect();
+            let old = before.eval_interval(&c.space, &x) + iv;
+            let new = t.eval_interval(&c.space, &x);
+            for f in [-1.0, -0.5, 0.0, 0.5, 1.0] {
+                // A value of the old model plus the constant, well inside `old`'s own roundings.
+                let truth = old.mid() + f * 0.999 * old.radius();
+                assert!(new.contains(truth), "{new} misses {truth}");
+            }
+        }
     }
 
     #[test]
