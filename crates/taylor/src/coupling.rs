@@ -126,6 +126,24 @@ impl Coupling {
         }
         let Split { drifting, sets, union } = Split::of(ode);
         let sets = if union.0.len() <= width { vec![union] } else { sets };
+        Coupling::of_sets(ode, drifting, sets, width)
+    }
+
+    /// The coupling of `ode` for a run that boxes its state at every jump: its finest groups
+    /// whenever there are several, even where the whole ODE fits one flowpipe. Each group then
+    /// flows from its own box; one flowpipe over independent groups from fresh symbols made
+    /// every model dense in all of them.
+    pub fn apart(ode: &Ode, width: usize) -> Result<Coupling> {
+        let Split { drifting, sets, .. } = Split::of(ode);
+        if sets.len() < 2 {
+            return Coupling::of(ode, width);
+        }
+        Coupling::of_sets(ode, drifting, sets, width)
+    }
+
+    /// The groups of `sets` (variables, moving first, and how many move); an error if one
+    /// exceeds `width`.
+    fn of_sets(ode: &Ode, drifting: Vec<(usize, f64)>, sets: Vec<(Vec<usize>, usize)>, width: usize) -> Result<Coupling> {
         let mut groups = Vec::with_capacity(sets.len());
         for (vars, moving) in sets {
             if vars.len() > width {

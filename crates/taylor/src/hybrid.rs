@@ -171,7 +171,11 @@ pub fn run(aut: &Automaton, start: usize, state: Vec<TaylorModel>, space: &Arc<S
     let couplings = aut
         .modes
         .iter()
-        .map(|m| Coupling::of(&m.ode, space.nvars - 1).map_err(|e| TaylorError::input(format!("mode '{}': {e}", m.name))))
+        .map(|m| {
+            let width = space.nvars - 1;
+            let coupling = if limits.box_at_jumps { Coupling::apart(&m.ode, width) } else { Coupling::of(&m.ode, width) };
+            coupling.map_err(|e| TaylorError::input(format!("mode '{}': {e}", m.name)))
+        })
         .collect::<Result<Vec<_>>>()?;
     let mut out = Run::default();
     let mut queue = VecDeque::from([Branch { mode: start, state, elapsed: (0.0, 0.0), jumps: 0 }]);
