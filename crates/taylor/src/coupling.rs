@@ -206,8 +206,8 @@ impl Coupling {
 
     /// [`reach_from_steps`] over the whole state of `ode` (whose coupling this is), group by
     /// group: `on_step(t, segment, state)` sees every variable after every step. With `boxes`,
-    /// groups that do not fit one flowpipe flow from their entry boxes (the state at the step
-    /// ends is then a box). Returns why the flow stopped early, if it failed.
+    /// the groups of a split mode flow from their entry boxes (the state at the step ends is
+    /// then a box). Returns why the flow stopped early, if it failed.
     pub fn flow(
         &self,
         entry: Vec<TaylorModel>,
