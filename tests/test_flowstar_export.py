@@ -87,6 +87,23 @@ def test_a_wide_export_encloses_the_network(tmp_path):
     assert boxed[1] - boxed[0] > 2 * (taylor[1] - taylor[0]), (boxed, taylor)
 
 
+def test_a_wide_export_boxed_at_the_jumps_keeps_interval_width(tmp_path):
+    # Two tanh layers of 30 (64 variables) over a box where the second layer's pre-activations
+    # are up to 5.3 wide: one flowpipe per neuron there fails or ends far wider than tanh's
+    # range. Boxing at the jumps, each neuron flows from its own box in a space of its own,
+    # halved where needed: every sample inside, and about interval propagation's width (the
+    # same boxes, each activation integrated as its ODE).
+    network = small(["tanh", "tanh", "identity"], seed=5, width=30)
+    box = around(network, 0.5, seed=2)
+    run = run_exported(pv.formats.to_flowstar(network, tmp_path / "wide.model", box), jumps="box")
+    assert run.failure is None, run.failure
+    lo, hi = run.reach_box("_out")["y1"]
+    y = network(samples(box, seed=4))[:, 0]
+    assert lo <= y.min() and y.max() <= hi, ((lo, hi), y.min(), y.max())
+    ((i_lo, i_hi),) = network.bounds(box, method="interval")
+    assert hi - lo <= 1.1 * (i_hi - i_lo), ((lo, hi), (i_lo, i_hi))
+
+
 @pytest.mark.parametrize(
     "activations, scale, half_width",
     [

@@ -265,3 +265,16 @@ class TestBadInput:
         plant = pv.Hybrid({"a": pv.Mode({x: u})}, [], inputs=[u], max_time=1, step=0.1)
         with pytest.raises(pv.InputError, match="reads inputs"):
             pv.hybrid_flowpipe(plant, {x: (0, 1)}, 1.0)
+
+
+def test_a_failed_run_says_where_why_and_what_to_try(tmp_path):
+    # x' = x^2 from x in [1, 1.1] escapes before t = 1: no flowpipe gets to the horizon 2.
+    text = (EXAMPLES / "bouncing_ball.model").read_text()
+    text = text.replace("x' = y", "x' = x * x").replace("y' = -9.81", "y' = 0").replace("time 1.5", "time 2")
+    path = tmp_path / "escape.model"
+    path.write_text(text)
+    model = pv.formats.load_flowstar(str(path))
+    failure = model.run().failure
+    assert failure and "in mode 'fly'" in failure and "could not be enclosed" in failure and "jumps='box'" in failure, failure
+    boxed = model.run(jumps="box").failure
+    assert boxed and "jumps='box'" not in boxed, boxed

@@ -371,8 +371,11 @@ def hybrid_flowpipe(
     ``step`` is a float (fixed; default the plant's) or (min, max) (adaptive), ``order`` an int or
     (min, max) (adaptive); ``remainder`` one
     estimate for all variables or one per variable. ``jumps="box"`` boxes the state at every jump
-    instead of carrying its Taylor models (sound, wider: for comparison). ``max_branches`` bounds
-    the branches followed at once (beyond, states of one jump are aggregated).
+    instead of carrying its Taylor models (sound, wider; in a mode of more variables than one
+    flowpipe holds, each group of coupled variables then flows from its own box, halved where its
+    flowpipe fails or is loose: the fallback where a wide automaton's models fail, whose
+    ``failure`` then says so). ``max_branches`` bounds the branches followed at once (beyond,
+    states of one jump are aggregated).
 
     Wide automata run: the models' symbols are the uncertain variables of ``init`` (past 30
     variables, the widest within a budget, the rest intervals), and each mode is integrated by
@@ -405,4 +408,12 @@ def hybrid_flowpipe(
         int(max_branches),
         jumps == "box",
     )
-    return HybridFlowpipe(raw, list(plant.modes), jumps)
+    result = HybridFlowpipe(raw, list(plant.modes), jumps)
+    if result.failure and jumps == "taylor":
+        # Not retried on its own: boxes are much coarser where the models get through (interval
+        # propagation's width on an exported network), and the user should know which they got.
+        result.failure += (
+            "; jumps='box' boxes the state at every jump and flows each group of coupled variables from its own box, "
+            "halved where needed (coarser, but it decides wide automata such as exported networks where the models fail)"
+        )
+    return result

@@ -31,6 +31,16 @@ pub fn range(m: &TaylorModel, space: &Space) -> Interval {
     Interval::raw(lo, hi) + m.rem
 }
 
+/// [`range`], or the point a constant model is: the naive bound rounds outward, which made the
+/// box of a variable reset to 0 a side of subnormal width (a symbol or coordinate of that
+/// radius, whose inverse scaling spoilt the flowpipes that started from it).
+pub fn range_or_point(m: &TaylorModel, space: &Space) -> Interval {
+    match m.coef[..] {
+        [] | [_] if m.rem == Interval::ZERO => Interval::point(m.constant_term()),
+        _ => range(m, space),
+    }
+}
+
 /// A lower bound of the polynomial over the domain of `space`.
 fn lower(p: &TaylorModel, space: &Space) -> f64 {
     let Ok(sym) = Space::get(space.nvars, space.order, 0) else { return p.poly_bound(space).lo() };

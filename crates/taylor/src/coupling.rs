@@ -21,6 +21,10 @@
 //! every step end, as with one flowpipe. Each lockstep step starts a group's flowpipe anew
 //! from its state, its interval remainder folded in (no symbolic remainder across steps); a
 //! group whose step cannot be enclosed flows on from its entry box, bisected (see [`boxed_flow`]).
+//! Where the run boxes its state at every jump anyway (`boxes`), every group flows from its
+//! entry box from the start, in a space of its own: what box runners do, and what keeps a wide
+//! automaton's boxes at the width of interval propagation (in the run's space, a group reads
+//! most of its parameters as interval constants the Picard iteration cannot follow).
 use crate::error::{Result, TaylorError};
 use crate::expr::{Op, Program};
 use crate::flowpipe::{box_models, on_grid, reach_from_steps, time_grid, Ode, Segment, Settings, StepSize};
@@ -122,6 +126,24 @@ impl Coupling {
         }
         let Split { drifting, sets, union } = Split::of(ode);
         let sets = if union.0.len() <= width { vec![union] } else { sets };
+        Coupling::of_sets(ode, drifting, sets, width)
+    }
+
+    /// The coupling of `ode` for a run that boxes its state at every jump: its finest groups
+    /// whenever there are several, even where the whole ODE fits one flowpipe. Each group then
+    /// flows from its own box; one flowpipe over independent groups from fresh symbols made
+    /// every model dense in all of them.
+    pub fn apart(ode: &Ode, width: usize) -> Result<Coupling> {
+        let Split { drifting, sets, .. } = Split::of(ode);
+        if sets.len() < 2 {
+            return Coupling::of(ode, width);
+        }
+        Coupling::of_sets(ode, drifting, sets, width)
+    }
+
+    /// The groups of `sets` (variables, moving first, and how many move); an error if one
+    /// exceeds `width`.
+    fn of_sets(ode: &Ode, drifting: Vec<(usize, f64)>, sets: Vec<(Vec<usize>, usize)>, width: usize) -> Result<Coupling> {
         let mut groups = Vec::with_capacity(sets.len());
         for (vars, moving) in sets {
             if vars.len() > width {
@@ -183,13 +205,15 @@ impl Coupling {
     }
 
     /// [`reach_from_steps`] over the whole state of `ode` (whose coupling this is), group by
-    /// group: `on_step(t, segment, state)` sees every variable after every step. Returns why
-    /// the flow stopped early, if it failed.
+    /// group: `on_step(t, segment, state)` sees every variable after every step. With `boxes`,
+    /// the groups of a split mode flow from their entry boxes (the state at the step ends is
+    /// then a box). Returns why the flow stopped early, if it failed.
     pub fn flow(
         &self,
         entry: Vec<TaylorModel>,
         space: &Arc<Space>,
         settings: &Settings,
+        boxes: bool,
         on_step: &mut dyn FnMut(f64, &Segment, Vec<TaylorModel>) -> bool,
     ) -> Result<Option<TaylorError>> {
         if self.whole {
@@ -201,7 +225,7 @@ impl Coupling {
             (Settings { remainder_estimate, ..s.clone() }, g.vars.iter().map(|&v| state[v].clone()).collect())
         };
         let moving = |g: &Group, models: Vec<TaylorModel>| -> Vec<TaylorModel> { models.into_iter().take(g.moving).collect() };
-        if let [g] = &self.groups[..] {
+        if let ([g], false) = (&self.groups[..], boxes) {
             // One group: one flowpipe over the whole time, its symbolic remainders kept.
             let (s, start) = local(g, settings, &entry);
             let mut wrapped = |t: f64, seg: &Segment, models: Vec<TaylorModel>| -> bool {
@@ -219,7 +243,30 @@ impl Coupling {
         let grid = time_grid(settings.t_end);
         let mut t = 0.0;
         let mut state = entry.clone();
-        // Groups that flow from their entry box, once their own flowpipe could not be enclosed.
+        // A group's flow from its box at entry, its variables (the parameters too) the
+        // coordinates of a space of its own, over [0, len]: the whole visit if it is short, else
+        // at least to `until` and twice the last stretch (a visit that the run stops after a step
+        // or two, past a clocked jump, is not integrated to the horizon).
+        let from_box = |g: &Group, last: Option<&Boxed>, until: f64| -> std::result::Result<Boxed, TaylorError> {
+            let len = match last {
+                None if settings.t_end <= STRETCH_STEPS * max => settings.t_end,
+                None => until,
+                Some(b) => on_grid(2.0 * b.len, grid).max(until),
+            };
+            let (s, models) = local(g, &Settings { t_end: len.min(settings.t_end), ..settings.clone() }, &entry);
+            let entry_box: Vec<Interval> = models.iter().map(|m| crate::bound::range_or_point(m, space)).collect();
+            boxed_flow(&g.ode, &entry_box, &s, BOX_SPLITS).map_err(|failure| match failure {
+                TaylorError::BlowUp { time_reached, reason } => {
+                    let names: Vec<&str> = g.ode.names.iter().map(|n| n.as_str()).collect();
+                    let reason = format!("the flow of ({}) from its box, halved up to {BOX_SPLITS} times: {reason}", names.join(", "));
+                    TaylorError::BlowUp { time_reached, reason }
+                }
+                other => other,
+            })
+        };
+        // Groups that flow from their entry box: all of them with `boxes`, else those whose own
+        // flowpipe could not be enclosed.
+        let mut from_entry = vec![boxes; self.groups.len()];
         let mut boxed: Vec<Option<Boxed>> = vec![None; self.groups.len()];
         while t < settings.t_end {
             let remaining = settings.t_end - t; // exact: both on the grid
@@ -233,22 +280,26 @@ impl Coupling {
             let mut order = 0;
             let mut halved = false;
             for (k, g) in self.groups.iter().enumerate() {
-                let (s, start) = local(g, &Settings { step, t_end: dt, ..settings.clone() }, &state);
+                if from_entry[k] && boxed[k].as_ref().is_none_or(|b| b.len < t + dt) {
+                    match from_box(g, boxed[k].as_ref(), t + dt) {
+                        Ok(b) => boxed[k] = Some(b),
+                        Err(failure) => return Ok(Some(failure)),
+                    }
+                }
                 if let Some(b) = &boxed[k] {
                     bounds.push(b.over(t, t + dt, g.moving));
                     now.push(b.over(t + dt, t + dt, g.moving).into_iter().map(TaylorModel::from_interval).collect());
                     continue;
                 }
+                let (s, start) = local(g, &Settings { step, t_end: dt, ..settings.clone() }, &state);
                 let fp = reach_from_steps(&g.ode, start, space, &s, &mut |_, _, _| true)?;
                 if let Some(failure) = fp.failure {
-                    let (whole, entry_box) = local(g, settings, &entry);
-                    let entry_box: Vec<Interval> = entry_box.iter().map(|m| m.bound(space)).collect();
-                    let Some(b) = boxed_flow(&g.ode, &entry_box, &whole, BOX_SPLITS) else {
+                    let Ok(b) = from_box(g, None, t + dt) else {
                         return Ok(Some(shifted(failure, t)));
                     };
                     bounds.push(b.over(t, t + dt, g.moving));
                     now.push(b.over(t + dt, t + dt, g.moving).into_iter().map(TaylorModel::from_interval).collect());
-                    boxed[k] = Some(b);
+                    (boxed[k], from_entry[k]) = (Some(b), true);
                     continue;
                 }
                 halved |= fp.segments.len() > 1;
@@ -275,15 +326,24 @@ impl Coupling {
 /// Bisections of a group's box before its lockstep step counts as lost (at most 2^6 pieces).
 const BOX_SPLITS: usize = 6;
 
-/// A group's flow over a whole visit from its box at entry, every piece's segments and its
-/// boxes at the ends of its steps.
+/// Most steps of the longest length in a visit that a group's flow from its box covers at once.
+const STRETCH_STEPS: f64 = 32.0;
+
+/// A group's flow over [0, len] of a visit from its box at entry, every piece's segments and
+/// its boxes at the ends of its steps.
 #[derive(Clone, Default)]
 struct Boxed {
+    len: f64,
     segments: Vec<Segment>,
     ends: Vec<(f64, Vec<Interval>)>,
 }
 
 impl Boxed {
+    /// A one-piece flow's box at the end of its last step.
+    fn last(&self) -> &[Interval] {
+        &self.ends.last().expect("a flow's box at time 0").1
+    }
+
     /// The hull over [t0, t1] of the first `n` variables: every piece's segments that meet
     /// it, or at a single time its boxes there where every piece has a step ending there.
     fn over(&self, t0: f64, t1: f64, n: usize) -> Vec<Interval> {
@@ -302,47 +362,113 @@ impl Boxed {
 }
 
 /// The flow of `ode` from the box `start` up to `settings.t_end`, its widest side halved up
-/// to `splits` times where a flowpipe cannot be enclosed. A neuron of a translated network,
-/// z' = a (1 - z^2), has no Taylor model over a wide pre-activation a (tanh(a t) is too
-/// steep), but has one over each part of it. It starts from the entry box, where z is a
-/// point: restarting from each step's box would lose how z follows a, and the boxes would grow
-/// to |z| > 1, where the ODE diverges. The group's state loses its dependence on the initial
-/// set (it becomes a box), which is sound and is what a box-based runner keeps throughout.
-/// None if the pieces do not suffice.
-fn boxed_flow(ode: &Ode, start: &[Interval], settings: &Settings, splits: usize) -> Option<Boxed> {
-    if let Some(flow) = box_flow(ode, start, settings) {
-        return Some(flow);
+/// to `splits` times where a flowpipe cannot be enclosed or ends much wider than its float
+/// solutions spread ([`LOOSENESS`]). A neuron of a translated network, z' = a (1 - z^2), has
+/// no Taylor model over a wide pre-activation a (tanh(a t) is too steep), but has one over
+/// each part of it; over a in [-1.41, 1.44] one flowpipe of order 4 is enclosed, 45 times
+/// wider than tanh's range. It starts from the entry box, where z is a point: restarting from
+/// each step's box would lose how z follows a, and the boxes would grow to |z| > 1, where the
+/// ODE diverges. The group's state loses its dependence on the initial set (it becomes a box),
+/// which is sound and is what a box-based runner keeps throughout. Err(why a piece failed) if
+/// the pieces do not suffice and the whole box was not enclosed either.
+fn boxed_flow(ode: &Ode, start: &[Interval], settings: &Settings, splits: usize) -> std::result::Result<Boxed, TaylorError> {
+    let whole = box_flow(ode, start, settings);
+    let widest = (0..start.len()).max_by(|&i, &j| start[i].width().total_cmp(&start[j].width()));
+    let Some(widest) = widest.filter(|&i| splits > 0 && start[i].lo() < start[i].hi()) else { return whole };
+    if whole.as_ref().is_ok_and(|flow| tight(ode, start, settings.t_end, flow.last())) {
+        return whole;
     }
-    let widest = (0..start.len()).max_by(|&i, &j| start[i].width().total_cmp(&start[j].width()))?;
     let side = start[widest];
-    if splits == 0 || side.lo() >= side.hi() {
-        return None;
-    }
     let mid = side.mid();
-    let mut all = Boxed::default();
-    for half in [Interval::new(side.lo(), mid), Interval::new(mid, side.hi())] {
+    let mut all = Boxed { len: settings.t_end, ..Boxed::default() };
+    for half in [Interval::raw(side.lo(), mid), Interval::raw(mid, side.hi())] {
         let mut piece = start.to_vec();
-        piece[widest] = half.ok()?;
-        let flow = boxed_flow(ode, &piece, settings, splits - 1)?;
-        all.segments.extend(flow.segments);
-        all.ends.extend(flow.ends);
+        piece[widest] = half;
+        match boxed_flow(ode, &piece, settings, splits - 1) {
+            Ok(flow) => {
+                all.segments.extend(flow.segments);
+                all.ends.extend(flow.ends);
+            }
+            Err(failure) => return whole.or(Err(failure)),
+        }
     }
-    Some(all)
+    Ok(all)
+}
+
+/// How much wider than the spread of float solutions from points of its box a flow's end box may
+/// be before the box is halved.
+const LOOSENESS: f64 = 1.5;
+
+/// Float RK4 solutions' spread at `t_end` (per variable, max minus min) from points of the box
+/// `start`: nine along its widest side (the others at their midpoints) and the corners of its
+/// first six uncertain sides (a linear flow's extremes). Only the choice to halve reads it:
+/// every bound stays the flowpipes'.
+fn sampled_spread(ode: &Ode, start: &[Interval], t_end: f64) -> Result<Vec<f64>> {
+    let n = start.len();
+    let widest = (0..n).max_by(|&i, &j| start[i].width().total_cmp(&start[j].width())).unwrap_or(0);
+    let mut points: Vec<Vec<f64>> = (0..=8)
+        .map(|k| {
+            let mut x: Vec<f64> = start.iter().map(|iv| iv.mid()).collect();
+            x[widest] = start[widest].lo() + start[widest].width() * k as f64 / 8.0;
+            x
+        })
+        .collect();
+    let sides: Vec<usize> = (0..n).filter(|&i| start[i].width() > 0.0).take(6).collect();
+    for corner in 0..1usize << sides.len() {
+        let mut x: Vec<f64> = start.iter().map(|iv| iv.mid()).collect();
+        for (b, &i) in sides.iter().enumerate() {
+            x[i] = if corner >> b & 1 == 1 { start[i].hi() } else { start[i].lo() };
+        }
+        points.push(x);
+    }
+    let batch = crate::expr::FloatBatch::new(points.len());
+    let mut x: Vec<Vec<f64>> = (0..n).map(|i| points.iter().map(|p| p[i]).collect()).collect();
+    let steps = 200;
+    let h = t_end / steps as f64;
+    let f = |x: &[Vec<f64>]| ode.program.eval(&batch, x);
+    let axpy = |x: &[Vec<f64>], k: &[Vec<f64>], c: f64| -> Vec<Vec<f64>> {
+        x.iter().zip(k).map(|(xi, ki)| xi.iter().zip(ki).map(|(a, b)| a + c * b).collect()).collect()
+    };
+    for _ in 0..steps {
+        let k1 = f(&x)?;
+        let k2 = f(&axpy(&x, &k1, 0.5 * h))?;
+        let k3 = f(&axpy(&x, &k2, 0.5 * h))?;
+        let k4 = f(&axpy(&x, &k3, h))?;
+        for i in 0..n {
+            for j in 0..points.len() {
+                x[i][j] += h / 6.0 * (k1[i][j] + 2.0 * k2[i][j] + 2.0 * k3[i][j] + k4[i][j]);
+            }
+        }
+    }
+    Ok(x.iter().map(|xi| xi.iter().fold(f64::NEG_INFINITY, |a, &b| a.max(b)) - xi.iter().fold(f64::INFINITY, |a, &b| a.min(b))).collect())
+}
+
+/// Whether a flow from `start` ending in the box `end` at `t_end` is about as wide as its float
+/// solutions spread (or they cannot be computed: then halving is no better informed).
+fn tight(ode: &Ode, start: &[Interval], t_end: f64, end: &[Interval]) -> bool {
+    match sampled_spread(ode, start, t_end) {
+        Ok(spread) => end.iter().zip(&spread).all(|(e, s)| !s.is_finite() || e.width() <= LOOSENESS * s + 1e-3),
+        Err(_) => true,
+    }
 }
 
 /// One flowpipe of `ode` from the box `start` (as [`reach`] starts it), with the box of its
-/// state at time 0 and at the end of every step; None if it cannot be enclosed.
-fn box_flow(ode: &Ode, start: &[Interval], settings: &Settings) -> Option<Boxed> {
-    let space = Space::get(start.len() + 1, settings.max_order(), 1).ok()?;
+/// state at time 0 and at the end of every step; Err(why) if it cannot be enclosed.
+fn box_flow(ode: &Ode, start: &[Interval], settings: &Settings) -> std::result::Result<Boxed, TaylorError> {
+    let space = Space::get(start.len() + 1, settings.max_order(), 1)?;
     let ctx = Ctx::new(space.clone(), settings.max_order(), settings.cutoff);
     let models = box_models(start, &ctx);
     let mut ends = vec![(0.0, start.to_vec())];
     let fp = reach_from_steps(ode, models, &space, settings, &mut |t, _, state| {
-        ends.push((t, state.iter().map(|m| m.bound(&space)).collect()));
+        // The dominated bounder where the visit's clocked jumps read the state, naive elsewhere.
+        let bound = if t == settings.t_end { crate::bound::range } else { TaylorModel::bound };
+        ends.push((t, state.iter().map(|m| bound(m, &space)).collect()));
         true
-    })
-    .ok()?;
-    fp.failure.is_none().then_some(Boxed { segments: fp.segments, ends })
+    })?;
+    match fp.failure {
+        None => Ok(Boxed { len: settings.t_end, segments: fp.segments, ends }),
+        Some(failure) => Err(failure),
+    }
 }
 
 /// A failure of a group's flowpipe started at time `t0`, with the time counted from the start.
@@ -481,7 +607,7 @@ mod tests {
             refinements: 10,
             symbolic_queue: 50,
         };
-        let (segments, last) = flow_through(&coupling, start, &space, &settings);
+        let (segments, last) = flow_through(&coupling, start, &space, &settings, false);
         assert_eq!(last.0, 1.5);
         for a in 0..=10 {
             for b in 0..=10 {
@@ -537,7 +663,7 @@ mod tests {
         let one = ode(&[("z", "a * (1 - z * z)"), ("a", "0")]);
         let lone = reach(&one, &[Interval::ZERO, Interval::new(-8.0, 8.0).unwrap()], &settings_for(&settings, 2), &mut |_| true).unwrap();
         assert!(lone.failure.is_some());
-        let (segments, last) = flow_through(&coupling, start, &space, &settings);
+        let (segments, last) = flow_through(&coupling, start, &space, &settings, false);
         assert_eq!(last.0, 1.0);
         for k in 0..=200 {
             let (a1, a2) = (-8.0 + 0.08 * k as f64, 1.0 * k as f64 / 200.0);
@@ -560,11 +686,12 @@ mod tests {
         start: Vec<TaylorModel>,
         space: &Arc<Space>,
         settings: &Settings,
+        boxes: bool,
     ) -> (Vec<Segment>, (f64, Vec<TaylorModel>)) {
         let mut segments = vec![];
         let mut last = (0.0, vec![]);
         let failure = coupling
-            .flow(start, space, settings, &mut |t, seg, state| {
+            .flow(start, space, settings, boxes, &mut |t, seg, state| {
                 segments.push(seg.clone());
                 last = (t, state);
                 true

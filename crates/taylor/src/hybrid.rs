@@ -171,7 +171,11 @@ pub fn run(aut: &Automaton, start: usize, state: Vec<TaylorModel>, space: &Arc<S
     let couplings = aut
         .modes
         .iter()
-        .map(|m| Coupling::of(&m.ode, space.nvars - 1).map_err(|e| TaylorError::input(format!("mode '{}': {e}", m.name))))
+        .map(|m| {
+            let width = space.nvars - 1;
+            let coupling = if limits.box_at_jumps { Coupling::apart(&m.ode, width) } else { Coupling::of(&m.ode, width) };
+            coupling.map_err(|e| TaylorError::input(format!("mode '{}': {e}", m.name)))
+        })
         .collect::<Result<Vec<_>>>()?;
     let mut out = Run::default();
     let mut queue = VecDeque::from([Branch { mode: start, state, elapsed: (0.0, 0.0), jumps: 0 }]);
@@ -367,7 +371,9 @@ fn symbolize(ranges: &[Interval], ctx: &Ctx) -> Vec<TaylorModel> {
     wide.sort_by(|&a, &b| ranges[b].width().total_cmp(&ranges[a].width()));
     wide.truncate(ctx.space.nvars - 1);
     wide.sort_unstable();
-    let mut out: Vec<TaylorModel> = ranges.iter().map(|iv| TaylorModel::from_interval(*iv)).collect();
+    // A point is an exact constant (`from_interval` would round its zero remainder outward).
+    let mut out: Vec<TaylorModel> =
+        ranges.iter().map(|iv| if iv.lo() == iv.hi() { TaylorModel::constant(iv.lo()) } else { TaylorModel::from_interval(*iv) }).collect();
     for (k, &i) in wide.iter().enumerate() {
         let (c, r) = crate::flowpipe::initial_affine(&ranges[i]);
         out[i] = TaylorModel::affine(ctx, c, k + 1, r);
@@ -378,7 +384,7 @@ fn symbolize(ranges: &[Interval], ctx: &Ctx) -> Vec<TaylorModel> {
 /// The state's box, each variable a fresh symbol while the space has them (see [`symbolize`]):
 /// the dependence on the initial set and between the variables is forgotten.
 fn boxed(state: &[TaylorModel], ctx: &Ctx) -> Vec<TaylorModel> {
-    symbolize(&state.iter().map(|m| crate::bound::range(m, &ctx.space)).collect::<Vec<_>>(), ctx)
+    symbolize(&state.iter().map(|m| crate::bound::range_or_point(m, &ctx.space)).collect::<Vec<_>>(), ctx)
 }
 
 /// The states a jump may be taken from during one visit of its mode, and the earliest and latest
@@ -430,7 +436,7 @@ fn visit(
         let mut prev = start.clone();
         let mut t_prev = 0.0;
         let mut error = None;
-        let failure = coupling.flow(start, space, &settings, &mut |t, seg, now| {
+        let failure = coupling.flow(start, space, &settings, limits.box_at_jumps, &mut |t, seg, now| {
             let window =
                 Window { ode: &mode.ode, invariant: &mode.invariant, start: &prev, end: &now, seg, h: t - t_prev, space: &ctx.space };
             let step = (|| -> Result<bool> {
