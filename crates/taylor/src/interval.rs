@@ -604,7 +604,7 @@ mod tests {
                 let x = if a.is_bounded() { a.lo + next() * (a.hi - a.lo) } else { a.lo.max(-1e3).min(a.hi) };
                 let y = if b.is_bounded() { b.lo + next() * (b.hi - b.lo) } else { b.lo.max(-1e3).min(b.hi) };
                 for (x, y) in [(x, y), (a.lo, b.hi), (a.hi, b.lo)] {
-                    if !(x.is_finite() && y.is_finite()) || !(x * y).is_finite() {
+                    if !(x.is_finite() && y.is_finite() && (x * y).is_finite()) {
                         continue;
                     }
                     assert!(x.mul_add(y, -c.lo) >= 0.0 && x.mul_add(y, -c.hi) <= 0.0, "{x} * {y} outside {a} * {b} = {c}");
