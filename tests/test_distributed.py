@@ -156,7 +156,8 @@ def test_dask_worker_killed_mid_row_loses_nothing_counts_nothing_twice_and_resum
         def kill_when_started():
             deadline = time.time() + 120
             while time.time() < deadline and killed.get("lines") is None:
-                lines = sum(len(journal_records(part.journal)) for part in journaled if Path(part.journal).exists())
+                # Complete lines after the header: the journal may be mid-line while it is read.
+                lines = sum(max(0, Path(part.journal).read_text().count("\n") - 1) for part in journaled if Path(part.journal).exists())
                 if lines >= 5:
                     os.kill(pids[0], signal.SIGKILL)
                     killed["lines"] = lines
