@@ -320,3 +320,23 @@ def test_the_adaptive_default_draws_each_cell_after_the_outcomes_before_it():
     assert result.coverage == pytest.approx(1.0)
     events = _Recorded.events
     assert events.count("draw") > 3 and not any(a == b == "draw" for a, b in zip(events, events[1:]))
+
+
+def test_only_settled_unknown_cells_are_sampled(monkeypatch):
+    """Random runs go to the cells a splitter settles unknown, not to the cells it cuts (their
+    pieces are probed): each settled unknown cell is sampled once, a halved one never."""
+    from percver.verification import campaign
+
+    sampled = []
+
+    def counted(loop, prop, cells, steps, samples, seed, probe=True):
+        if not probe:
+            sampled.extend(tuple(cell.bounds) for cell in cells)
+        return [None] * len(cells)
+
+    monkeypatch.setattr(campaign, "falsify", counted)
+    loop, kwargs = _wall_problem()
+    result = pv.verify(loop, splitter=pv.Bisection(min_width={"p": 0.005}), max_splits=0, workers=1, **kwargs)
+    unknown = sorted(tuple(tuple(c.box[n]) for n in ("p", "v")) for c in result.cells if c.verdict == "unknown")
+    assert unknown and sorted(sampled) == unknown
+    assert len(result.cells) > 1  # cells were halved, and none of them sampled

@@ -76,7 +76,7 @@ OPTIONS = {
     "rebox": ("verify", bool, "false", "restart a part from its box when a remainder is most of a state's enclosure"),
     "state_symbols": ("verify", bool, "false", "keep feedback remainders as error symbols (Taylor method)"),
     "timeout_per_cell": ("verify", NUMBER, "600", "seconds after which a cell stops at the next step and is bisected"),
-    "falsify": ("verify", int, "32", "random simulated runs per cell the engine does not verify"),
+    "falsify": ("verify", int, "32", "random simulated runs per cell left unknown and not split further"),
     "seed": ("verify", int, "0", "seed of those runs"),
     "workers": ("verify", int, "2", "local threads (default: all cores; --workers overrides)"),
     "executor": ("verify", str, '"tcp://host:8786"', "a Dask scheduler to run the cells on (--scheduler overrides)"),

@@ -8,6 +8,7 @@ import os
 import sys
 import threading
 from collections import deque
+from dataclasses import replace
 from typing import Optional
 
 from percver import _core
@@ -23,9 +24,14 @@ class Campaign:
     """The cells of one part of a verify() call as they flow: the lazy grid and sub-cells are
     looked up in the journal, probed in batches (centre and corners simulated), and handed to a
     backend (the local pool of :func:`run_local` or an executor) that returns outcomes in any
-    order; a cell the engine leaves unknown is sampled (``falsify`` random runs) before it is
-    settled, and unknown cells (with refine=True) and timed-out ones (always) are bisected down to
-    min_width and their halves queued. Memory is a batch plus the results.
+    order; unknown cells (with refine=True) and timed-out ones (always) are bisected down to
+    min_width and their halves queued, and a cell left unknown is sampled (``falsify`` random
+    runs) once the splitter settles it, not when it cuts it: its pieces are probed, and the cells
+    a splitter halves on its way down are many (on a Mountain Car slice their random runs took
+    more time than the engine). One rule on every backend: the local pool samples in the thread
+    that ran the cell, an executor on its workers (:meth:`settle`, :meth:`sampled`). An engine
+    verdict of "violated" is sampled before the splitter sees it. Memory is a batch plus the
+    results.
 
     Random runs come after the engine, not before: a verified cell needs none (its proof covers
     every run), and on a row that verifies they were most of the simulation, which competes with
@@ -102,9 +108,10 @@ class Campaign:
         self._place(cell, c, None)
 
     def draw(self, n: int) -> list:
-        """Up to n cells for an executor as ``(box, options)``, unprobed: its workers probe, run and
-        sample them (:func:`percver.verification.executors.run_batch`), so the driver only journals
-        and splits. ``options`` are the engine settings the splitter chose for the cell."""
+        """Up to n cells for an executor as ``(box, options)``, unprobed: its workers probe and run
+        them (:func:`percver.verification.executors.run_batch`), and sample those :meth:`settle`
+        returns, so the driver only journals and splits. ``options`` are the engine settings the
+        splitter chose for the cell."""
         with self.lock:
             drawn = self._draw(n)
             for cell, options in drawn:
@@ -112,15 +119,17 @@ class Campaign:
                     self.chosen[cell_key(cell.to_dict())] = options
             return drawn
 
-    def settle(self, cell: Box, outcome: dict):
+    def settle(self, cell: Box, outcome: dict) -> Optional[Cell]:
         """A cell's outcome from an executor's worker: ``{"probe": cex}`` when its probe falsified it
         (no engine run), else ``{"outcome", "rss", "counterexample"}``: the engine's outcome, the
-        worker's peak RSS and what its random runs found (or None)."""
+        worker's peak RSS and what its random runs found (run for a "violated" verdict only).
+        Returns the cell when it is settled unknown and still to be sampled: the executor's random
+        runs on it go to :meth:`sampled`."""
         with self.lock:
             if outcome.get("probe") is not None:
                 self._probed(cell, outcome["probe"], self.chosen.pop(cell_key(cell.to_dict()), {}))
-            else:
-                self._record(cell, outcome["outcome"], outcome["rss"], outcome["counterexample"])
+                return None
+            return self._record(cell, outcome["outcome"], outcome["rss"], outcome["counterexample"])
 
     def _draw(self, want: int) -> list:
         """Up to ``want`` cells ``(box, options)`` not in the journal (the journal's are settled on
@@ -153,18 +162,29 @@ class Campaign:
         return fresh
 
     def record(self, cell: Box, outcome: _core.CellOutcome, peak_rss_mb: Optional[float]):
-        """A cell's outcome from the engine (``run_cells``); one not verified is sampled first
-        (outside the lock: the simulation must not hold up other threads' outcomes)."""
-        cex = None
-        if outcome.verdict != "verified" and self.falsify > 0:
-            cex = falsify(self.loop, self.prop, [cell], self.prop.steps, self.falsify, self.seed, probe=False)[0]
+        """A cell's outcome from the engine (``run_cells``) on the local pool. Random runs go
+        outside the lock: the simulation must not hold up other threads' outcomes."""
+        cex = self.sample(cell) if outcome.verdict == "violated" else None
         with self.lock:
-            self._record(cell, outcome, peak_rss_mb, cex)
+            settled = self._record(cell, outcome, peak_rss_mb, cex)
+        if settled is not None:
+            self.sampled(cell, settled, self.sample(cell))
 
-    def _record(self, cell: Box, outcome: _core.CellOutcome, peak_rss_mb: Optional[float], cex: Optional[Counterexample]):
+    def sample(self, cell: Box) -> Optional[Counterexample]:
+        """The first violation among the cell's ``falsify`` random runs (they depend only on the
+        cell and the seed: the same on every backend)."""
+        if self.falsify <= 0:
+            return None
+        return falsify(self.loop, self.prop, [cell], self.prop.steps, self.falsify, self.seed, probe=False)[0]
+
+    def _record(self, cell: Box, outcome: _core.CellOutcome, peak_rss_mb: Optional[float], cex: Optional[Counterexample]) -> Optional[Cell]:
+        """The engine's outcome (``cex``: what the random runs of a "violated" verdict found)
+        learnt and finished; or returned, when the splitter settles it unknown and it is still to
+        be sampled (:meth:`sampled` finishes it)."""
         verdict, reason = outcome.verdict, outcome.reason
+        violated = verdict == "violated"  # its random runs are done
         if cex is not None:
-            verdict, reason = "falsified", f"simulation violates {cex.violated} at step {cex.step}; the engine: {reason}"
+            verdict, reason = "falsified", _falsified_reason(cex, reason)
         elif verdict == "violated":
             # The engine says every state violates, yet no simulation did: say unknown
             # rather than claim a counterexample we do not have.
@@ -188,6 +208,21 @@ class Campaign:
         self.cell_seconds[1] += 1
         self.splitter.learn(cell, c, self.init)
         pieces = self._again(cell, c)
+        if not pieces and c.verdict == "unknown" and not violated and self.falsify > 0:
+            return c
+        self._finish(cell, c, pieces)
+        return None
+
+    def sampled(self, cell: Box, c: Cell, cex: Optional[Counterexample]):
+        """A cell settled unknown, with what its random runs found: falsified by them, it is
+        learnt again as such (see :mod:`percver.verification.splitters`)."""
+        with self.lock:
+            if cex is not None:
+                c = replace(c, verdict="falsified", reason=_falsified_reason(cex, c.reason), counterexample=cex)
+                self.splitter.learn(cell, c, self.init)
+            self._finish(cell, c, None)
+
+    def _finish(self, cell: Box, c: Cell, pieces: Optional[list]):
         if self._timed_out(c) and not pieces:
             c.reason += "; not split further: the cell is at min_width"
         self.journal.write(c, pieces)
@@ -214,6 +249,10 @@ class Campaign:
         else:
             self.cells.append(c)
             self.bar.settled(c.verdict)
+
+
+def _falsified_reason(cex: Counterexample, engine: str) -> str:
+    return f"simulation violates {cex.violated} at step {cex.step}; the engine: {engine}"
 
 
 def _with_options(piece, options: Optional[dict] = None) -> tuple:

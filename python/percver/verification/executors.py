@@ -12,8 +12,10 @@ problem, which the worker compiles and keeps. So a worker restarted after a cras
 problem with its first batch, without set-up hooks (Dask plugins, pool initializers) that only
 some executors have. Workers do all of a cell's work (probe, engine, random runs); the client
 only draws cells, journals outcomes as each batch completes, and queues sub-cells, so one client
-keeps many workers busy. A batch whose task fails (its worker died) is sent again; its cells were
-not journaled, and each drawn cell is in exactly one batch in flight, so none is lost or counted
+keeps many workers busy. Random runs follow the campaign's rule: the cells the splitter settles
+unknown go back to the workers in a batch of their own (:func:`sample_batch`), the ones it cuts
+are not sampled. A batch whose task fails (its worker died) is sent again; its cells were not
+journaled, and each drawn cell is in exactly one batch in flight, so none is lost or counted
 twice.
 """
 
@@ -58,18 +60,13 @@ def _reduce_network(net: Network):
     return _network, (net.layers, net.scale, net.offset, net.name, net.input_names)
 
 
-def run_batch(key: str, payload: Optional[bytes], cells: list, options: dict, sampling: tuple):
-    """On a worker: per cell (a :class:`~percver.Box`) what the local pool does with it, or
-    MISSING. A cell whose probe (centre and corners) violates the property gives
-    ``{"probe": counterexample}`` without an engine run; the others run the engine (``options``,
-    the same for the batch) and give ``{"outcome": CellOutcome, "rss": peak MB, "counterexample":
-    ...}``, those it does not verify simulated from ``sampling`` = (random runs per cell, seed)
-    points. The runs depend only on the cell and the seed, so verdicts and counterexamples equal
-    a local run's."""
+def _held(key: str, payload: Optional[bytes]):
+    """On a worker: the problem ``key`` as (compiled problem, loop, property), loaded from
+    ``payload`` if it is not held yet; None when it is not held and no payload came."""
     held = _PROBLEMS.get(key)
     if held is None:
         if payload is None:
-            return MISSING
+            return None
         try:
             loop, prop, safe, goal, within, steps = pickle.loads(payload)
         except (AttributeError, ImportError) as error:
@@ -80,9 +77,22 @@ def run_batch(key: str, payload: Optional[bytes], cells: list, options: dict, sa
         held = _PROBLEMS[key] = (loop.compile(safe=safe, goal=goal, within=within, steps=steps), loop, prop)
         while len(_PROBLEMS) > _KEPT:
             _PROBLEMS.popitem(last=False)
+    return held
+
+
+def run_batch(key: str, payload: Optional[bytes], cells: list, options: dict, sampling: tuple):
+    """On a worker: per cell (a :class:`~percver.Box`) what the local pool does with it, or
+    MISSING. A cell whose probe (centre and corners) violates the property gives
+    ``{"probe": counterexample}`` without an engine run; the others run the engine (``options``,
+    the same for the batch) and give ``{"outcome": CellOutcome, "rss": peak MB, "counterexample":
+    ...}``, those it says "violated" simulated from ``sampling`` = (random runs per cell, seed)
+    points (the others' runs wait for the splitter: :func:`sample_batch`). The runs depend only
+    on the cell and the seed, so verdicts and counterexamples equal a local run's."""
+    held = _held(key, payload)
+    if held is None:
+        return MISSING
     problem, loop, prop = held
-    samples, seed = sampling
-    out = [{"probe": cex} if cex is not None else None for cex in falsify(loop, prop, cells, prop.steps, 0, seed)]
+    out = [{"probe": cex} if cex is not None else None for cex in falsify(loop, prop, cells, prop.steps, 0, sampling[1])]
     engine = [k for k, o in enumerate(out) if o is None]
     if engine:
 
@@ -90,11 +100,26 @@ def run_batch(key: str, payload: Optional[bytes], cells: list, options: dict, sa
             out[engine[i]] = {"outcome": outcome, "rss": rss, "counterexample": None}
 
         run_cells(problem, [cells[k].bounds for k in engine], done, options, workers=1)
-    unverified = [k for k in engine if out[k]["outcome"].verdict != "verified"]
-    found = falsify(loop, prop, [cells[k] for k in unverified], prop.steps, samples, seed, probe=False) if samples > 0 else []
-    for k, cex in zip(unverified, found):
+    violated = [k for k in engine if out[k]["outcome"].verdict == "violated"]
+    for k, cex in zip(violated, _sample(loop, prop, [cells[k] for k in violated], sampling)):
         out[k]["counterexample"] = cex
     return out
+
+
+def sample_batch(key: str, payload: Optional[bytes], cells: list, sampling: tuple):
+    """On a worker: per cell the splitter settled unknown, the first violation among its random
+    runs (or None), as :meth:`Campaign.sample <percver.verification.campaign.Campaign.sample>`
+    finds it locally; or MISSING."""
+    held = _held(key, payload)
+    if held is None:
+        return MISSING
+    _, loop, prop = held
+    return _sample(loop, prop, cells, sampling)
+
+
+def _sample(loop, prop, cells: list, sampling: tuple) -> list:
+    samples, seed = sampling
+    return falsify(loop, prop, cells, prop.steps, samples, seed, probe=False) if samples > 0 and cells else [None] * len(cells)
 
 
 def dumps(problem) -> bytes:
@@ -174,17 +199,22 @@ class Runner:
     def run(self, jobs: list):
         """Runs every cell of ``jobs`` (campaign, engine options): batches come from the first part
         that has cells, so the next part's cells fill the workers while a part's last ones run."""
-        inflight: dict = {}  # future -> (campaign, options, cells, tries); each drawn cell is in one
+        # future -> (campaign, options, cells, tries, settled); each drawn cell is in one. A batch
+        # with ``settled`` (the cells' Cells, settled unknown) samples them; else it runs them.
+        inflight: dict = {}
 
-        def submit(campaign, options, cells, payload, tries):
+        def submit(campaign, options, cells, payload, tries, settled=None):
             sampling = (campaign.falsify, campaign.seed)
             try:
-                future = self.pool.submit(run_batch, self.key, payload, cells, options, sampling)
+                if settled is None:
+                    future = self.pool.submit(run_batch, self.key, payload, cells, options, sampling)
+                else:
+                    future = self.pool.submit(sample_batch, self.key, payload, cells, sampling)
             except Exception as error:  # BrokenProcessPool, a pool shut down, a Dask client closed (its cluster died)
                 raise ExecutorError(
                     f"the executor cannot take work ({error}); finished cells are in the journal: rerun with a working executor to resume"
                 ) from error
-            inflight[future] = (campaign, options, cells, tries)
+            inflight[future] = (campaign, options, cells, tries, settled)
 
         def fill():
             capacity = self.capacity()
@@ -211,7 +241,7 @@ class Runner:
                     return
                 done, _ = cf.wait(inflight, return_when=cf.FIRST_COMPLETED)
                 for future in done:
-                    campaign, options, cells, tries = inflight.pop(future)
+                    campaign, options, cells, tries, settled = inflight.pop(future)
                     try:
                         outcomes = future.result()
                     except PercverError:
@@ -222,13 +252,18 @@ class Runner:
                                 f"a batch of {len(cells)} cells failed {tries + 1} times on the executor "
                                 f"(last: {error!r}); finished cells are in the journal: rerun with a working executor to resume"
                             ) from error
-                        submit(campaign, options, cells, self.payload, tries + 1)
+                        submit(campaign, options, cells, self.payload, tries + 1, settled)
                         continue
                     if isinstance(outcomes, str):  # MISSING
-                        submit(campaign, options, cells, self.payload, tries)
+                        submit(campaign, options, cells, self.payload, tries, settled)
                         continue
-                    for cell, outcome in zip(cells, outcomes):
-                        campaign.settle(cell, outcome)
+                    if settled is not None:
+                        for cell, c, cex in zip(cells, settled, outcomes):
+                            campaign.sampled(cell, c, cex)
+                        continue
+                    unsampled = [(cell, c) for cell, outcome in zip(cells, outcomes) if (c := campaign.settle(cell, outcome)) is not None]
+                    if unsampled:
+                        submit(campaign, options, [cell for cell, _ in unsampled], None, 0, [c for _, c in unsampled])
         finally:
             for future in inflight:
                 future.cancel()

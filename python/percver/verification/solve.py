@@ -100,9 +100,9 @@ def verify(
     ``min_width`` (default 1/64 of the initial set per dimension), then reported unknown.
 
     Each cell's centre and corners are simulated before the engine runs it (a violation there
-    saves the engine run); a cell the engine does not verify is simulated from ``falsify`` random
-    points of it before it is reported or bisected, so a falsified cell's counterexample can come
-    from either.
+    saves the engine run); a cell the engine leaves unknown is simulated from ``falsify`` random
+    points of it once the splitter settles it (a cell bisected is not: its halves are probed), so
+    a falsified cell's counterexample can come from either.
 
     Inside a cell, a part whose enclosure degrades (or that reaches a ``within`` goal only in
     part) is split where its enclosure was last precise and continued from there, and a condition

@@ -12,12 +12,12 @@ cut again. A splitter is a parameter of :func:`percver.verify` (``splitter=``), 
 
 A splitter has four methods: ``initial(init)`` (the first cells, lazily, and their count),
 ``prepare(cell, init)`` (the cell cut before it runs), ``learn(cell, result, init)`` (every cell
-settled or split) and ``again(cell, result, init, timed_out)`` (None: the verdict is final; else
-the cells replacing it, or a :class:`Retry`). Cells given by ``initial``, ``prepare`` and
-``again`` are each a Box (with the options of the cell it comes from) or ``(Box, engine
-options)``, e.g. ``{"max_splits": 0}``; a :class:`Retry` option of None drops that option (the
-call's applies). Whatever
-it returns, every verdict comes from the engine (or a simulated counterexample) on that very
+settled or split; a cell settled unknown that random runs then falsify is learnt again,
+falsified: only settled cells are sampled) and ``again(cell, result, init, timed_out)`` (None:
+the verdict is final; else the cells replacing it, or a :class:`Retry`). Cells given by
+``initial``, ``prepare`` and ``again`` are each a Box (with the options of the cell it comes
+from) or ``(Box, engine options)``, e.g. ``{"max_splits": 0}``; a :class:`Retry` option of None
+drops that option (the call's applies). Whatever it returns, every verdict comes from the engine (or a simulated counterexample) on that very
 cell; the coverage is the share of settled cells, so pieces must tile the cell they replace, as
 grids and halves do (a custom splitter's pieces are its own responsibility).
 
