@@ -57,6 +57,22 @@ def test_adaptive_cuts_a_cell_to_the_size_its_neighbours_needed():
     assert b.prepare(right, init) == [right]
 
 
+def test_a_cut_never_makes_more_than_max_cells_cells():
+    """A size needed at a fork can be tiny in every state (a condition that crosses every cell):
+    cutting a cell to it must not pass ``max_cells`` (a 64 x 64 x 64 grid had hung a campaign of 8)."""
+    names = ("x", "y", "z")
+    init = Box(names, ((0.0, 1.0),) * 3)
+    a = pv.Adaptive(rebox=False, max_cells=8)
+    cells, count = a.initial(init)
+    assert count == 1 and len(list(cells)) == 1
+    tiny = Box(names, ((0.0, 1e-3),) * 3)
+    a.needed.append((tiny, {n: 1e-3 for n in names}))
+    pieces = a.prepare(init, init)
+    assert 1 < len(pieces) <= 8
+    # The room is used up: the pieces are drawn as they are.
+    assert all(a.prepare(piece, init) == [piece] for piece, _ in pieces)
+
+
 def test_adaptive_stops_where_halving_does_not_push_the_loss_later():
     init = Box(("x",), ((0.0, 1.0),))
     a = pv.Adaptive(patience=2, rebox=False)

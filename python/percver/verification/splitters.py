@@ -217,6 +217,7 @@ class Adaptive(Bisection):
     last: dict = field(default_factory=dict, repr=False)  # state -> the halving that last cut it
     falsified: bool = field(default=False, repr=False)  # a counterexample decided the loop: no more halvings
     cut: set = field(default_factory=set, repr=False)  # keys of cells cut ahead of their run to a needed size
+    made: int = field(default=0, repr=False)  # cells made so far (initial, halves, cut pieces), held to max_cells
 
     def __post_init__(self):
         super().__post_init__()
@@ -236,6 +237,7 @@ class Adaptive(Bisection):
             raise InputError("Adaptive(rebox=True) is pv.verify(rebox=True): give that instead")
         widest = [n for n, (lo, hi) in zip(init.names, init.bounds) if hi > lo][:6]
         cells, count = grid(init, {n: self.start for n in widest})
+        self.made = count
         return ((cell, self._budget(cell, init)) for cell in cells), count
 
     def _min(self, init: Box) -> dict:
@@ -254,9 +256,17 @@ class Adaptive(Bisection):
                 most = 2 ** int(np.floor(np.log2((hi - lo) / floor[n]))) if floor[n] > 0 else 64
                 pieces[n] = min(int(2 ** np.ceil(np.log2((hi - lo) / target[n]))), 64, most)
         pieces = {n: k for n, k in pieces.items() if k > 1}
+        # At most max_cells cells in all: a cut that would pass it is coarsened (the pieces are cut
+        # again when drawn, while room is left), since a size needed at a fork can be tiny in every
+        # state and its grid astronomically large.
+        while pieces and self.made + int(np.prod(list(pieces.values()))) - 1 > self.max_cells:
+            widest = max(pieces, key=pieces.get)
+            pieces[widest] //= 2
+            pieces = {n: k for n, k in pieces.items() if k > 1}
         if not pieces:
             return [cell]
-        cells, _ = grid(cell, pieces)
+        cells, count = grid(cell, pieces)
+        self.made += count - 1
         cells = list(cells)
         self.cut.update(_key(piece) for piece in cells)
         return [(piece, self._options(piece, init)) for piece in cells]
@@ -314,6 +324,7 @@ class Adaptive(Bisection):
         options.pop("max_splits", None)
         halves = _halves(cell, cell.names.index(state))
         self.halvings += 1
+        self.made += len(halves) - 1
         self.last[state] = self.halvings
         for half in halves:
             self.lineage[_key(half)] = (steps, deepest_step, stalls, state)
