@@ -208,7 +208,8 @@ COMPARED = RESULTS / "mountain_car_adaptive.json"
 def variant(spec: str) -> dict:
     """``verify`` keywords of a --variants entry: ``hand`` (the layout), ``adaptive`` (the default
     splitter) or ``adaptive:key=value:...`` (``pv.Adaptive`` with those settings, e.g.
-    ``adaptive:reach=0:rebox=False``)."""
+    ``adaptive:reach=0:rebox=False``; a key that is not one of its fields, such as ``order``, goes
+    to ``verify``)."""
     import ast
 
     import percver as pv
@@ -218,7 +219,9 @@ def variant(spec: str) -> dict:
         return {}
     if name != "adaptive":
         raise SystemExit(f"unknown variant {spec!r}: give hand, adaptive or adaptive:key=value:...")
-    return {"splitter": pv.Adaptive(**{k: ast.literal_eval(v) for k, v in (s.split("=", 1) for s in settings)})}
+    given = {k: ast.literal_eval(v) for k, v in (s.split("=", 1) for s in settings)}
+    fields = set(pv.Adaptive.__dataclass_fields__)
+    return {"splitter": pv.Adaptive(**{k: v for k, v in given.items() if k in fields}), **{k: v for k, v in given.items() if k not in fields}}
 
 
 def compare(args) -> None:
