@@ -356,3 +356,48 @@ def test_only_settled_unknown_cells_are_sampled(monkeypatch):
     unknown = sorted(tuple(tuple(c.box[n]) for n in ("p", "v")) for c in result.cells if c.verdict == "unknown")
     assert unknown and sorted(sampled) == unknown
     assert len(result.cells) > 1  # cells were halved, and none of them sampled
+
+
+def test_a_halving_that_gained_no_step_switches_the_lineage_to_another_state_at_once():
+    """Halving d gained 31 steps near the whole set, p none; in a lineage where halving d no
+    longer gains, the next halving is p's, whatever the gains measured elsewhere say."""
+    init = Box(("p", "d"), ((0.0, 1.0), (0.0, 1.0)))
+    a = pv.Adaptive(rebox=False)
+    a.gains, a.last, a.halvings = {"p": [0], "d": [31]}, {"p": 1, "d": 2}, 2
+
+    def halve(cell, deepest):
+        (left, _), _ = a.again(cell, _cell(cell, "unknown", steps_done=deepest, deepest_step=deepest, split="d"), init, False)
+        return left, next(n for n, x, y in zip(cell.names, left.bounds, cell.bounds) if x != y)
+
+    half, state = halve(init, 60)
+    assert state == "d"
+    _, state = halve(half, 60)  # no step gained
+    assert state == "p"
+
+
+def test_the_size_a_verified_half_needed_undoes_the_halvings_of_its_lineage_that_gained_no_step():
+    """d halved twice (the second gained nothing), then p: the half verifies. Neighbours are cut
+    to p's width and to d's width before the halving that gained nothing, not to the half's."""
+    init = Box(("p", "d"), ((0.0, 1.0), (0.0, 1.0)))
+    a = pv.Adaptive(rebox=False)
+    a.gains, a.last, a.halvings = {"p": [0], "d": [10]}, {"p": 1, "d": 2}, 2
+    cell = Box(("p", "d"), ((0.0, 0.5), (0.0, 1.0)))
+    for state, deepest in (("d", 40), ("d", 60), ("p", 60)):
+        a.learn(cell, _cell(cell, "unknown", steps_done=deepest, deepest_step=deepest), init)
+        halves = a.again(cell, _cell(cell, "unknown", steps_done=deepest, deepest_step=deepest, split=state), init, False)
+        (cell, _), _ = halves
+    assert (cell.bounds[0][1] - cell.bounds[0][0], cell.bounds[1][1] - cell.bounds[1][0]) == (0.25, 0.25)
+    a.learn(cell, _cell(cell, "verified", steps_done=90, deepest_step=90), init)
+    assert a.needed[-1][1] == {"p": 0.25, "d": 0.5}
+    neighbour = Box(("p", "d"), ((0.25, 0.5), (0.0, 1.0)))
+    assert sorted(piece.bounds[1] for piece, _ in a.prepare(neighbour, init)) == [(0.0, 0.5), (0.5, 1.0)]
+
+
+def test_a_cell_is_cut_to_one_shape_needed_near_it_not_to_the_narrowest_widths_of_several():
+    init = Box(("p", "d"), ((0.0, 1.0), (0.0, 1.0)))
+    a = pv.Adaptive(rebox=False)
+    a.needed += [(Box(("p", "d"), ((0.25, 0.5), (0.0, 0.5))), {"p": 0.25, "d": 0.5})]
+    a.needed += [(Box(("p", "d"), ((0.0, 0.5), (0.5, 1.0))), {"p": 0.5, "d": 0.25})]
+    cell = Box(("p", "d"), ((0.5, 1.0), (0.0, 1.0)))
+    pieces = a.prepare(cell, init)
+    assert len(pieces) == 4 and {(p.bounds[0][1] - p.bounds[0][0], p.bounds[1][1] - p.bounds[1][0]) for p, _ in pieces} == {(0.5, 0.25)}

@@ -204,7 +204,8 @@ class Adaptive(Bisection):
     needed: list = field(default_factory=list, repr=False)  # (cell, widths needed there)
     probe: Optional[Callable] = field(default=None, repr=False)  # (cell, steps) -> {state: spread}, set by the campaign
     runs: int = field(default=0, repr=False)
-    lineage: dict = field(default_factory=dict, repr=False)  # half's key -> (parent's steps, deepest step, stalls, state halved)
+    # half's key -> (parent's steps, deepest step, stalls, state halved, the lineage's earlier halvings as (state, gained))
+    lineage: dict = field(default_factory=dict, repr=False)
     retried: dict = field(default_factory=dict, repr=False)  # cell key -> (steps done, deepest step) of the plain run
     tried: dict = field(default_factory=dict, repr=False)  # cell key -> steps its reboxed retry gained (inf: verified)
     paid: dict = field(default_factory=dict, repr=False)  # cell key -> whether that retry paid, once decided
@@ -245,10 +246,10 @@ class Adaptive(Bisection):
 
     def prepare(self, cell: Box, init: Box) -> list:
         """``cell`` cut to the widths its settled neighbours needed (where they are narrower)."""
-        target = {}
-        for widths in _near(cell, self.needed, init) if self.tile else [w for box, w in self.needed if _touches(cell, box)]:
-            for n, w in widths.items():
-                target[n] = min(target.get(n, np.inf), w)
+        shapes = _near(cell, self.needed, init) if self.tile else [w for box, w in self.needed if _touches(cell, box)]
+        # One shape, the latest learnt: the narrowest widths of several shapes together make
+        # cells smaller than any that was needed.
+        target = shapes[-1] if shapes else {}
         pieces, floor = {}, self._min(init)
         for n, (lo, hi) in zip(cell.names, cell.bounds):
             if target.get(n, 0.0) > 0.0 and hi - lo > 1.5 * target[n]:
@@ -291,7 +292,11 @@ class Adaptive(Bisection):
             # spread ever smaller sizes from cell to cell.
             halve = result.branches and key not in self.cut
             size = bisect(cell, init, self._min(init), result.split)[0] if halve else cell
-            self.needed.append((cell, {n: hi - lo for n, (lo, hi) in zip(size.names, size.bounds)}))
+            widths = {n: hi - lo for n, (lo, hi) in zip(size.names, size.bounds)}
+            if key in self.lineage:
+                _, _, _, state, path = self.lineage[key]
+                widths = _undo_stalled(widths, (*path, (state, True)))
+            self.needed.append((cell, widths))
 
     def again(self, cell: Box, result, init: Box, timed_out: bool):
         """A :class:`Retry` (with rebox, or with the call's in-cell splits), halves (with their
@@ -313,13 +318,16 @@ class Adaptive(Bisection):
         if options.get("rebox") and key in self.tried and not self._rebox_won(key, init):
             options.pop("rebox")  # the retry did not pay: the halves run plain, and compare with the plain run
             steps, deepest_step = self.retried[key][:2]
-        reached, deepest, stalls, halved = self.lineage.pop(key, (-1, -1, 0, None))
-        stalls = stalls + 1 if steps <= reached and deepest_step <= deepest else 0
+        reached, deepest, stalls, halved, path = self.lineage.pop(key, (-1, -1, 0, None, ()))
+        stalled = steps <= reached and deepest_step <= deepest
+        stalls = stalls + 1 if stalled else 0
         if stalls >= self.patience * sum(above_min_width(init, init, widths, 0)):
             if explored:
-                self.lineage[key] = (reached, deepest, stalls - 1, halved)  # the retry stops the lineage unless it goes deeper
+                self.lineage[key] = (reached, deepest, stalls - 1, halved, path)  # the retry stops the lineage unless it goes deeper
                 return Retry({"max_splits": None})
             return None
+        if halved is not None:
+            path = (*path, (halved, not stalled))
         state = self._state_to_halve(cell, result, init, widths, stalls, halved)
         options.pop("max_splits", None)
         halves = _halves(cell, cell.names.index(state))
@@ -327,7 +335,7 @@ class Adaptive(Bisection):
         self.made += len(halves) - 1
         self.last[state] = self.halvings
         for half in halves:
-            self.lineage[_key(half)] = (steps, deepest_step, stalls, state)
+            self.lineage[_key(half)] = (steps, deepest_step, stalls, state, path)
             self.halved[_key(half)] = (deepest_step, state)
         return [(half, {**options, **self._options(half, init)}) for half in halves]
 
@@ -338,6 +346,10 @@ class Adaptive(Bisection):
         that gained no step the widest other state relative to the initial set."""
         above = above_min_width(cell, init, widths, 0)
         candidates = [n for ok, n in zip(above, cell.names) if ok]
+        if stalls and self.learn_states and len(set(candidates) - {halved}) > 0:
+            # The halving that made this cell gained no step: its state is not what loses the
+            # cell at this size, whatever it gained elsewhere (gains measured at other sizes).
+            candidates = [n for n in candidates if n != halved]
         if stalls and not self.learn_states:
             others = [
                 ((hi - lo) / (ihi - ilo), n)
@@ -417,6 +429,18 @@ PRECISION_LOST = (" is undefined on ", " blew up ")
 REBOX_TRIALS = 2  # unknown cells retried with rebox whatever the reason, to find out whether it pays
 REBOX_COST = 2  # plain steps a reboxed step costs, about (Mountain Car: 1.75 at its verified cell size)
 RECENT = 4  # halvings of a state whose gains choose the next state to halve
+
+
+def _undo_stalled(widths: dict, path: tuple) -> dict:
+    """The widths of a verified cell with the halvings of its lineage that gained no step undone
+    (per state, those after its last halving that gained): the cell verified through the others,
+    and neighbours cut to its accidental size would cost cells for nothing."""
+    out = dict(widths)
+    for state in {s for s, _ in path}:
+        gains = [gained for s, gained in path if s == state]
+        trailing = len(gains) - (max(i for i, g in enumerate(gains) if g) + 1 if any(gains) else 0)
+        out[state] *= 2**trailing
+    return out
 
 
 def _halvings(cell: Box, init: Box) -> float:
