@@ -293,7 +293,7 @@ class Adaptive(Bisection):
             halve = result.branches and key not in self.cut
             size = bisect(cell, init, self._min(init), result.split)[0] if halve else cell
             widths = {n: hi - lo for n, (lo, hi) in zip(size.names, size.bounds)}
-            if key in self.lineage:
+            if key in self.lineage and not halve:
                 _, _, _, state, path = self.lineage[key]
                 widths = _undo_stalled(widths, (*path, (state, True)))
             self.needed.append((cell, widths))
@@ -432,14 +432,16 @@ RECENT = 4  # halvings of a state whose gains choose the next state to halve
 
 
 def _undo_stalled(widths: dict, path: tuple) -> dict:
-    """The widths of a verified cell with the halvings of its lineage that gained no step undone
-    (per state, those after its last halving that gained): the cell verified through the others,
-    and neighbours cut to its accidental size would cost cells for nothing."""
-    out = dict(widths)
-    for state in {s for s, _ in path}:
-        gains = [gained for s, gained in path if s == state]
-        trailing = len(gains) - (max(i for i, g in enumerate(gains) if g) + 1 if any(gains) else 0)
-        out[state] *= 2**trailing
+    """The widths of a verified cell with the halvings that gained no step just before the one
+    that verified it (``path``'s last) undone, except those of that halving's state: the cell
+    verified through that halving, and neighbours cut to the accidental size would cost cells for
+    nothing. Earlier stalls stay (the loss of precision they did not move was another one)."""
+    out, final = dict(widths), path[-1][0]
+    for state, gained in reversed(path[:-1]):
+        if gained:
+            break
+        if state != final:
+            out[state] *= 2
     return out
 
 
