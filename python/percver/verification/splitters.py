@@ -319,16 +319,17 @@ class Adaptive(Bisection):
             options.pop("rebox")  # the retry did not pay: the halves run plain, and compare with the plain run
             steps, deepest_step = self.retried[key][:2]
         reached, deepest, stalls, halved, path = self.lineage.pop(key, (-1, -1, 0, None, ()))
-        stalled = steps <= reached and deepest_step <= deepest
-        stalls = stalls + 1 if stalled else 0
+        stalls = stalls + 1 if steps <= reached and deepest_step <= deepest else 0
+        # Moved the loss of precision by a fair share of the steps reached (see MIN_GAIN).
+        gained = steps - reached >= max(1, MIN_GAIN * reached) or deepest_step - deepest >= max(1, MIN_GAIN * deepest)
         if stalls >= self.patience * sum(above_min_width(init, init, widths, 0)):
             if explored:
                 self.lineage[key] = (reached, deepest, stalls - 1, halved, path)  # the retry stops the lineage unless it goes deeper
                 return Retry({"max_splits": None})
             return None
         if halved is not None:
-            path = (*path, (halved, not stalled))
-        state = self._state_to_halve(cell, result, init, widths, stalls, halved)
+            path = (*path, (halved, gained))
+        state = self._state_to_halve(cell, result, init, widths, stalls, halved, gained)
         options.pop("max_splits", None)
         halves = _halves(cell, cell.names.index(state))
         self.halvings += 1
@@ -339,16 +340,16 @@ class Adaptive(Bisection):
             self.halved[_key(half)] = (deepest_step, state)
         return [(half, {**options, **self._options(half, init)}) for half in halves]
 
-    def _state_to_halve(self, cell: Box, result, init: Box, widths: dict, stalls: int, halved: Optional[str]) -> str:
+    def _state_to_halve(self, cell: Box, result, init: Box, widths: dict, stalls: int, halved: Optional[str], gained: bool) -> str:
         """The state whose halvings have gained the most steps lately (each state above its
         min_width tried first, and again when not halved lately, in the order of the probe's,
         else the engine's, choice); with ``learn_states=False`` that choice, and after a halving
         that gained no step the widest other state relative to the initial set."""
         above = above_min_width(cell, init, widths, 0)
         candidates = [n for ok, n in zip(above, cell.names) if ok]
-        if stalls and self.learn_states and len(set(candidates) - {halved}) > 0:
-            # The halving that made this cell gained no step: its state is not what loses the
-            # cell at this size, whatever it gained elsewhere (gains measured at other sizes).
+        if halved is not None and not gained and self.learn_states and len(set(candidates) - {halved}) > 0:
+            # The halving that made this cell gained (almost) nothing: its state is not what
+            # loses the cell at this size, whatever it gained elsewhere (at other sizes).
             candidates = [n for n in candidates if n != halved]
         if stalls and not self.learn_states:
             others = [
@@ -429,6 +430,12 @@ PRECISION_LOST = (" is undefined on ", " blew up ")
 REBOX_TRIALS = 2  # unknown cells retried with rebox whatever the reason, to find out whether it pays
 REBOX_COST = 2  # plain steps a reboxed step costs, about (Mountain Car: 1.75 at its verified cell size)
 RECENT = 4  # halvings of a state whose gains choose the next state to halve
+# A halving gained if it moved the loss of precision later by at least this share of the steps its
+# parent reached (and a step): at less, going as far again would take six more halvings (64 times
+# the cells) of that state, so the lineage halves another one, and the size a verified half needed
+# does not count it (1/8: Mountain Car's halvings near the size needed gain 1-5% and far above it
+# 25-95%).
+MIN_GAIN = 1 / 8
 
 
 def _undo_stalled(widths: dict, path: tuple) -> dict:
