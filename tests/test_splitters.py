@@ -360,19 +360,21 @@ def test_only_settled_unknown_cells_are_sampled(monkeypatch):
 
 def test_a_halving_that_gained_no_step_switches_the_lineage_to_another_state_at_once():
     """Halving d gained 31 steps near the whole set, p none; in a lineage where halving d no
-    longer gains, the next halving is p's, whatever the gains measured elsewhere say."""
+    longer gains (or gains a step of 60, less than MIN_GAIN of them), the next halving is p's,
+    whatever the gains measured elsewhere say."""
     init = Box(("p", "d"), ((0.0, 1.0), (0.0, 1.0)))
-    a = pv.Adaptive(rebox=False)
-    a.gains, a.last, a.halvings = {"p": [0], "d": [31]}, {"p": 1, "d": 2}, 2
+    for later, switched in ((60, True), (61, True), (60 + 60 // 4, False)):
+        a = pv.Adaptive(rebox=False)
+        a.gains, a.last, a.halvings = {"p": [0], "d": [31]}, {"p": 1, "d": 2}, 2
 
-    def halve(cell, deepest):
-        (left, _), _ = a.again(cell, _cell(cell, "unknown", steps_done=deepest, deepest_step=deepest, split="d"), init, False)
-        return left, next(n for n, x, y in zip(cell.names, left.bounds, cell.bounds) if x != y)
+        def halve(cell, deepest):
+            (left, _), _ = a.again(cell, _cell(cell, "unknown", steps_done=deepest, deepest_step=deepest, split="d"), init, False)
+            return left, next(n for n, x, y in zip(cell.names, left.bounds, cell.bounds) if x != y)
 
-    half, state = halve(init, 60)
-    assert state == "d"
-    _, state = halve(half, 60)  # no step gained
-    assert state == "p"
+        half, state = halve(init, 60)
+        assert state == "d"
+        _, state = halve(half, later)
+        assert state == ("p" if switched else "d")
 
 
 def test_the_size_a_verified_half_needed_undoes_the_halvings_of_its_lineage_that_gained_no_step():
