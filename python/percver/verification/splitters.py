@@ -291,7 +291,7 @@ class Adaptive(Bisection):
             # condition that crosses it at every size) keeps that size: halving it again would
             # spread ever smaller sizes from cell to cell.
             halve = result.branches and key not in self.cut
-            size = bisect(cell, init, self._min(init), result.split)[0] if halve else cell
+            size = bisect(cell, init, self._min(init), result.split or self._gaining_state())[0] if halve else cell
             widths = {n: hi - lo for n, (lo, hi) in zip(size.names, size.bounds)}
             if key in self.lineage and not halve:
                 _, _, _, state, path = self.lineage[key]
@@ -374,6 +374,10 @@ class Adaptive(Bisection):
         if untried:
             return hint if hint in untried else untried[0]
         return max(candidates, key=lambda n: (np.mean(self.gains[n][-RECENT:]), n == hint))
+
+    def _gaining_state(self) -> Optional[str]:
+        """The state whose recent halvings gained the most steps (None before any halving)."""
+        return max(self.gains, key=lambda n: np.mean(self.gains[n][-RECENT:]), default=None)
 
     def _options(self, cell: Box, init: Box) -> dict:
         """A new cell's engine options: its in-cell budget, and rebox once retries have paid more
