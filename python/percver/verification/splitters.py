@@ -151,18 +151,26 @@ class Adaptive(Bisection):
       inside is not lost: a cell that cannot be halved further, or whose halvings stopped
       gaining steps, runs again with the call's splits before it is given up.
     - Where cells must be small, and how small: a half that verified after its parent did not
-      says that cells of its size are needed there; a cell that verified only after splits
-      inside it (``branches``) says that cells half its size are (an in-cell split costs about
-      a cell of its own). A cell about to run is cut to the size needed where it is (by the
-      cells it touches; with ``tile=True`` also by the nearest one when it touches none, which
-      spreads the first size found over the whole set), instead of spending runs on the sizes
-      that failed there. A cell cut ahead of its run that verifies whole proves nothing about
-      its size, and counting it would spread the smallest size over the whole set.
+      says that cells of its size are needed there, less the halvings of its lineage that
+      gained nothing just before the one that verified it (those of other states: the cell
+      verified through that halving, and its size with them is an accident of the path); a cell
+      that verified only after splits inside it (``branches``) says that cells half its size
+      are (an in-cell split costs about a cell of its own), halved along the state whose
+      halvings gained most lately. A cell about to run is cut to one size needed where it is,
+      the latest learnt (of the cells it touches; with ``tile=True`` also of the nearest one
+      when it touches none, which spreads the first size found over the whole set), instead of
+      spending runs on the sizes that failed there; the narrowest widths of several sizes
+      together would make cells smaller than any that was needed. A cell cut ahead of its run
+      that verifies whole proves nothing about its size, and counting it would spread the
+      smallest size over the whole set.
     - Which state to halve: the one whose recent halvings pushed the loss of precision furthest
       (the halves' ``deepest_step`` against their parent's), each state tried once first in
       the order of the one whose width moves the runs most up to the step where the cell was
       lost (``probe``: the campaign simulates the runs from the centres of the cell's opposite
-      faces, :func:`percver.verification.falsify.spread`), else of the engine's choice.
+      faces, :func:`percver.verification.falsify.spread`), else of the engine's choice. A
+      halving gains if it moves the loss of precision later by ``MIN_GAIN`` of the steps its
+      parent reached; after one that did not, its lineage halves another state at once (gains
+      measured elsewhere, at other sizes, say little about this one).
       ``learn_states=False``: that first choice, and after a halving that gained no step the
       widest other state relative to the initial set.
     - Where halving stops paying: a lineage that gains no step ``patience`` times per state it
