@@ -403,3 +403,14 @@ def test_a_cell_is_cut_to_one_shape_needed_near_it_not_to_the_narrowest_widths_o
     cell = Box(("p", "d"), ((0.5, 1.0), (0.0, 1.0)))
     pieces = a.prepare(cell, init)
     assert len(pieces) == 4 and {(p.bounds[0][1] - p.bounds[0][0], p.bounds[1][1] - p.bounds[1][0]) for p, _ in pieces} == {(0.5, 0.25)}
+
+
+def test_a_cut_to_a_width_that_differs_by_float_rounding_makes_no_extra_pieces():
+    """Widths made by the same halvings of different cells differ in their last bits: a cell
+    twice the needed width is cut in two, not four."""
+    init = Box(("p", "d"), ((0.0, 1.0), (0.3, 2.0)))
+    a = pv.Adaptive(rebox=False)
+    lo, mid, hi = 0.725, 0.9375, 1.04375
+    assert (mid - lo) / (hi - mid) > 2  # 0.2125 / 0.10625 in floats
+    a.needed.append((Box(("p", "d"), ((0.0, 0.5), (mid, hi))), {"p": 0.5, "d": hi - mid}))
+    assert len(a.prepare(Box(("p", "d"), ((0.0, 0.5), (lo, mid))), init)) == 2

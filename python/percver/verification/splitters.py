@@ -263,7 +263,8 @@ class Adaptive(Bisection):
             if target.get(n, 0.0) > 0.0 and hi - lo > 1.5 * target[n]:
                 # Never below min_width: the floor the user set (or 1/1024 of the initial set).
                 most = 2 ** int(np.floor(np.log2((hi - lo) / floor[n]))) if floor[n] > 0 else 64
-                pieces[n] = min(int(2 ** np.ceil(np.log2((hi - lo) / target[n]))), 64, most)
+                # Widths made by the same halvings differ by float rounding: a ratio of 2.0000001 is 2 pieces, not 4.
+                pieces[n] = min(int(2 ** np.ceil(np.log2((hi - lo) / target[n]) - 1e-6)), 64, most)
         pieces = {n: k for n, k in pieces.items() if k > 1}
         # At most max_cells cells in all: a cut that would pass it is coarsened (the pieces are cut
         # again when drawn, while room is left), since a size needed at a fork can be tiny in every
