@@ -352,11 +352,12 @@ class Adaptive(Bisection):
     def _state_to_halve(self, cell: Box, result, init: Box, widths: dict, stalls: int, halved: Optional[str], gained: bool) -> str:
         """The state whose halvings have gained the most steps lately (each state above its
         min_width tried first, and again when not halved lately, in the order of the probe's,
-        else the engine's, choice); with ``learn_states=False`` that choice, and after a halving
-        that gained no step the widest other state relative to the initial set."""
+        else the engine's, choice), another one than ``halved`` when that halving did not gain
+        (``MIN_GAIN``); with ``learn_states=False`` that choice, and after a halving that gained no
+        step the widest other state relative to the initial set."""
         above = above_min_width(cell, init, widths, 0)
         candidates = [n for ok, n in zip(above, cell.names) if ok]
-        if halved is not None and not gained and self.learn_states and len(set(candidates) - {halved}) > 0:
+        if halved is not None and not gained and self.learn_states and any(n != halved for n in candidates):
             # The halving that made this cell gained (almost) nothing: its state is not what
             # loses the cell at this size, whatever it gained elsewhere (at other sizes).
             candidates = [n for n in candidates if n != halved]
@@ -452,8 +453,8 @@ MIN_GAIN = 1 / 8
 
 
 def _undo_stalled(widths: dict, path: tuple) -> dict:
-    """The widths of a verified cell with the halvings that gained no step just before the one
-    that verified it (``path``'s last) undone, except those of that halving's state: the cell
+    """The widths of a verified cell with the halvings that did not gain (``MIN_GAIN``) just before
+    the one that verified it (``path``'s last) undone, except those of that halving's state: the cell
     verified through that halving, and neighbours cut to the accidental size would cost cells for
     nothing. Earlier stalls stay (the loss of precision they did not move was another one)."""
     out, final = dict(widths), path[-1][0]
