@@ -98,11 +98,18 @@ pub(crate) fn run(lp: &ClosedLoop, cell: &[Interval], settings: &CellSettings, o
                 // A piece lost after part of it reached the goal is split where that happened,
                 // along the variable that decides arrival, if its polynomial part still tells the
                 // arrived part apart there; otherwise where the enclosure was last precise.
-                let arrival =
-                    piece.arrival.take().filter(|a| precise(std::slice::from_ref(&a.margin), &symbols.domain.space, &|m| m.rem.width(), ARRIVAL_REMAINDER));
+                let arrival = piece
+                    .arrival
+                    .take()
+                    .filter(|a| precise(std::slice::from_ref(&a.margin), &symbols.domain.space, &|m| m.rem.width(), ARRIVAL_REMAINDER));
                 let (history, v) = match arrival {
                     Some(arrival) => {
-                        let v = split_variable(&[std::slice::from_ref(&arrival.margin)], &symbols.domain.space, symbols.nvars(), Dependence::All);
+                        let v = split_variable(
+                            &[std::slice::from_ref(&arrival.margin)],
+                            &symbols.domain.space,
+                            symbols.nvars(),
+                            Dependence::All,
+                        );
                         (vec![(arrival.step, arrival.state)], v)
                     }
                     None => {

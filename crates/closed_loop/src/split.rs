@@ -85,9 +85,9 @@ pub(crate) enum Dependence {
     /// Every monomial: the state's spread along the variable (which runs of the domain cross a
     /// goal's boundary).
     All,
-    /// Monomials of total degree 2 and more in the domain variables: the part a halving shrinks faster than the whole
-    /// (by 2^-e for x_v^e), which is what the truncation error of every later step grows from.
-    /// A linear term halves with the state and leaves its relative precision as it was.
+    /// Monomials of total degree 2 and more in the domain variables: the part a halving shrinks
+    /// faster than the whole (by 2^-e for x_v^e), which the truncation error of every later step
+    /// grows from. A linear term halves with the state and leaves its relative precision as it was.
     Nonlinear,
 }
 
