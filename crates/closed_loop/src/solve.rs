@@ -4,7 +4,7 @@ use crate::error::{ReachError, Result};
 use crate::outcome::{CellOutcome, Verdict};
 use crate::problem::ClosedLoop;
 use crate::settings::CellSettings;
-use crate::split::{precise, restrict_half, split_variable, Dependence, End, Piece, ARRIVAL_REMAINDER, SPLIT_REMAINDER};
+use crate::split::{precise, restrict_half, split_variable, End, Piece};
 use crate::step::{advance, box_models};
 use crate::tape::{sums, symbol_states, OnTape, Tape};
 use rayon::prelude::*;
@@ -98,30 +98,23 @@ pub(crate) fn run(lp: &ClosedLoop, cell: &[Interval], settings: &CellSettings, o
                 // A piece lost after part of it reached the goal is split where that happened,
                 // along the variable that decides arrival, if its polynomial part still tells the
                 // arrived part apart there; otherwise where the enclosure was last precise.
-                let arrival = piece
-                    .arrival
-                    .take()
-                    .filter(|a| precise(std::slice::from_ref(&a.margin), &symbols.domain.space, &|m| m.rem.width(), ARRIVAL_REMAINDER));
+                let arrival =
+                    piece.arrival.take().filter(|a| precise(std::slice::from_ref(&a.margin), &symbols.domain.space, &|m| m.rem.width()));
                 let (history, v) = match arrival {
                     Some(arrival) => {
-                        let v = split_variable(
-                            &[std::slice::from_ref(&arrival.margin)],
-                            &symbols.domain.space,
-                            symbols.nvars(),
-                            Dependence::All,
-                        );
+                        let v = split_variable(&[std::slice::from_ref(&arrival.margin)], &symbols.domain.space, symbols.nvars());
                         (vec![(arrival.step, arrival.state)], v)
                     }
                     None => {
                         let before = piece.history.iter().filter(|(s, _)| *s < step.max(1)).count().max(1);
                         let at = piece.history[..before]
                             .iter()
-                            .rposition(|(_, st)| precise(st, &space, &|m| symbols.error_width(m), SPLIT_REMAINDER))
+                            .rposition(|(_, st)| precise(st, &space, &|m| symbols.error_width(m)))
                             .unwrap_or(0);
                         // The split state first; the later ones when it shows no dependence yet.
                         let later: Vec<&[TaylorModel]> =
                             piece.history[at..].iter().map(|(_, st)| &st[..]).chain([&piece.state[..]]).collect();
-                        let v = split_variable(&later, &space, symbols.nvars(), Dependence::Nonlinear);
+                        let v = split_variable(&later, &space, symbols.nvars());
                         piece.history.truncate(at + 1);
                         (piece.history, v)
                     }

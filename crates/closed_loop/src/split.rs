@@ -62,60 +62,48 @@ pub(crate) enum End {
     Forked(Vec<Piece>),
 }
 
-/// Whether the polynomial parts carry the enclosures: every model's error (`error`: its width
-/// beyond its polynomial in the domain variables, i.e. its remainder and its error symbols' terms)
-/// is at most `limit` times its range.
-pub(crate) fn precise(models: &[TaylorModel], space: &Space, error: &dyn Fn(&TaylorModel) -> f64, limit: f64) -> bool {
-    models.iter().all(|m| error(m) <= limit * m.bound(space).width())
+/// Whether the polynomial parts carry the enclosures: every remainder is at most
+/// [`PRECISE_REMAINDER`] of its model's range. Splitting a piece pays off from such a state; from
+/// a later one the remainders, which splitting cannot shrink, are already large enough to grow on
+/// their own: a controller's gain on a state (Mountain Car's u on v: 50-150) feeds them back each
+/// step with no sign, so a remainder of a quarter of the range at step 70 is the whole range by
+/// step 85 in both halves (measured: 1/4 left 10 of 10 hard composite cells unknown after 16
+/// splits, 1/100 verified 8 of them; on the fixed probe's 30 composite cells, all verified either
+/// way, 1/4 took 24 branches and 1/100 18). A later split state (a limit of 5%, or a multiple of
+/// the piece's least relative error) saves the steps before it, but its halves inherit errors
+/// that halving would have shrunk (truncation): it cost NAV splits and lost hard Mountain Car
+/// cells that the restart from step 0 verifies (bench/README.md).
+/// `error` is a model's width beyond its polynomial in the domain variables (its remainder, and
+/// its error symbols' terms).
+pub(crate) fn precise(models: &[TaylorModel], space: &Space, error: &dyn Fn(&TaylorModel) -> f64) -> bool {
+    models.iter().all(|m| error(m) <= PRECISE_REMAINDER * m.bound(space).width())
 }
 
-/// The largest relative error of the latest state a lost piece is split at. Splitting pays off
-/// from a state whose enclosure is mostly polynomial: the halves inherit its remainders, which
-/// splitting cannot shrink, and a controller's gain on a state (Mountain Car's u on v: 50-150)
-/// feeds them back each step with no sign. XPLIMIT
-pub(crate) const SPLIT_REMAINDER: f64 = 0.05;
+pub(crate) const PRECISE_REMAINDER: f64 = 0.01;
 
-/// The largest relative remainder of the goal's margin at which an arrival split still tells
-/// the arrived part apart.
-pub(crate) const ARRIVAL_REMAINDER: f64 = 0.01;
-
-/// What a variable's share of a state counts ([`best_variable`]).
-#[derive(Clone, Copy, PartialEq, Eq, Debug)]
-pub(crate) enum Dependence {
-    /// Every monomial: the state's spread along the variable (which runs of the domain cross a
-    /// goal's boundary).
-    All,
-    /// Monomials of total degree 2 and more in the domain variables: the part a halving shrinks
-    /// faster than the whole (by 2^-e for x_v^e), which the truncation error of every later step
-    /// grows from. A linear term halves with the state and leaves its relative precision as it was.
-    Nonlinear,
-}
-
-/// The domain variable whose halving shrinks the states most by `by`: the largest sum over
-/// states of sum of k |c_k| over monomials with x_v^k (for `Dependence::All` a bound on
-/// |d state / d x_v|), relative to the state's width. None when no variable is left to split.
-/// States that are still one variable of the cell (parameters such as a noise level, carried
-/// unchanged) are left out: halving one only halves itself, and its fixed share would outvote
-/// the states whose dependence on the cell was lost. Their influence counts through the states
-/// that use them (when no state of `states[0]` depends on more than its own variable yet, or not
-/// nonlinearly for `Dependence::Nonlinear`, as at step 0, the first of the later `states` that
-/// does tells which variables the states came to depend on; failing that, every monomial counts,
-/// and failing that, every state of `states[0]`).
+/// The domain variable whose halving shrinks the state's polynomial part most: the largest
+/// sum over states of |d state / d x_v| (bounded by sum of k |c_k| over monomials with x_v^k),
+/// relative to the state's width. None when no variable is left to split. States that are
+/// still one variable of the cell (parameters such as a noise level, carried unchanged) are left
+/// out: halving one only halves itself, and its fixed share would outvote the states whose
+/// dependence on the cell was lost. Their influence counts through the states that use them
+/// (when no state of `states[0]` depends on more than its own variable yet, as at step 0, the
+/// first of the later `states` that does tells which variables the states came to depend on;
+/// failing that, every state of `states[0]` counts).
 /// Only the first `nvars` variables of the models' `space` are candidates (a state's error
 /// symbols come after them).
-pub(crate) fn split_variable(states: &[&[TaylorModel]], space: &Space, nvars: usize, by: Dependence) -> Option<usize> {
-    let first = |by| states.iter().find_map(|state| best_variable(&moved(state, space), space, nvars, by));
-    [by, Dependence::All]
-        .into_iter()
-        .find_map(first)
-        .or_else(|| best_variable(&states[0].iter().collect::<Vec<_>>(), space, nvars, Dependence::All))
+pub(crate) fn split_variable(states: &[&[TaylorModel]], space: &Space, nvars: usize) -> Option<usize> {
+    states
+        .iter()
+        .find_map(|state| best_variable(&moved(state, space), space, nvars))
+        .or_else(|| best_variable(&states[0].iter().collect::<Vec<_>>(), space, nvars))
 }
 
 pub(crate) fn moved<'a>(state: &'a [TaylorModel], space: &Space) -> Vec<&'a TaylorModel> {
     state.iter().filter(|m| !own_variable(m, space)).collect()
 }
 
-pub(crate) fn best_variable(state: &[&TaylorModel], space: &Space, nvars: usize, by: Dependence) -> Option<usize> {
+pub(crate) fn best_variable(state: &[&TaylorModel], space: &Space, nvars: usize) -> Option<usize> {
     let mut score = vec![0.0f64; nvars];
     for m in state {
         let width = m.bound(space).width();
@@ -123,12 +111,7 @@ pub(crate) fn best_variable(state: &[&TaylorModel], space: &Space, nvars: usize,
             continue;
         }
         for (k, &c) in m.coef.iter().enumerate() {
-            let exponents = space.exponents(k);
-            let exponents = &exponents[..nvars.min(exponents.len())];
-            if by == Dependence::Nonlinear && exponents.iter().map(|&e| e as u32).sum::<u32>() < 2 {
-                continue;
-            }
-            for (v, &e) in exponents.iter().enumerate() {
+            for (v, &e) in space.exponents(k).iter().take(nvars).enumerate() {
                 score[v] += e as f64 * c.abs() / width;
             }
         }
@@ -191,7 +174,7 @@ pub(crate) fn arrived(margins: &[(usize, TaylorModel)], cmp: &Cmp, ctx: &Ctx) ->
         }
         // Either every margin fails on the whole sub-box (some of its runs have not arrived), or
         // halves may tell the arrived runs apart.
-        let Some(v) = best.and_then(|(_, q)| split_variable(&[std::slice::from_ref(&q)], space, space.nvars, Dependence::All)) else {
+        let Some(v) = best.and_then(|(_, q)| split_variable(&[std::slice::from_ref(&q)], space, space.nvars)) else {
             continue;
         };
         let (c, r) = sub[v];

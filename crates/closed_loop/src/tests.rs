@@ -316,8 +316,9 @@ fn a_relation_between_states_is_proved_on_the_segments_models_and_only_if_it_hol
 }
 
 /// x+ = x + 2 a - 0.3 b^2 + 0.3 b^3 (a, b constant) at order 2: b^3's truncation, 0.3 a step,
-/// is the whole overestimate (runs reach 2 a step at most, the bound 2.3). Halving a leaves it
-/// as it is in the half with a near 1; halving b divides it by 8.
+/// is the whole overestimate (runs reach 2 a step at most, the bound 2.3), and x's relative error
+/// stays at 12% from step 1 on. Halving a leaves the truncation as it is in the half with a near
+/// 1; halving b divides it by 8.
 fn truncated_cubic() -> (ClosedLoop, Program) {
     let names: Vec<String> = ["a", "b", "x"].iter().map(|s| s.to_string()).collect();
     let updates = ["a", "b", "x + 2*a - 0.3*b^2 + 0.3*b^3"].map(|e| parse_expr(e).unwrap());
@@ -336,30 +337,20 @@ fn truncated_cubic() -> (ClosedLoop, Program) {
     (lp, plant)
 }
 
-/// The split variable of a lost piece is the one of the largest nonlinear dependence (b), not
-/// the largest spread (a, which an arrival split still picks); the cell verifies after that one
-/// split, and
-/// float runs from a grid of it stay in every step's box.
+/// A lost piece whose error is truncation from step 1 on is split at step 0, so the halves make
+/// the smaller truncation of their own: the cell verifies after three splits (two along a, the
+/// largest spread, then b). Split where its error stopped changing (step 9), every half would
+/// carry the nine steps' truncation and none would verify. Float runs from a grid of the cell
+/// stay in every step's box.
 #[test]
-fn a_lost_piece_is_split_along_its_nonlinear_dependence_inside_the_simulations() {
-    use crate::split::{split_variable, Dependence};
-    use taylor::{Ctx, Space, TaylorModel};
-    let ctx = Ctx::new(Space::get(2, 2, 0).unwrap(), 2, 0.0);
-    let (a, b) = (TaylorModel::var(&ctx, 0), TaylorModel::var(&ctx, 1));
-    let b2 = b.square(&ctx);
-    let x1 = a.scale(2.0).sub(&b2.scale(0.3)).add(&b2.mul(&b, &ctx).scale(0.3));
-    let states = [vec![a.clone(), b.clone(), TaylorModel::zero()], vec![a, b, x1]];
-    let states: Vec<&[TaylorModel]> = states.iter().map(|s| &s[..]).collect();
-    assert_eq!(split_variable(&states, &ctx.space, 2, Dependence::Nonlinear), Some(1));
-    assert_eq!(split_variable(&states, &ctx.space, 2, Dependence::All), Some(0));
-
+fn a_piece_lost_to_truncation_is_split_before_it_and_encloses_the_simulations() {
     let (lp, plant) = truncated_cubic();
     let cell = [Interval::new(-1.0, 1.0).unwrap(), Interval::new(-1.0, 1.0).unwrap(), Interval::point(0.0)];
     let settings = CellSettings { order: 2, ..loop_settings(false) };
     assert_eq!(verify_cell(&lp, &cell, &settings).verdict, Verdict::Unknown);
-    // One split along b verifies; along a it would not (the spread's rule needs three).
-    let out = verify_cell(&lp, &cell, &CellSettings { max_splits: 1, ..settings });
-    assert_eq!((out.verdict, out.branches), (Verdict::Verified, 1), "{:?}", out.reason);
+    let out = verify_cell(&lp, &cell, &CellSettings { max_splits: 3, ..settings });
+    assert_eq!((out.verdict, out.branches), (Verdict::Verified, 3), "{:?}", out.reason);
+    assert_eq!(out.steps_done, 10);
     for i in 0..=40 {
         for j in 0..=40 {
             assert_float_run_inside(&out.boxes, &plant, vec![-1.0 + i as f64 / 20.0, -1.0 + j as f64 / 20.0, 0.0]);
