@@ -68,7 +68,11 @@ pub(crate) enum End {
 /// their own: a controller's gain on a state (Mountain Car's u on v: 50-150) feeds them back each
 /// step with no sign, so a remainder of a quarter of the range at step 70 is the whole range by
 /// step 85 in both halves (measured: 1/4 left 10 of 10 hard composite cells unknown after 16
-/// splits, 1/100 verified 8 of them, and the easy cells ran faster).
+/// splits, 1/100 verified 8 of them; on the fixed probe's 30 composite cells, all verified either
+/// way, 1/4 took 24 branches and 1/100 18). A later split state (a limit of 5%, or a multiple of
+/// the piece's least relative error) saves the steps before it, but its halves inherit errors
+/// that halving would have shrunk (truncation): it cost NAV splits and lost hard Mountain Car
+/// cells that the restart from step 0 verifies (bench/README.md).
 /// `error` is a model's width beyond its polynomial in the domain variables (its remainder, and
 /// its error symbols' terms).
 pub(crate) fn precise(models: &[TaylorModel], space: &Space, error: &dyn Fn(&TaylorModel) -> f64) -> bool {

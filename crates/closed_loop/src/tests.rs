@@ -314,3 +314,46 @@ fn a_relation_between_states_is_proved_on_the_segments_models_and_only_if_it_hol
     assert_eq!(out.verdict, Verdict::Unknown, "{:?}", out.reason);
     assert!(out.reason.as_deref().unwrap_or("").contains("could not be proved over t"), "{:?}", out.reason);
 }
+
+/// x+ = x + 2 a - 0.3 b^2 + 0.3 b^3 (a, b constant) at order 2: b^3's truncation, 0.3 a step,
+/// is the whole overestimate (runs reach 2 a step at most, the bound 2.3), and x's relative error
+/// stays at 12% from step 1 on. Halving a leaves the truncation as it is in the half with a near
+/// 1; halving b divides it by 8.
+fn truncated_cubic() -> (ClosedLoop, Program) {
+    let names: Vec<String> = ["a", "b", "x"].iter().map(|s| s.to_string()).collect();
+    let updates = ["a", "b", "x + 2*a - 0.3*b^2 + 0.3*b^3"].map(|e| parse_expr(e).unwrap());
+    let plant = Program::compile(&updates, &names).unwrap();
+    let safe = Program::compile(&[parse_expr("x - 21").unwrap()], &names).unwrap();
+    let lp = ClosedLoop {
+        state_names: names,
+        stages: vec![],
+        plant: Plant::Discrete(Arc::new(plant.clone())),
+        safe: vec![Condition { margin: Arc::new(safe), cmp: Cmp::Le, label: "x <= 21".into(), window: None }],
+        goal: None,
+        goal_within: false,
+        steps: 10,
+    };
+    lp.validate().unwrap();
+    (lp, plant)
+}
+
+/// A lost piece whose error is truncation from step 1 on is split at step 0, so the halves make
+/// the smaller truncation of their own: the cell verifies after three splits (two along a, the
+/// largest spread, then b). Split where its error stopped changing (step 9), every half would
+/// carry the nine steps' truncation and none would verify. Float runs from a grid of the cell
+/// stay in every step's box.
+#[test]
+fn a_piece_lost_to_truncation_is_split_before_it_and_encloses_the_simulations() {
+    let (lp, plant) = truncated_cubic();
+    let cell = [Interval::new(-1.0, 1.0).unwrap(), Interval::new(-1.0, 1.0).unwrap(), Interval::point(0.0)];
+    let settings = CellSettings { order: 2, ..loop_settings(false) };
+    assert_eq!(verify_cell(&lp, &cell, &settings).verdict, Verdict::Unknown);
+    let out = verify_cell(&lp, &cell, &CellSettings { max_splits: 3, ..settings });
+    assert_eq!((out.verdict, out.branches), (Verdict::Verified, 3), "{:?}", out.reason);
+    assert_eq!(out.steps_done, 10);
+    for i in 0..=40 {
+        for j in 0..=40 {
+            assert_float_run_inside(&out.boxes, &plant, vec![-1.0 + i as f64 / 20.0, -1.0 + j as f64 / 20.0, 0.0]);
+        }
+    }
+}
