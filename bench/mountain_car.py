@@ -221,7 +221,10 @@ def variant(spec: str) -> dict:
         raise SystemExit(f"unknown variant {spec!r}: give hand, adaptive or adaptive:key=value:...")
     given = {k: ast.literal_eval(v) for k, v in (s.split("=", 1) for s in settings)}
     fields = set(pv.Adaptive.__dataclass_fields__)
-    return {"splitter": pv.Adaptive(**{k: v for k, v in given.items() if k in fields}), **{k: v for k, v in given.items() if k not in fields}}
+    return {
+        "splitter": pv.Adaptive(**{k: v for k, v in given.items() if k in fields}),
+        **{k: v for k, v in given.items() if k not in fields},
+    }
 
 
 def compare(args) -> None:
