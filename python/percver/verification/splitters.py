@@ -209,6 +209,7 @@ class Adaptive(Bisection):
     reach: int = 2
     learn_states: bool = True
     tile: bool = False
+    goal_halves: bool = False
     needed: list = field(default_factory=list, repr=False)  # (cell, widths needed there)
     probe: Optional[Callable] = field(default=None, repr=False)  # (cell, steps) -> {state: spread}, set by the campaign
     runs: int = field(default=0, repr=False)
@@ -336,7 +337,8 @@ class Adaptive(Bisection):
         stalls = stalls + 1 if steps <= reached and deepest_step <= deepest else 0
         # Moved the loss of precision by a fair share of the steps reached (see MIN_GAIN).
         gained = steps - reached >= max(1, MIN_GAIN * reached) or deepest_step - deepest >= max(1, MIN_GAIN * deepest)
-        if explored and halved is not None and not gained and GOAL_PART in (result.reason or "") and self._late(cell, deepest_step, init):
+        forks = explored and halved is not None and not gained and GOAL_PART in (result.reason or "") and self._late(cell, deepest_step, init)
+        if forks and not self.goal_halves:
             # Runs from parts of the cell arrive at different steps, and halving did not move
             # that: the engine's in-cell forks separate the arrivals for a few runs' cost.
             self.lineage[key] = (reached, deepest, stalls, halved, path)
@@ -358,6 +360,8 @@ class Adaptive(Bisection):
         for half in halves:
             self.lineage[_key(half)] = (steps, deepest_step, stalls, state, path)
             self.halved[_key(half)] = (deepest_step, state)
+        if forks:
+            return [(half, {**options, **{k: v for k, v in self._options(half, init).items() if k != "max_splits"}}) for half in halves]
         return [(half, {**options, **self._options(half, init)}) for half in halves]
 
     def _state_to_halve(self, cell: Box, result, init: Box, widths: dict, stalls: int, halved: Optional[str], gained: bool) -> str:
