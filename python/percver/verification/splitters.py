@@ -210,6 +210,7 @@ class Adaptive(Bisection):
     learn_states: bool = True
     tile: bool = False
     goal_halves: bool = False
+    stalled: int = 2
     needed: list = field(default_factory=list, repr=False)  # (cell, widths needed there)
     probe: Optional[Callable] = field(default=None, repr=False)  # (cell, steps) -> {state: spread}, set by the campaign
     runs: int = field(default=0, repr=False)
@@ -410,7 +411,7 @@ class Adaptive(Bisection):
         """Whether the cell ``key`` comes from ``STALLED`` halvings in a row that gained nothing
         (``MIN_GAIN``) before the one that made it."""
         path = self.lineage[key][4] if key in self.lineage else ()
-        return len(path) >= STALLED and not any(gained for _, gained in path[-STALLED:])
+        return len(path) >= self.stalled and not any(gained for _, gained in path[-self.stalled :])
 
     def _gaining_state(self) -> Optional[str]:
         """The state whose recent halvings gained the most steps (None before any halving)."""
