@@ -211,6 +211,7 @@ class Adaptive(Bisection):
     tile: bool = False
     goal_halves: bool = False
     stalled: int = 2
+    cut_reach: Optional[int] = None
     needed: list = field(default_factory=list, repr=False)  # (cell, widths needed there)
     probe: Optional[Callable] = field(default=None, repr=False)  # (cell, steps) -> {state: spread}, set by the campaign
     runs: int = field(default=0, repr=False)
@@ -270,6 +271,13 @@ class Adaptive(Bisection):
                 # Widths made by the same halvings differ by float rounding: a ratio of 2.0000001 is 2 pieces, not 4.
                 pieces[n] = min(int(2 ** np.ceil(np.log2((hi - lo) / target[n]) - 1e-6)), 64, most)
         pieces = {n: k for n, k in pieces.items() if k > 1}
+        if self.cut_reach is not None:
+            if _key(cell) in self.cut:
+                return [cell]
+            while pieces and np.prod(list(pieces.values())) > 2**self.cut_reach:
+                widest = max(pieces, key=pieces.get)
+                pieces[widest] //= 2
+                pieces = {n: k for n, k in pieces.items() if k > 1}
         # At most max_cells cells in all: a cut that would pass it is coarsened (the pieces are cut
         # again when drawn, while room is left), since a size needed at a fork can be tiny in every
         # state and its grid astronomically large.
