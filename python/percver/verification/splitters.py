@@ -149,14 +149,23 @@ class Adaptive(Bisection):
       is at most ``reach`` halvings smaller; then with the call's. A cell far too big then fails
       at the first loss of precision, cheaply, and is halved; one that could have been split
       inside is not lost: a cell that cannot be halved further, or whose halvings stopped
-      gaining steps, runs again with the call's splits before it is given up.
+      gaining steps, runs again with the call's splits before it is given up. So does, before
+      it is halved, a cell whose runs reach the goal at different steps (the goal holds on
+      part of its set), if the halving that made it gained nothing (``MIN_GAIN``) and it got
+      within ``MIN_GAIN`` of the step where the runs of the verified cells near it arrived (or
+      none has verified): halving only shrinks the spread of arrivals, a step or so a time,
+      while in-cell forks separate them for a few runs (a lineage near the Mountain Car wall
+      halved p0 and dc in turn to a tenth of the hand's cells that way). Its halves compare
+      with its plain run.
     - Where cells must be small, and how small: a half that verified after its parent did not
       says that cells of its size are needed there, less the halvings of its lineage that
       gained nothing just before the one that verified it (those of other states: the cell
       verified through that halving, and its size with them is an accident of the path); a cell
       that verified only after splits inside it (``branches``) says that cells half its size
       are (an in-cell split costs about a cell of its own), halved along the state whose
-      halvings gained most lately. A cell about to run is cut to one size needed where it is,
+      halvings gained most lately. A cell verified after ``STALLED`` halvings in a row that
+      gained nothing says nothing of the size needed (its size is the path's accident: cut to
+      it, its neighbours would spread it). A cell about to run is cut to one size needed where it is,
       the latest learnt (of the cells it touches; with ``tile=True`` also of the nearest one
       when it touches none, which spreads the first size found over the whole set), instead of
       spending runs on the sizes that failed there; the narrowest widths of several sizes
@@ -209,9 +218,6 @@ class Adaptive(Bisection):
     reach: int = 2
     learn_states: bool = True
     tile: bool = False
-    goal_halves: bool = False
-    stalled: int = 2
-    cut_reach: Optional[int] = None
     needed: list = field(default_factory=list, repr=False)  # (cell, widths needed there)
     probe: Optional[Callable] = field(default=None, repr=False)  # (cell, steps) -> {state: spread}, set by the campaign
     runs: int = field(default=0, repr=False)
@@ -271,13 +277,6 @@ class Adaptive(Bisection):
                 # Widths made by the same halvings differ by float rounding: a ratio of 2.0000001 is 2 pieces, not 4.
                 pieces[n] = min(int(2 ** np.ceil(np.log2((hi - lo) / target[n]) - 1e-6)), 64, most)
         pieces = {n: k for n, k in pieces.items() if k > 1}
-        if self.cut_reach is not None:
-            if _key(cell) in self.cut:
-                return [cell]
-            while pieces and np.prod(list(pieces.values())) > 2**self.cut_reach:
-                widest = max(pieces, key=pieces.get)
-                pieces[widest] //= 2
-                pieces = {n: k for n, k in pieces.items() if k > 1}
         # At most max_cells cells in all: a cut that would pass it is coarsened (the pieces are cut
         # again when drawn, while room is left), since a size needed at a fork can be tiny in every
         # state and its grid astronomically large.
@@ -346,8 +345,7 @@ class Adaptive(Bisection):
         stalls = stalls + 1 if steps <= reached and deepest_step <= deepest else 0
         # Moved the loss of precision by a fair share of the steps reached (see MIN_GAIN).
         gained = steps - reached >= max(1, MIN_GAIN * reached) or deepest_step - deepest >= max(1, MIN_GAIN * deepest)
-        forks = explored and halved is not None and not gained and GOAL_PART in (result.reason or "") and self._late(cell, deepest_step, init)
-        if forks and not self.goal_halves:
+        if explored and halved is not None and not gained and GOAL_PART in (result.reason or "") and self._late(cell, deepest_step, init):
             # Runs from parts of the cell arrive at different steps, and halving did not move
             # that: the engine's in-cell forks separate the arrivals for a few runs' cost.
             self.lineage[key] = (reached, deepest, stalls, halved, path)
@@ -369,8 +367,6 @@ class Adaptive(Bisection):
         for half in halves:
             self.lineage[_key(half)] = (steps, deepest_step, stalls, state, path)
             self.halved[_key(half)] = (deepest_step, state)
-        if forks:
-            return [(half, {**options, **{k: v for k, v in self._options(half, init).items() if k != "max_splits"}}) for half in halves]
         return [(half, {**options, **self._options(half, init)}) for half in halves]
 
     def _state_to_halve(self, cell: Box, result, init: Box, widths: dict, stalls: int, halved: Optional[str], gained: bool) -> str:
@@ -419,7 +415,7 @@ class Adaptive(Bisection):
         """Whether the cell ``key`` comes from ``STALLED`` halvings in a row that gained nothing
         (``MIN_GAIN``) before the one that made it."""
         path = self.lineage[key][4] if key in self.lineage else ()
-        return len(path) >= self.stalled and not any(gained for _, gained in path[-self.stalled :])
+        return len(path) >= STALLED and not any(gained for _, gained in path[-STALLED:])
 
     def _gaining_state(self) -> Optional[str]:
         """The state whose recent halvings gained the most steps (None before any halving)."""
