@@ -460,7 +460,7 @@ def test_a_cell_lost_to_a_partly_reached_goal_that_halving_did_not_move_runs_wit
 def test_a_cell_verified_after_halvings_that_gained_nothing_teaches_no_size():
     """p and d halved in turn, each gaining a step of ~95: the half that verifies has a size the
     path made by accident, and cutting its neighbours to it would spread it; after one such
-    halving (or none) the size is learnt as before."""
+    halving the size is learnt as before."""
     init = Box(("p", "d"), ((0.0, 1.0), (0.0, 1.0)))
     for stalled, learnt in ((1, True), (2, False)):
         a = pv.Adaptive(rebox=False)
