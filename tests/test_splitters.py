@@ -9,7 +9,7 @@ import percver as pv
 from percver.sets import Box
 from percver.verification.journal import journal_cells
 from percver.verification.results import Cell
-from percver.verification.splitters import Retry
+from percver.verification.splitters import Retry, _key
 from test_verify import assert_contains_simulations, mountain_car
 
 
@@ -414,3 +414,59 @@ def test_a_cut_to_a_width_that_differs_by_float_rounding_makes_no_extra_pieces()
     assert (mid - lo) / (hi - mid) > 2  # 0.2125 / 0.10625 in floats
     a.needed.append((Box(("p", "d"), ((0.0, 0.5), (mid, hi))), {"p": 0.5, "d": hi - mid}))
     assert len(a.prepare(Box(("p", "d"), ((0.0, 0.5), (lo, mid))), init)) == 2
+
+
+def _halve(a, cell, init, deepest, reason="goal undecided", options=None, split="p"):
+    """The adaptive's answer to ``cell`` lost at step ``deepest`` (learnt first, as the campaign does)."""
+    outcome = _cell(cell, "unknown", steps_done=deepest, deepest_step=deepest, split=split, reason=reason, options=options or {})
+    a.learn(cell, outcome, init)
+    return a.again(cell, outcome, init, False)
+
+
+ARRIVED = "step 96: goal 'p >= 0.45' holds on part of the set only since step 85"
+
+
+def test_a_cell_lost_to_a_partly_reached_goal_that_halving_did_not_move_runs_with_the_call_s_splits():
+    """Runs from parts of a cell arriving at different steps are what in-cell forks separate: a
+    cell run with the small budget and lost so, after a halving that gained nothing, runs again
+    with the call's splits instead of being halved. A blow-up, a halving that gained, or a loss
+    far earlier than where the verified cells near it arrived is halved as before."""
+    init = Box(("p", "d"), ((0.0, 1.0), (0.0, 1.0)))
+    small = {"max_splits": 0}
+
+    def second(reason, later, arrived=None):
+        a = pv.Adaptive(rebox=False)
+        if arrived is not None:
+            done = Box(("p", "d"), ((0.9375, 1.0), (0.9375, 1.0)))  # far smaller: the halves keep the small budget
+            a.learn(done, _cell(done, "verified", steps_done=arrived, deepest_step=arrived), init)
+        (half, options), _ = _halve(a, init, init, 95, ARRIVED, small)
+        return a, half, _halve(a, half, init, later, reason, options)
+
+    a, half, out = second(ARRIVED, 96)
+    assert out == Retry({"max_splits": None, "rebox": None})
+    # The retry is lost too: halved, and the halves (small budget again) compare with the run before it.
+    deeper = _cell(half, "unknown", steps_done=99, deepest_step=99, split="d", reason=ARRIVED)
+    a.learn(half, deeper, init)
+    halves = a.again(half, deeper, init, False)
+    assert isinstance(halves, list) and all(o == small for _, o in halves)
+    assert a.lineage[_key(halves[0][0])][:2] == (96, 96)
+    blew = "step 96: the enclosure of 'p' blew up (3e6); split the cell or raise the order"
+    assert isinstance(second(blew, 96)[2], list)
+    assert isinstance(second(ARRIVED, 95 + 95 // 4)[2], list)  # the halving gained a fair share
+    assert isinstance(second(ARRIVED, 96, arrived=140)[2], list)  # far from where the verified cells' runs arrived
+    assert second(ARRIVED, 96, arrived=100)[2] == Retry({"max_splits": None, "rebox": None})
+
+
+def test_a_cell_verified_after_halvings_that_gained_nothing_teaches_no_size():
+    """p and d halved in turn, each gaining a step of ~95: the half that verifies has a size the
+    path made by accident, and cutting its neighbours to it would spread it; after one such
+    halving the size is learnt as before."""
+    init = Box(("p", "d"), ((0.0, 1.0), (0.0, 1.0)))
+    for stalled, learnt in ((1, True), (2, False)):
+        a = pv.Adaptive(rebox=False)
+        cell, deepest = init, 40
+        for k in range(stalled + 2):
+            (cell, _), _ = _halve(a, cell, init, deepest, split="pd"[k % 2])
+            deepest = 94 if k == 0 else deepest + 1
+        a.learn(cell, _cell(cell, "verified", steps_done=deepest + 1, deepest_step=deepest + 1), init)
+        assert bool(a.needed) == learnt

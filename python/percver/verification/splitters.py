@@ -149,14 +149,23 @@ class Adaptive(Bisection):
       is at most ``reach`` halvings smaller; then with the call's. A cell far too big then fails
       at the first loss of precision, cheaply, and is halved; one that could have been split
       inside is not lost: a cell that cannot be halved further, or whose halvings stopped
-      gaining steps, runs again with the call's splits before it is given up.
+      gaining steps, runs again with the call's splits before it is given up. So does, before
+      it is halved, a cell whose runs reach the goal at different steps (the goal holds on
+      part of its set), if the halving that made it gained nothing (``MIN_GAIN``) and it got
+      within ``MIN_GAIN`` of the step where the runs of the verified cells near it arrived (or
+      none has verified): halving only shrinks the spread of arrivals, a step or so a time,
+      while in-cell forks separate them for a few runs (a lineage near the Mountain Car wall
+      halved p0 and dc in turn to a tenth of the hand's cells that way). Its halves compare
+      with its plain run.
     - Where cells must be small, and how small: a half that verified after its parent did not
       says that cells of its size are needed there, less the halvings of its lineage that
       gained nothing just before the one that verified it (those of other states: the cell
       verified through that halving, and its size with them is an accident of the path); a cell
       that verified only after splits inside it (``branches``) says that cells half its size
       are (an in-cell split costs about a cell of its own), halved along the state whose
-      halvings gained most lately. A cell about to run is cut to one size needed where it is,
+      halvings gained most lately. A cell verified after ``STALLED`` halvings in a row that
+      gained nothing says nothing of the size needed (its size is the path's accident: cut to
+      it, its neighbours would spread it). A cell about to run is cut to one size needed where it is,
       the latest learnt (of the cells it touches; with ``tile=True`` also of the nearest one
       when it touches none, which spreads the first size found over the whole set), instead of
       spending runs on the sizes that failed there; the narrowest widths of several sizes
@@ -219,6 +228,8 @@ class Adaptive(Bisection):
     paid: dict = field(default_factory=dict, repr=False)  # cell key -> whether that retry paid, once decided
     pending: set = field(default_factory=set, repr=False)  # keys of reboxed retries not yet run
     verified: list = field(default_factory=list, repr=False)  # (cell, halvings from the initial set) of every verified cell
+    arrivals: list = field(default_factory=list, repr=False)  # (cell, step its runs all arrived) of every verified cell
+    goal_retried: dict = field(default_factory=dict, repr=False)  # cell key -> (steps done, deepest step) of the run before its split retry
     gains: dict = field(default_factory=dict, repr=False)  # state -> steps its halvings gained (latest last)
     plain_gains: dict = field(default_factory=dict, repr=False)  # the same, of halves that ran without rebox
     halved: dict = field(default_factory=dict, repr=False)  # half's key -> (parent's deepest step, state halved), until it runs
@@ -292,10 +303,11 @@ class Adaptive(Bisection):
                 self.plain_gains.setdefault(state, []).append(result.deepest_step - deepest)
         if result.verdict == "verified":
             self.verified.append((cell, _halvings(cell, init)))
+            self.arrivals.append((cell, result.deepest_step))
         if key in self.retried and result.options.get("rebox") and key in self.pending:
             self.pending.discard(key)
             self.tried[key] = np.inf if result.verdict == "verified" else result.deepest_step - self.retried[key][1]
-        if result.verdict == "verified" and (result.branches or key in self.lineage):
+        if result.verdict == "verified" and (result.branches or key in self.lineage) and not self._stalled(key):
             # A cell already cut to the size needed near it that still branches (forks on a
             # condition that crosses it at every size) keeps that size: halving it again would
             # spread ever smaller sizes from cell to cell.
@@ -327,10 +339,18 @@ class Adaptive(Bisection):
         if options.get("rebox") and key in self.tried and not self._rebox_won(key, init):
             options.pop("rebox")  # the retry did not pay: the halves run plain, and compare with the plain run
             steps, deepest_step = self.retried[key][:2]
+        if key in self.goal_retried:
+            steps, deepest_step = self.goal_retried.pop(key)  # the halves run with the small budget: compared with the run that had it
         reached, deepest, stalls, halved, path = self.lineage.pop(key, (-1, -1, 0, None, ()))
         stalls = stalls + 1 if steps <= reached and deepest_step <= deepest else 0
         # Moved the loss of precision by a fair share of the steps reached (see MIN_GAIN).
         gained = steps - reached >= max(1, MIN_GAIN * reached) or deepest_step - deepest >= max(1, MIN_GAIN * deepest)
+        if explored and halved is not None and not gained and GOAL_PART in (result.reason or "") and self._late(cell, deepest_step, init):
+            # Runs from parts of the cell arrive at different steps, and halving did not move
+            # that: the engine's in-cell forks separate the arrivals for a few runs' cost.
+            self.lineage[key] = (reached, deepest, stalls, halved, path)
+            self.goal_retried[key] = (steps, deepest_step)
+            return Retry({"max_splits": None, **({} if "rebox" in options else {"rebox": None})})
         if stalls >= self.patience * sum(above_min_width(init, init, widths, 0)):
             if explored:
                 self.lineage[key] = (reached, deepest, stalls - 1, halved, path)  # the retry stops the lineage unless it goes deeper
@@ -384,6 +404,18 @@ class Adaptive(Bisection):
         if untried:
             return hint if hint in untried else untried[0]
         return max(candidates, key=lambda n: (np.mean(self.gains[n][-RECENT:]), n == hint))
+
+    def _late(self, cell: Box, step: int, init: Box) -> bool:
+        """Whether a cell lost at ``step`` got within ``MIN_GAIN`` of the step where the runs of the
+        verified cells near it all arrived (or none has verified yet)."""
+        near = _near(cell, self.arrivals, init)
+        return not near or step >= (1 - MIN_GAIN) * max(near)
+
+    def _stalled(self, key: tuple) -> bool:
+        """Whether the cell ``key`` comes from ``STALLED`` halvings in a row that gained nothing
+        (``MIN_GAIN``) before the one that made it."""
+        path = self.lineage[key][4] if key in self.lineage else ()
+        return len(path) >= STALLED and not any(gained for _, gained in path[-STALLED:])
 
     def _gaining_state(self) -> Optional[str]:
         """The state whose recent halvings gained the most steps (None before any halving)."""
@@ -439,6 +471,11 @@ class Adaptive(Bisection):
 # Reasons (the engine's words) after which a cell is retried with rebox: an operation left its
 # domain (taylor's Domain error: division, sqrt, log) or an enclosure blew up.
 PRECISION_LOST = (" is undefined on ", " blew up ")
+# The engine's reason when runs from parts of a cell arrive at the goal at different steps.
+GOAL_PART = " holds on part of the set only since step "
+# Halvings in a row that gained nothing before a cell verified, after which its size is an
+# accident of the path and is not learnt as needed.
+STALLED = 2
 
 
 REBOX_TRIALS = 2  # unknown cells retried with rebox whatever the reason, to find out whether it pays
