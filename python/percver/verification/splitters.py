@@ -7,8 +7,8 @@ cut again. A splitter is a parameter of :func:`percver.verify` (``splitter=``), 
 - :class:`Adaptive` (the default): no layout to give. It starts from the whole set with few
   in-cell splits, halves what stays unknown along the state whose halvings pushed the loss of
   precision furthest, cuts cells ahead of their run to the size needed nearby, gives cells near
-  that size the call's in-cell splits, and retries a cell with ``rebox`` where that pays (see
-  its doc).
+  that size the call's in-cell splits, and retries a cell with ``rebox`` where that pays at its
+  size (see its doc).
 
 A splitter has four methods: ``initial(init)`` (the first cells, lazily, and their count),
 ``prepare(cell, init)`` (the cell cut before it runs), ``learn(cell, result, init)`` (every cell
@@ -176,22 +176,27 @@ class Adaptive(Bisection):
     - Where halving stops paying: a lineage that gains no step ``patience`` times per state it
       can halve in a row stops (the loss is not the cell's width). Once a cell is falsified the
       loop is unsafe: unknown cells are no longer halved (the coverage is then a lower bound).
-    - Whether restarting from boxes pays (``rebox``, see :func:`percver.verify`): the first
+    - Whether restarting from boxes pays (``rebox``, see :func:`percver.verify`), per size: what
+      it gains depends on the cell's size (Mountain Car's whole set goes twice as deep reboxed,
+      while its cells eight halvings smaller verify plain), so only retries of cells within
+      ``REBOX_SIZES`` halvings of a cell's size decide for it. Where none was made yet, the first
       unknown cells, and any cell lost because an operation left its domain (``division is
       undefined``, a square root of a negative range) or an enclosure blew up (remainders that
       feed back and grow make both), run again with ``rebox=True`` before they are halved. A
       retry pays if it verifies, or if it gets more steps deeper than the plain run than
-      ``REBOX_COST`` times what a plain halving gains (the mean of the latest, for the state
-      where halving gains most, once every state has been halved plain): a reboxed step carries a
-      Taylor-model variable per state and costs about two plain ones, while halving moves the
-      loss of precision later at no such cost. Steps, not seconds, decide: the first runs last a
-      fraction of a second, and their seconds say more about the load than about the method. The
-      halves of a retry that paid keep ``rebox`` (so a loop where it decides, such as F1/10's
-      LiDAR loop, runs reboxed from then on), the others run plain. Retries go on while they pay
-      more often than not, and for the two reasons above until they have lost ``patience`` times
-      more often than paid; retries still running, or not yet comparable with a halving, count
-      as lost. ``rebox=False`` never retries (``True`` is ``pv.verify(rebox=True)``: every cell
-      reboxed from the start).
+      ``REBOX_COST`` times what a plain halving of a cell of its size gains (the mean of the
+      latest, for the state where halving gains most, once every state has been halved plain at
+      that size): a reboxed step carries a Taylor-model variable per state and costs about two
+      plain ones, while halving moves the loss of precision later at no such cost. Steps, not
+      seconds, decide: the first runs last a fraction of a second, and their seconds say more
+      about the load than about the method. New cells (halves, cut pieces) run reboxed where the
+      retries near their size paid more often than not (so a loop where it decides at every size,
+      such as F1/10's LiDAR loop, pays a plain run or two per new size), else plain; halves
+      compare with the cell's run made as they run. Retries go on while they pay more often than
+      not, and for the two reasons above until they have lost ``patience`` times more often than
+      paid; retries still running, or not yet comparable with a halving, count as lost.
+      ``rebox=False`` never retries (``True`` is ``pv.verify(rebox=True)``: every cell reboxed
+      from the start).
 
     Decisions are journaled with the cells (:class:`~percver.verification.journal.Journal`): a
     resumed run replays them (the same pieces, with their engine options, for every cell the
