@@ -1,6 +1,7 @@
 """Splitters (``pv.verify(splitter=...)``): the grid, bisection and the adaptive default."""
 
 import json
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -470,3 +471,69 @@ def test_a_cell_verified_after_halvings_that_gained_nothing_teaches_no_size():
             deepest = 94 if k == 0 else deepest + 1
         a.learn(cell, _cell(cell, "verified", steps_done=deepest + 1, deepest_step=deepest + 1), init)
         assert bool(a.needed) == learnt
+
+
+def test_a_rebox_decision_holds_for_cells_near_the_size_of_the_retries_that_made_it():
+    """The whole set's retry paid (32 steps deeper against 2 for a halving): cells within two
+    halvings of it run reboxed, smaller ones are plain until retries of cells their size decide
+    (on Mountain Car the whole set's retry went twice as deep while cells eight halvings smaller
+    verify plain)."""
+    init = Box(("x",), ((0.0, 1.0),))
+    a = pv.Adaptive(patience=2)
+    assert a.again(init, _cell(init, "unknown", steps_done=33, deepest_step=33), init, False) == Retry({"rebox": True})
+    deeper = _cell(init, "unknown", steps_done=65, deepest_step=65, split="x", options={"rebox": True})
+    a.learn(init, deeper, init)
+    (half, options), _ = a.again(init, deeper, init, False)
+    a.learn(half, _cell(half, "unknown", steps_done=35, deepest_step=35, options=options), init)
+    assert a.rebox_score(init) == (1, 0)
+
+    def cell(k, i=0):  # the i-th cell of width 2^-k
+        return Box(("x",), ((i / 2**k, (i + 1) / 2**k),))
+
+    def unknown(c, deepest, **kwargs):
+        return _cell(c, "unknown", steps_done=deepest, deepest_step=deepest, split="x", **kwargs)
+
+    assert all(o.get("rebox") for _, o in a.again(cell(1, 1), unknown(cell(1, 1), 70, options={"rebox": True}), init, False))
+    assert not any(o.get("rebox") for _, o in a.again(cell(4), unknown(cell(4), 70, options={"rebox": True}), init, False))
+    # At a size no retry was made near, the first unknown cells are retried (two side by side),
+    # the next halved plain.
+    small = [cell(6, i) for i in range(3)]
+    outs = [a.again(c, unknown(c, 80), init, False) for c in small]
+    assert outs[:2] == [Retry({"rebox": True})] * 2 and not any(o.get("rebox") for _, o in outs[2])
+    # Those retries gain a step where a plain halving of their size gains two: they lost, there.
+    for c in small[:2]:
+        a.learn(c, unknown(c, 81, options={"rebox": True}), init)
+    a.learn(outs[2][0][0], unknown(outs[2][0][0], 82), init)
+    assert a.rebox_score(init, 6) == (0, 2) and a.rebox_score(init, 0) == (1, 0)
+    assert not any(o.get("rebox") for _, o in a.again(small[0], unknown(small[0], 81, options={"rebox": True}), init, False))
+    assert a.again(cell(2, 3), unknown(cell(2, 3), 40), init, False) == Retry({"rebox": True})
+
+
+def test_a_reboxed_retry_is_not_judged_by_the_halvings_of_cells_much_smaller_than_it():
+    """The whole set's retry went 32 steps deeper; halving d there gained 31, and p was first
+    halved plain five halvings further down, where halvings gain a step: against those the retry
+    would pay, against its own size there is nothing to compare it with yet (lost)."""
+    init = Box(("p", "d"), ((0.0, 1.0), (0.0, 1.0)))
+    a = pv.Adaptive(learn_states=False, patience=8)
+
+    def run(cell, deepest, split, options):
+        """The cell's outcome learnt, its retry (no deeper) if the splitter asks for one; its first half."""
+        out = _cell(cell, "unknown", steps_done=deepest, deepest_step=deepest, split=split, options=options)
+        a.learn(cell, out, init)
+        pieces = a.again(cell, out, init, False)
+        if isinstance(pieces, Retry):
+            out = replace(out, options={**options, **pieces.options})
+            a.learn(cell, out, init)
+            pieces = a.again(cell, out, init, False)
+        return pieces[0]
+
+    assert a.again(init, _cell(init, "unknown", steps_done=33, deepest_step=33), init, False) == Retry({"rebox": True})
+    deeper = _cell(init, "unknown", steps_done=65, deepest_step=65, split="d", options={"rebox": True})
+    a.learn(init, deeper, init)
+    cell, options = a.again(init, deeper, init, False)[0]
+    for deepest, split in ((64, "d"), (65, "d"), (66, "d"), (67, "d"), (68, "p")):
+        cell, options = run(cell, deepest, split, options)
+        assert not options.get("rebox")
+    a.learn(cell, _cell(cell, "unknown", steps_done=68, deepest_step=68, options=options), init)
+    assert a.gains == {"d": [31, 1, 1, 1, 1], "p": [0]}
+    assert not a._rebox_won(_key(init), init)

@@ -7,8 +7,8 @@ cut again. A splitter is a parameter of :func:`percver.verify` (``splitter=``), 
 - :class:`Adaptive` (the default): no layout to give. It starts from the whole set with few
   in-cell splits, halves what stays unknown along the state whose halvings pushed the loss of
   precision furthest, cuts cells ahead of their run to the size needed nearby, gives cells near
-  that size the call's in-cell splits, and retries a cell with ``rebox`` where that pays (see
-  its doc).
+  that size the call's in-cell splits, and retries a cell with ``rebox`` where that pays at its
+  size (see its doc).
 
 A splitter has four methods: ``initial(init)`` (the first cells, lazily, and their count),
 ``prepare(cell, init)`` (the cell cut before it runs), ``learn(cell, result, init)`` (every cell
@@ -185,22 +185,27 @@ class Adaptive(Bisection):
     - Where halving stops paying: a lineage that gains no step ``patience`` times per state it
       can halve in a row stops (the loss is not the cell's width). Once a cell is falsified the
       loop is unsafe: unknown cells are no longer halved (the coverage is then a lower bound).
-    - Whether restarting from boxes pays (``rebox``, see :func:`percver.verify`): the first
+    - Whether restarting from boxes pays (``rebox``, see :func:`percver.verify`), per size: what
+      it gains depends on the cell's size (Mountain Car's whole set goes twice as deep reboxed,
+      while its cells eight halvings smaller verify plain), so only retries of cells within
+      ``REBOX_SIZES`` halvings of a cell's size decide for it. Where none was made yet, the first
       unknown cells, and any cell lost because an operation left its domain (``division is
       undefined``, a square root of a negative range) or an enclosure blew up (remainders that
       feed back and grow make both), run again with ``rebox=True`` before they are halved. A
       retry pays if it verifies, or if it gets more steps deeper than the plain run than
-      ``REBOX_COST`` times what a plain halving gains (the mean of the latest, for the state
-      where halving gains most, once every state has been halved plain): a reboxed step carries a
-      Taylor-model variable per state and costs about two plain ones, while halving moves the
-      loss of precision later at no such cost. Steps, not seconds, decide: the first runs last a
-      fraction of a second, and their seconds say more about the load than about the method. The
-      halves of a retry that paid keep ``rebox`` (so a loop where it decides, such as F1/10's
-      LiDAR loop, runs reboxed from then on), the others run plain. Retries go on while they pay
-      more often than not, and for the two reasons above until they have lost ``patience`` times
-      more often than paid; retries still running, or not yet comparable with a halving, count
-      as lost. ``rebox=False`` never retries (``True`` is ``pv.verify(rebox=True)``: every cell
-      reboxed from the start).
+      ``REBOX_COST`` times what a plain halving of a cell of its size gains (the mean of the
+      latest, for the state where halving gains most, once every state has been halved plain at
+      that size): a reboxed step carries a Taylor-model variable per state and costs about two
+      plain ones, while halving moves the loss of precision later at no such cost. Steps, not
+      seconds, decide: the first runs last a fraction of a second, and their seconds say more
+      about the load than about the method. New cells (halves, cut pieces) run reboxed where the
+      retries near their size paid more often than not (so a loop where it decides at every size,
+      such as F1/10's LiDAR loop, pays a plain run or two per new size), else plain; halves
+      compare with the cell's run made as they run. Retries go on while they pay more often than
+      not, and for the two reasons above until they have lost ``patience`` times more often than
+      paid; retries still running, or not yet comparable with a halving, count as lost.
+      ``rebox=False`` never retries (``True`` is ``pv.verify(rebox=True)``: every cell reboxed
+      from the start).
 
     Decisions are journaled with the cells (:class:`~percver.verification.journal.Journal`): a
     resumed run replays them (the same pieces, with their engine options, for every cell the
@@ -223,16 +228,17 @@ class Adaptive(Bisection):
     runs: int = field(default=0, repr=False)
     # half's key -> (parent's steps, deepest step, stalls, state halved, the lineage's earlier halvings as (state, gained))
     lineage: dict = field(default_factory=dict, repr=False)
-    retried: dict = field(default_factory=dict, repr=False)  # cell key -> (steps done, deepest step) of the plain run
+    retried: dict = field(default_factory=dict, repr=False)  # cell key -> (steps done, deepest step) of the plain run, its size
     tried: dict = field(default_factory=dict, repr=False)  # cell key -> steps its reboxed retry gained (inf: verified)
     paid: dict = field(default_factory=dict, repr=False)  # cell key -> whether that retry paid, once decided
     pending: set = field(default_factory=set, repr=False)  # keys of reboxed retries not yet run
     verified: list = field(default_factory=list, repr=False)  # (cell, halvings from the initial set) of every verified cell
     arrivals: list = field(default_factory=list, repr=False)  # (cell, step its runs all arrived) of every verified cell
-    goal_retried: dict = field(default_factory=dict, repr=False)  # cell key -> (steps done, deepest step) of the run before its split retry
+    goal_retried: dict = field(default_factory=dict, repr=False)  # cell key -> (steps, deepest step, reboxed) before its split retry
     gains: dict = field(default_factory=dict, repr=False)  # state -> steps its halvings gained (latest last)
-    plain_gains: dict = field(default_factory=dict, repr=False)  # the same, of halves that ran without rebox
-    halved: dict = field(default_factory=dict, repr=False)  # half's key -> (parent's deepest step, state halved), until it runs
+    plain_gains: dict = field(default_factory=dict, repr=False)  # state -> (parent's size, gain) of plain halves of plain runs
+    # half's key -> (parent's deepest step, state halved, parent's size, whether that run was reboxed), until it runs
+    halved: dict = field(default_factory=dict, repr=False)
     halvings: int = field(default=0, repr=False)  # halvings decided so far
     last: dict = field(default_factory=dict, repr=False)  # state -> the halving that last cut it
     falsified: bool = field(default=False, repr=False)  # a counterexample decided the loop: no more halvings
@@ -297,10 +303,10 @@ class Adaptive(Bisection):
         self.falsified |= result.verdict == "falsified"
         key = _key(cell)
         if key in self.halved:
-            deepest, state = self.halved.pop(key)
+            deepest, state, size, reboxed = self.halved.pop(key)
             self.gains.setdefault(state, []).append(result.deepest_step - deepest)
-            if not result.options.get("rebox"):
-                self.plain_gains.setdefault(state, []).append(result.deepest_step - deepest)
+            if not result.options.get("rebox") and not reboxed:
+                self.plain_gains.setdefault(state, []).append((size, result.deepest_step - deepest))
         if result.verdict == "verified":
             self.verified.append((cell, _halvings(cell, init)))
             self.arrivals.append((cell, result.deepest_step))
@@ -326,8 +332,9 @@ class Adaptive(Bisection):
         if result.verdict != "unknown" or self.runs >= self.max_cells or self.falsified:
             self.lineage.pop(key, None)
             return None
-        if self._rebox_pays(key, result, init):
-            self.retried[key] = (result.steps_done, result.deepest_step)
+        size = _halvings(cell, init)
+        if self._rebox_pays(cell, result, init):
+            self.retried[key] = (result.steps_done, result.deepest_step, size)
             self.pending.add(key)
             return Retry({"rebox": True})
         explored = "max_splits" in result.options  # ran with the small budget: the call's is left to try
@@ -335,12 +342,16 @@ class Adaptive(Bisection):
         if not splittable(cell, init, widths, 0):
             return Retry({"max_splits": None}) if explored else None
         options = dict(result.options)
-        steps, deepest_step = result.steps_done, result.deepest_step
-        if options.get("rebox") and key in self.tried and not self._rebox_won(key, init):
-            options.pop("rebox")  # the retry did not pay: the halves run plain, and compare with the plain run
-            steps, deepest_step = self.retried[key][:2]
+        steps, deepest_step, reboxed = result.steps_done, result.deepest_step, bool(options.pop("rebox", False))
+        # The halves run as decided at their size (``_options``); the cell's plain run, where it had
+        # one, compares with plain halves.
+        rebox = self._reboxing(size + 1, init)
+        if reboxed and not rebox and key in self.retried:
+            steps, deepest_step, _ = self.retried[key]
+            reboxed = False
         if key in self.goal_retried:
-            steps, deepest_step = self.goal_retried.pop(key)  # the halves run with the small budget: compared with the run that had it
+            # The halves run with the small budget: compared with the run that had it.
+            steps, deepest_step, reboxed = self.goal_retried.pop(key)
         reached, deepest, stalls, halved, path = self.lineage.pop(key, (-1, -1, 0, None, ()))
         stalls = stalls + 1 if steps <= reached and deepest_step <= deepest else 0
         # Moved the loss of precision by a fair share of the steps reached (see MIN_GAIN).
@@ -349,8 +360,8 @@ class Adaptive(Bisection):
             # Runs from parts of the cell arrive at different steps, and halving did not move
             # that: the engine's in-cell forks separate the arrivals for a few runs' cost.
             self.lineage[key] = (reached, deepest, stalls, halved, path)
-            self.goal_retried[key] = (steps, deepest_step)
-            return Retry({"max_splits": None, **({} if "rebox" in options else {"rebox": None})})
+            self.goal_retried[key] = (steps, deepest_step, reboxed)
+            return Retry({"max_splits": None, "rebox": True if reboxed else None})
         if stalls >= self.patience * sum(above_min_width(init, init, widths, 0)):
             if explored:
                 self.lineage[key] = (reached, deepest, stalls - 1, halved, path)  # the retry stops the lineage unless it goes deeper
@@ -365,8 +376,11 @@ class Adaptive(Bisection):
         self.made += len(halves) - 1
         self.last[state] = self.halvings
         for half in halves:
-            self.lineage[_key(half)] = (steps, deepest_step, stalls, state, path)
-            self.halved[_key(half)] = (deepest_step, state)
+            if reboxed == rebox:
+                self.lineage[_key(half)] = (steps, deepest_step, stalls, state, path)
+                self.halved[_key(half)] = (deepest_step, state, size, reboxed)
+            else:  # no run of the cell made as the halves run: their lineage compares afresh
+                self.lineage[_key(half)] = (-1, -1, stalls, state, path)
         return [(half, {**options, **self._options(half, init)}) for half in halves]
 
     def _state_to_halve(self, cell: Box, result, init: Box, widths: dict, stalls: int, halved: Optional[str], gained: bool) -> str:
@@ -422,9 +436,9 @@ class Adaptive(Bisection):
         return max(self.gains, key=lambda n: np.mean(self.gains[n][-RECENT:]), default=None)
 
     def _options(self, cell: Box, init: Box) -> dict:
-        """A new cell's engine options: its in-cell budget, and rebox once retries have paid more
-        often than not (a plain run first would only be lost)."""
-        return {**self._budget(cell, init), **({"rebox": True} if self._reboxing(init) else {})}
+        """A new cell's engine options: its in-cell budget, and rebox once retries of cells near its
+        size have paid more often than not (a plain run first would only be lost)."""
+        return {**self._budget(cell, init), **({"rebox": True} if self._reboxing(_halvings(cell, init), init) else {})}
 
     def _budget(self, cell: Box, init: Box) -> dict:
         """The in-cell splits of a cell about to run: the call's when a verified cell near it (one
@@ -433,38 +447,43 @@ class Adaptive(Bisection):
         near = _near(cell, self.verified, init)
         return {} if near and max(near) - _halvings(cell, init) <= self.reach else {"max_splits": self.explore}
 
-    def rebox_score(self, init: Box) -> tuple:
-        """Reboxed retries that paid, and not (see the class doc)."""
-        wins = sum(self._rebox_won(key, init) for key in self.tried)
-        return wins, len(self.tried) - wins
+    def rebox_score(self, init: Box, size: Optional[float] = None) -> tuple:
+        """Reboxed retries that paid, and not (see the class doc); with ``size``, those of cells
+        within ``REBOX_SIZES`` halvings of it."""
+        keys = [key for key in self.tried if size is None or _near_size(self.retried[key][2], size)]
+        wins = sum(self._rebox_won(key, init) for key in keys)
+        return wins, len(keys) - wins
 
     def _rebox_won(self, key: tuple, init: Box) -> bool:
-        """Whether the reboxed retry of cell ``key`` paid against halving the plain cell. Decided
-        once every state the initial set is wide in has been halved plain (until then: lost), and
-        then kept: halvings of smaller cells later gain fewer steps, which says nothing about the
-        retry's size."""
+        """Whether the reboxed retry of cell ``key`` paid against halving plain cells of its size
+        (within ``REBOX_SIZES`` halvings). Decided once every state the initial set is wide in has
+        been halved plain at such a size (until then: lost), and then kept: halvings of smaller
+        cells gain fewer steps, which says nothing about the retry's size."""
         if key not in self.paid:
-            gain = self.tried[key]
+            gain, size = self.tried[key], self.retried[key][2]
             states = [n for ok, n in zip(above_min_width(init, init, self._min(init), 0), init.names) if ok]
-            if gain != np.inf and not (states and all(self.plain_gains.get(n) for n in states)):
+            near = {n: [g for s, g in self.plain_gains.get(n, []) if _near_size(s, size)] for n in states}
+            if gain != np.inf and not (states and all(near.values())):
                 return False
-            self.paid[key] = gain == np.inf or gain > REBOX_COST * max(np.mean(self.plain_gains[n][-RECENT:]) for n in states)
+            self.paid[key] = gain == np.inf or gain > REBOX_COST * max(np.mean(near[n][-RECENT:]) for n in states)
         return self.paid[key]
 
-    def _reboxing(self, init: Box) -> bool:
-        wins, losses = self.rebox_score(init)
+    def _reboxing(self, size: float, init: Box) -> bool:
+        """Whether cells of ``size`` run reboxed: retries near it paid more often than not."""
+        wins, losses = self.rebox_score(init, size)
         return self.rebox is not False and wins > losses
 
-    def _rebox_pays(self, key: tuple, result, init: Box) -> bool:
+    def _rebox_pays(self, cell: Box, result, init: Box) -> bool:
+        key, size = _key(cell), _halvings(cell, init)
         if self.rebox is False or result.options.get("rebox") or key in self.retried:
             return False
-        if self._reboxing(init):
-            return True  # a plain cell drawn before the retries paid
-        wins, losses = self.rebox_score(init)
+        if self._reboxing(size, init):
+            return True  # a plain cell drawn before the retries near its size paid
+        wins, losses = self.rebox_score(init, size)
         lost = any(words in (result.reason or "") for words in PRECISION_LOST)
         # Retries still running count as lost until they end: cells that run side by side must
         # not all be retried before the first retry has shown whether it pays.
-        losses += len(self.pending)
+        losses += sum(_near_size(self.retried[k][2], size) for k in self.pending)
         return wins + losses < REBOX_TRIALS or (lost and losses - wins < self.patience)
 
 
@@ -478,7 +497,11 @@ GOAL_PART = " holds on part of the set only since step "
 STALLED = 2
 
 
-REBOX_TRIALS = 2  # unknown cells retried with rebox whatever the reason, to find out whether it pays
+REBOX_TRIALS = 2  # unknown cells retried with rebox whatever the reason, per size, to find out whether it pays
+# Halvings apart within which a retry's outcome decides for other cells, and plain halvings' gains compare
+# with it: on Mountain Car the whole set's retry goes twice as deep, while cells eight halvings smaller
+# verify plain.
+REBOX_SIZES = 2
 REBOX_COST = 2  # plain steps a reboxed step costs, about (Mountain Car: 1.75 at its verified cell size)
 RECENT = 4  # halvings of a state whose gains choose the next state to halve
 # A halving gained if it moved the loss of precision later by at least this share of the steps its
@@ -501,6 +524,12 @@ def _undo_stalled(widths: dict, path: tuple) -> dict:
         if state != final:
             out[state] *= 2
     return out
+
+
+def _near_size(a: float, b: float) -> bool:
+    """Whether two cells' sizes (``_halvings``) are within ``REBOX_SIZES`` halvings (widths made by
+    halvings differ from the exact ones in their last bits)."""
+    return abs(a - b) <= REBOX_SIZES + 1e-6
 
 
 def _halvings(cell: Box, init: Box) -> float:
