@@ -458,6 +458,32 @@ def test_a_cell_lost_to_a_partly_reached_goal_that_halving_did_not_move_runs_wit
     assert second(ARRIVED, 96, arrived=100)[2] == Retry({"max_splits": None, "rebox": None})
 
 
+def test_a_state_whose_width_does_not_change_how_the_pieces_of_a_cut_end_is_grown_back():
+    """A cell cut to a needed 1/8 x 1/8: pieces side by side along d that verify at the same step
+    with as many splits say d's width did not matter there, so the next cell is cut twice as wide
+    in d; along p they differ, so p keeps its width. One piece that differs (or is lost) along a
+    state keeps that state's width."""
+    init = Box(("p", "d"), ((0.0, 1.0), (0.0, 1.0)))
+
+    def cut_and_settle(step_of):
+        a = pv.Adaptive(rebox=False)
+        a.needed.append((Box(("p", "d"), ((0.0, 0.125), (0.0, 0.125))), {"p": 0.125, "d": 0.125}))
+        pieces = [c for c, _ in a.prepare(Box(("p", "d"), ((0.0, 0.5), (0.0, 0.5))), init)]
+        assert len(pieces) == 16
+        for piece in pieces:
+            (plo, _), (dlo, _) = piece.bounds
+            deepest = step_of(round(plo * 8), round(dlo * 8))
+            verdict = "unknown" if deepest is None else "verified"
+            a.learn(piece, _cell(piece, verdict, steps_done=deepest or 50, deepest_step=deepest or 50, branches=1), init)
+        nxt = [c if isinstance(c, Box) else c[0] for c in a.prepare(Box(("p", "d"), ((0.5, 1.0), (0.0, 0.5))), init)]
+        return {(round(hi - lo, 6), round(dhi - dlo, 6)) for (lo, hi), (dlo, dhi) in (c.bounds for c in nxt)}
+
+    assert cut_and_settle(lambda i, j: 90 + i) == {(0.125, 0.25)}
+    assert cut_and_settle(lambda i, j: 90 + i + (j == 3)) == {(0.125, 0.125)}
+    assert cut_and_settle(lambda i, j: None if (i, j) == (3, 3) else 90 + i) == {(0.125, 0.125)}
+    assert cut_and_settle(lambda i, j: 90) == {(0.25, 0.25)}
+
+
 def test_a_cell_verified_after_halvings_that_gained_nothing_teaches_no_size():
     """p and d halved in turn, each gaining a step of ~95: the half that verifies has a size the
     path made by accident, and cutting its neighbours to it would spread it; after one such

@@ -171,7 +171,13 @@ class Adaptive(Bisection):
       spending runs on the sizes that failed there; the narrowest widths of several sizes
       together would make cells smaller than any that was needed. A cell cut ahead of its run
       that verifies whole proves nothing about its size, and counting it would spread the
-      smallest size over the whole set.
+      smallest size over the whole set. But its pieces tell which widths did not matter there:
+      once ``GROW_PAIRS`` neighbours along a state in the cut's grid verified at the same step
+      with as many in-cell splits, and no two along it ended differently, cells twice as wide in
+      that state are needed there (a size learnt where another state decided, such as a noise
+      level halved on the way down to cells near the Mountain Car wall, where the runs' arrival
+      depends on p0 alone, is outgrown a halving per cut; a grown cell that fails is halved and
+      its verified half teaches the size again).
     - Which state to halve: the one whose recent halvings pushed the loss of precision furthest
       (the halves' ``deepest_step`` against their parent's), each state tried once first in
       the order of the one whose width moves the runs most up to the step where the cell was
@@ -242,7 +248,8 @@ class Adaptive(Bisection):
     halvings: int = field(default=0, repr=False)  # halvings decided so far
     last: dict = field(default_factory=dict, repr=False)  # state -> the halving that last cut it
     falsified: bool = field(default=False, repr=False)  # a counterexample decided the loop: no more halvings
-    cut: set = field(default_factory=set, repr=False)  # keys of cells cut ahead of their run to a needed size
+    cut: dict = field(default_factory=dict, repr=False)  # key of a piece cut ahead of its run -> (its cut, its index in the cut's grid)
+    cuts: list = field(default_factory=list, repr=False)  # every cut's _Cut, in order
     made: int = field(default=0, repr=False)  # cells made so far (initial, halves, cut pieces), held to max_cells
 
     def __post_init__(self):
@@ -295,7 +302,13 @@ class Adaptive(Bisection):
         cells, count = grid(cell, pieces)
         self.made += count - 1
         cells = list(cells)
-        self.cut.update(_key(piece) for piece in cells)
+        self.cuts.append(_Cut(cell, {n: (hi - lo) / pieces.get(n, 1) for n, (lo, hi) in zip(cell.names, cell.bounds)}, pieces))
+        for piece in cells:
+            index = tuple(
+                int(round((plo - lo) / (hi - lo) * pieces[n])) if n in pieces else 0
+                for n, (plo, _), (lo, hi) in zip(cell.names, piece.bounds, cell.bounds)
+            )
+            self.cut[_key(piece)] = (len(self.cuts) - 1, index)
         return [(piece, self._options(piece, init)) for piece in cells]
 
     def learn(self, cell: Box, result, init: Box) -> None:
@@ -313,17 +326,48 @@ class Adaptive(Bisection):
         if key in self.retried and result.options.get("rebox") and key in self.pending:
             self.pending.discard(key)
             self.tried[key] = np.inf if result.verdict == "verified" else result.deepest_step - self.retried[key][1]
+        if key in self.cut:
+            self._grow(key, result)
         if result.verdict == "verified" and (result.branches or key in self.lineage) and not self._stalled(key):
             # A cell already cut to the size needed near it that still branches (forks on a
-            # condition that crosses it at every size) keeps that size: halving it again would
-            # spread ever smaller sizes from cell to cell.
+            # condition that crosses it at every size) keeps its cut's shape (as grown from its
+            # pieces): halving it again would spread ever smaller sizes from cell to cell.
             halve = result.branches and key not in self.cut
             size = bisect(cell, init, self._min(init), result.split or self._gaining_state())[0] if halve else cell
             widths = {n: hi - lo for n, (lo, hi) in zip(size.names, size.bounds)}
+            if key in self.cut:
+                widths = self.cuts[self.cut[key][0]].shape()
             if key in self.lineage and not halve:
                 _, _, _, state, path = self.lineage[key]
                 widths = _undo_stalled(widths, (*path, (state, True)))
             self.needed.append((cell, widths))
+
+    def _grow(self, key: tuple, result) -> None:
+        """Compares the outcome of cut piece ``key`` with its settled neighbours in the cut's grid;
+        once ``GROW_PAIRS`` neighbours along a state ended alike and none differently, that
+        state's width needed there doubles, until two along it end differently (see the class
+        doc)."""
+        cut, index = self.cut[key]
+        c = self.cuts[cut]
+        outcome = (result.deepest_step, result.branches) if result.verdict == "verified" else None
+        c.seen[index] = outcome
+        before = c.shape()
+        for j, name in enumerate(c.cell.names):
+            if c.pieces.get(name, 1) < 2 or name in c.differ:
+                continue
+            for side in (-1, 1):
+                other = c.seen.get((*index[:j], index[j] + side, *index[j + 1 :]), False)
+                if other is False:
+                    continue
+                if outcome is not None and other == outcome:
+                    c.alike[name] = c.alike.get(name, 0) + 1
+                else:
+                    c.differ.add(name)
+                    c.grown.discard(name)
+            if name not in c.differ and c.alike.get(name, 0) >= GROW_PAIRS:
+                c.grown.add(name)
+        if c.shape() != before:
+            self.needed.append((c.cell, c.shape()))
 
     def again(self, cell: Box, result, init: Box, timed_out: bool):
         """A :class:`Retry` (with rebox, or with the call's in-cell splits), halves (with their
@@ -510,6 +554,30 @@ RECENT = 4  # halvings of a state whose gains choose the next state to halve
 # does not count it (1/8: Mountain Car's halvings near the size needed gain 1-5% and far above it
 # 25-95%).
 MIN_GAIN = 1 / 8
+
+
+# Neighbours along a state, in a cut's grid, that must end alike (verified at the same step with
+# as many in-cell splits) before cells twice as wide in it are tried there: pieces whose runs do
+# not depend on a state's width within a cell end alike, others differ by a step or more.
+GROW_PAIRS = 3
+
+
+@dataclass
+class _Cut:
+    """A cell cut ahead of its run into a grid of ``pieces`` (per state) of ``widths``, and what
+    its settled pieces said (``seen``: index -> (deepest step, branches), None if not verified)."""
+
+    cell: Box
+    widths: dict
+    pieces: dict
+    seen: dict = field(default_factory=dict)
+    alike: dict = field(default_factory=dict)  # state -> neighbour pairs along it that ended alike
+    differ: set = field(default_factory=set)  # states along which two neighbours ended differently
+    grown: set = field(default_factory=set)  # states whose width was doubled from this cut
+
+    def shape(self) -> dict:
+        """The widths needed here: the pieces', doubled in the states grown."""
+        return {n: w * (2 if n in self.grown else 1) for n, w in self.widths.items()}
 
 
 def _undo_stalled(widths: dict, path: tuple) -> dict:
