@@ -127,17 +127,22 @@ def test_adaptive_retries_with_rebox_where_precision_was_lost_and_stops_when_it_
     halves = a.again(init, deeper, init, False)
     assert not any("rebox" in options for _, options in halves) and a.rebox_score(init) == (0, 1)
     # A plain half gains 2 steps on its parent: the retry's 10 are more than twice that, so it
-    # paid, and every new cell runs reboxed (a plain cell left unknown is retried first).
+    # paid, and a plain cell of that size left unknown is retried with rebox.
     (left, _), (right, _) = halves
     a.learn(left, _cell(left, "unknown", steps_done=33, deepest_step=33, reason="goal undecided"), init)
     assert a.rebox_score(init) == (1, 0)
     assert a.again(left, _cell(left, "unknown", steps_done=33, deepest_step=33, split="x"), init, False) == Retry({"rebox": True})
-    assert all(
-        options.get("rebox")
-        for _, options in a.again(
-            right, _cell(right, "unknown", steps_done=33, deepest_step=33, split="x", options={"rebox": True}), init, False
-        )
+    # Cells of a size no plain cell has run at yet run plain first (a trial); once plain cells of
+    # that size were lost more often than not they run reboxed, once they verified, plain.
+    (quarter, options), _ = a.again(
+        right, _cell(right, "unknown", steps_done=33, deepest_step=33, split="x", options={"rebox": True}), init, False
     )
+    assert "rebox" not in options
+    a.learn(quarter, _cell(quarter, "unknown", steps_done=34, deepest_step=34, options=options), init)
+    assert a._options(quarter, init).get("rebox")
+    for verified in (True, True):
+        a.learn(quarter, _cell(quarter, "verified" if verified else "unknown", steps_done=40, deepest_step=40), init)
+    assert not a._options(quarter, init).get("rebox")
     # The first `patience` unknown cells are retried whatever the reason; retries that go no
     # deeper stop after them, and their halves run plain.
     b = pv.Adaptive(patience=2)
@@ -274,22 +279,24 @@ def test_adaptive_halves_the_state_whose_halvings_gained_the_most_steps():
 def test_a_reboxed_retry_pays_by_steps_gained_against_halving_not_by_seconds():
     """Twice as deep is not enough where a plain halving gains as much (a reboxed step costs
     about two plain ones), however few seconds the retry took: the first runs last a fraction of
-    a second and their seconds are the load's. Where halving gains little, it pays; a retry that
-    verifies always pays."""
+    a second and their seconds are the load's. Where halving gains little, it pays. A retry that
+    verifies is judged the same way, by the steps it went deeper (a plain halving might have
+    verified as well, for as little)."""
     init = Box(("x",), ((0.0, 1.0),))
-    for half_gain, paid in ((31, False), (1, True)):
-        a = pv.Adaptive(patience=2)
-        plain = _cell(init, "unknown", seconds=1.0, steps_done=33, deepest_step=33)
-        assert a.again(init, plain, init, False) == Retry({"rebox": True})
-        deeper = _cell(init, "unknown", seconds=0.1, steps_done=65, deepest_step=65, split="x", options={"rebox": True})
-        a.learn(init, deeper, init)
-        (half, options), _ = a.again(init, deeper, init, False)
-        a.learn(half, _cell(half, "unknown", seconds=1.0, steps_done=33 + half_gain, deepest_step=33 + half_gain, options=options), init)
-        assert a.rebox_score(init) == ((1, 0) if paid else (0, 1))
-    b = pv.Adaptive(patience=2)
-    b.again(init, plain, init, False)
-    b.learn(init, _cell(init, "verified", seconds=9.0, steps_done=92, deepest_step=92, options={"rebox": True}), init)
-    assert b.rebox_score(init) == (1, 0)
+    plain = _cell(init, "unknown", seconds=1.0, steps_done=33, deepest_step=33)
+    for verdict, deepest in (("unknown", 65), ("verified", 65)):
+        for half_gain, paid in ((31, False), (1, True)):
+            a = pv.Adaptive(patience=2)
+            assert a.again(init, plain, init, False) == Retry({"rebox": True})
+            retry = _cell(init, verdict, seconds=0.1, steps_done=deepest, deepest_step=deepest, split="x", options={"rebox": True})
+            a.learn(init, retry, init)
+            assert a.rebox_score(init) == (0, 1)  # undecided until a plain halving of its size has run
+            # A plain half of the cell, as the splitter makes them, and what it gained.
+            (half, options), _ = a.again(init, _cell(init, "unknown", steps_done=33, deepest_step=33, split="x"), init, False)
+            a.learn(
+                half, _cell(half, "unknown", seconds=1.0, steps_done=33 + half_gain, deepest_step=33 + half_gain, options=options), init
+            )
+            assert a.rebox_score(init) == ((1, 0) if paid else (0, 1)), (verdict, half_gain)
 
 
 def test_cells_run_side_by_side_are_not_all_retried_before_a_retry_shows_whether_it_pays():
@@ -484,6 +491,29 @@ def test_a_state_whose_width_does_not_change_how_the_pieces_of_a_cut_end_is_grow
     assert cut_and_settle(lambda i, j: 90) == {(0.25, 0.25)}
 
 
+def test_pieces_that_split_and_computed_steps_again_make_the_next_cells_smaller_forks_do_not():
+    """Cut pieces of 1/8 x 1/8 all verify at the same step with one in-cell split each. Where the
+    split restarted from step 0 (``steps_redone`` 60 of 95 steps: the run cost about three), the
+    next cell is cut to half their width along the state the engine split (d), and the pieces
+    ending alike grow nothing back; where they forked (nothing redone), the pieces' width was fine
+    and d grows back as for clean pieces."""
+    init = Box(("p", "d"), ((0.0, 1.0), (0.0, 1.0)))
+
+    def cut_and_settle(redone):
+        a = pv.Adaptive(rebox=False)
+        a.needed.append((Box(("p", "d"), ((0.0, 0.125), (0.0, 0.125))), {"p": 0.125, "d": 0.125}))
+        pieces = [c for c, _ in a.prepare(Box(("p", "d"), ((0.0, 0.5), (0.0, 0.5))), init)]
+        for piece in pieces:
+            deepest = 90 + round(piece.bounds[0][0] * 8)  # differ along p, alike along d
+            a.learn(piece, _cell(piece, "verified", deepest_step=deepest, branches=1, steps_redone=redone, split="d"), init)
+        nxt = [c if isinstance(c, Box) else c[0] for c in a.prepare(Box(("p", "d"), ((0.5, 1.0), (0.0, 0.5))), init)]
+        return {(round(hi - lo, 6), round(dhi - dlo, 6)) for (lo, hi), (dlo, dhi) in (c.bounds for c in nxt)}
+
+    assert cut_and_settle(60) == {(0.125, 0.0625)}
+    assert cut_and_settle(0) == {(0.125, 0.25)}
+    assert cut_and_settle(5) == {(0.125, 0.25)}  # a split where part arrived redoes a few steps
+
+
 def test_a_cell_verified_after_halvings_that_gained_nothing_teaches_no_size():
     """p and d halved in turn, each gaining a step of ~95: the half that verifies has a size the
     path made by accident, and cutting its neighbours to it would spread it; after one such
@@ -501,7 +531,8 @@ def test_a_cell_verified_after_halvings_that_gained_nothing_teaches_no_size():
 
 def test_a_rebox_decision_holds_for_cells_near_the_size_of_the_retries_that_made_it():
     """The whole set's retry paid (32 steps deeper against 2 for a halving): cells within two
-    halvings of it run reboxed, smaller ones are plain until retries of cells their size decide
+    halvings of it run reboxed (after a plain trial at each size), smaller ones are plain until
+    retries of cells their size decide
     (on Mountain Car the whole set's retry went twice as deep while cells eight halvings smaller
     verify plain)."""
     init = Box(("x",), ((0.0, 1.0),))
@@ -519,6 +550,9 @@ def test_a_rebox_decision_holds_for_cells_near_the_size_of_the_retries_that_made
     def unknown(c, deepest, **kwargs):
         return _cell(c, "unknown", steps_done=deepest, deepest_step=deepest, split="x", **kwargs)
 
+    # Its halves' size has no plain run yet: they run plain, a trial; once one is lost, reboxed.
+    assert not any(o.get("rebox") for _, o in a.again(cell(1, 1), unknown(cell(1, 1), 70, options={"rebox": True}), init, False))
+    a.learn(cell(2, 2), unknown(cell(2, 2), 36), init)
     assert all(o.get("rebox") for _, o in a.again(cell(1, 1), unknown(cell(1, 1), 70, options={"rebox": True}), init, False))
     assert not any(o.get("rebox") for _, o in a.again(cell(4), unknown(cell(4), 70, options={"rebox": True}), init, False))
     # At a size no retry was made near, the first unknown cells are retried (two side by side),

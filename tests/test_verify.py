@@ -472,4 +472,4 @@ def test_cell_outcomes_are_typed_picklable_and_checked():
         outcome.branches,
     )
     with pytest.raises(pv.InputError, match="'verified', 'unknown' or 'violated', not 'maybe'"):
-        _core.CellOutcome("maybe", None, 0, 0, [], 0.0, 0.0, 0, None)
+        _core.CellOutcome("maybe", None, 0, 0, [], 0.0, 0.0, 0, 0, None)

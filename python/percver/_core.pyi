@@ -350,6 +350,7 @@ class CellOutcome:
         seconds: float,
         nn_seconds: float,
         branches: int,
+        steps_redone: int,
         split: Optional[int],
     ) -> None: ...
     @property
@@ -372,6 +373,9 @@ class CellOutcome:
     def nn_seconds(self) -> float: ...
     @property
     def branches(self) -> int: ...
+    @property
+    def steps_redone(self) -> int:
+        """Steps computed again because a lost piece was split at an earlier step."""
     @property
     def split(self) -> Optional[int]:
         """The state the engine would have split next (an index into the state names)."""

@@ -26,9 +26,15 @@ pub struct CellOutcome {
     pub seconds: f64,
     pub nn_seconds: f64,
     pub branches: usize,
+    /// Steps computed again because a lost piece was split at an earlier step (where its
+    /// enclosure was last precise, or where part of it first reached the goal): the work that
+    /// cells cut along the split variable ahead of the run would not have spent, unlike a fork
+    /// or a split at the step where a piece was lost, whose parts go on from there.
+    pub steps_redone: usize,
     /// Steps a piece replayed from another piece's tape instead of computing them ([`Tape`]).
     pub replayed: usize,
-    /// The state the engine would have split next when it gave up (or split most often): a
-    /// caller that bisects the cell halves this one, not merely the widest.
+    /// The state the engine would have split next when it gave up (or split most often; for a
+    /// verified cell, the one it split most often, if any): a caller that bisects the cell
+    /// halves this one, not merely the widest.
     pub split: Option<usize>,
 }

@@ -24,6 +24,7 @@ pub fn verify_cell(lp: &ClosedLoop, cell: &[Interval], settings: &CellSettings) 
         seconds: 0.0,
         nn_seconds: 0.0,
         branches: 0,
+        steps_redone: 0,
         replayed: 0,
         split: None,
     };
@@ -122,6 +123,7 @@ pub(crate) fn run(lp: &ClosedLoop, cell: &[Interval], settings: &CellSettings, o
                 match v.filter(|_| splits < settings.max_splits) {
                     Some(v) => {
                         let from = history.last().expect("non-empty").0;
+                        out.steps_redone += step.saturating_sub(from);
                         for half in [-0.5, 0.5] {
                             let history: Vec<_> = history.iter().map(|(k, s)| (*k, restrict_half(s, v, half, &ctx))).collect();
                             // Margins from `from` on are computed again by the halves.
@@ -149,7 +151,7 @@ pub(crate) fn run(lp: &ClosedLoop, cell: &[Interval], settings: &CellSettings, o
         }
     }
     out.branches = splits + hulls;
-    if !verified && out.split.is_none() {
+    if out.split.is_none() {
         let most = split_count.iter().enumerate().filter(|(_, &c)| c > 0).max_by_key(|(_, &c)| c).map(|(v, _)| v);
         out.split = most.and_then(|v| state_of.get(v).copied());
     }

@@ -239,6 +239,8 @@ fn pieces_that_hit_a_wall_at_different_steps_replay_one_climb_inside_the_simulat
     let out = verify_cell(&lp, &cell, &CellSettings { max_splits: 16, ..loop_settings(false) });
     assert_eq!(out.verdict, Verdict::Verified, "{:?}", out.reason);
     assert!(out.replayed >= steps / 2, "{} steps replayed", out.replayed);
+    // Forks go on from the step where they fork: nothing is computed again.
+    assert!(out.branches > 0 && out.steps_redone == 0, "{} branches, {} steps redone", out.branches, out.steps_redone);
     for a in 0..=1000 {
         assert_float_run_inside(&out.boxes, &plant, vec![0.5 + 0.7 * a as f64 / 1000.0, -0.3, 0.0]);
     }
@@ -351,6 +353,10 @@ fn a_piece_lost_to_truncation_is_split_before_it_and_encloses_the_simulations() 
     let out = verify_cell(&lp, &cell, &CellSettings { max_splits: 3, ..settings });
     assert_eq!((out.verdict, out.branches), (Verdict::Verified, 3), "{:?}", out.reason);
     assert_eq!(out.steps_done, 10);
+    // Each split restarted at step 0 what its piece had run (a run of its own), and a verified
+    // cell names the state it split most.
+    assert!(out.steps_redone >= 3, "{} steps redone", out.steps_redone);
+    assert_eq!(out.split, Some(0));
     for i in 0..=40 {
         for j in 0..=40 {
             assert_float_run_inside(&out.boxes, &plant, vec![-1.0 + i as f64 / 20.0, -1.0 + j as f64 / 20.0, 0.0]);

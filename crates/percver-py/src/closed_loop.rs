@@ -173,6 +173,7 @@ pub struct PyCellOutcome {
     seconds: f64,
     nn_seconds: f64,
     branches: usize,
+    steps_redone: usize,
     split: Option<usize>,
 }
 
@@ -195,29 +196,30 @@ impl From<&CellOutcome> for PyCellOutcome {
             seconds: o.seconds,
             nn_seconds: o.nn_seconds,
             branches: o.branches,
+            steps_redone: o.steps_redone,
             split: o.split,
         }
     }
 }
 
 /// The constructor's arguments, the fields in their order (and what `__reduce__` gives back).
-type OutcomeArgs = (String, Option<String>, usize, usize, Vec<Vec<(f64, f64)>>, f64, f64, usize, Option<usize>);
+type OutcomeArgs = (String, Option<String>, usize, usize, Vec<Vec<(f64, f64)>>, f64, f64, usize, usize, Option<usize>);
 
 #[pymethods]
 impl PyCellOutcome {
-    /// `CellOutcome(verdict, reason, steps_done, deepest_step, boxes, seconds, nn_seconds, branches, split)`.
+    /// `CellOutcome(verdict, reason, steps_done, deepest_step, boxes, seconds, nn_seconds, branches, steps_redone, split)`.
     #[new]
     #[pyo3(signature = (*args))]
     fn new(args: OutcomeArgs) -> PyResult<Self> {
-        let (verdict, reason, steps_done, deepest_step, boxes, seconds, nn_seconds, branches, split) = args;
+        let (verdict, reason, steps_done, deepest_step, boxes, seconds, nn_seconds, branches, steps_redone, split) = args;
         if ![Verdict::Verified, Verdict::Unknown, Verdict::Violated].iter().any(|&v| verdict_name(v) == verdict) {
             return Err(input_error(format!("a cell's verdict is 'verified', 'unknown' or 'violated', not '{verdict}'")));
         }
-        Ok(PyCellOutcome { verdict, reason, steps_done, deepest_step, boxes, seconds, nn_seconds, branches, split })
+        Ok(PyCellOutcome { verdict, reason, steps_done, deepest_step, boxes, seconds, nn_seconds, branches, steps_redone, split })
     }
     fn __repr__(&self) -> String {
         format!(
-            "CellOutcome(verdict='{}', reason={:?}, steps_done={}, deepest_step={}, {} boxes, seconds={}, nn_seconds={}, branches={}, split={:?})",
+            "CellOutcome(verdict='{}', reason={:?}, steps_done={}, deepest_step={}, {} boxes, seconds={}, nn_seconds={}, branches={}, steps_redone={}, split={:?})",
             self.verdict,
             self.reason,
             self.steps_done,
@@ -226,13 +228,17 @@ impl PyCellOutcome {
             self.seconds,
             self.nn_seconds,
             self.branches,
+            self.steps_redone,
             self.split
         )
     }
     /// Pickling (Dask, process pools): the constructor's arguments.
     fn __reduce__<'py>(slf: &Bound<'py, Self>) -> (Bound<'py, pyo3::types::PyType>, OutcomeArgs) {
         let o = slf.get().clone();
-        (slf.get_type(), (o.verdict, o.reason, o.steps_done, o.deepest_step, o.boxes, o.seconds, o.nn_seconds, o.branches, o.split))
+        (
+            slf.get_type(),
+            (o.verdict, o.reason, o.steps_done, o.deepest_step, o.boxes, o.seconds, o.nn_seconds, o.branches, o.steps_redone, o.split),
+        )
     }
 }
 

@@ -203,6 +203,7 @@ class Campaign:
             None if outcome.split is None else self.init.names[outcome.split],
             outcome.deepest_step,
             self.chosen.pop(cell_key(cell.to_dict()), {}),
+            outcome.steps_redone,
         )
         self.cell_seconds[0] += c.seconds
         self.cell_seconds[1] += 1

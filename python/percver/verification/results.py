@@ -52,6 +52,9 @@ class Cell:
     deepest_step: int = 0
     # Engine settings the splitter chose for this cell beyond the call's (e.g. {"rebox": True}).
     options: dict = field(default_factory=dict)
+    # Steps computed again after splits at an earlier step: what cutting the cell smaller ahead
+    # of its run would have saved (forks, whose parts go on, redo none).
+    steps_redone: int = 0
 
     def to_dict(self) -> dict:
         # Shallow (asdict would deep-copy the reach boxes of every journaled cell).

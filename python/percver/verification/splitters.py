@@ -160,10 +160,13 @@ class Adaptive(Bisection):
     - Where cells must be small, and how small: a half that verified after its parent did not
       says that cells of its size are needed there, less the halvings of its lineage that
       gained nothing just before the one that verified it (those of other states: the cell
-      verified through that halving, and its size with them is an accident of the path); a cell
-      that verified only after splits inside it (``branches``) says that cells half its size
-      are (an in-cell split costs about a cell of its own), halved along the state whose
-      halvings gained most lately. A cell verified after ``STALLED`` halvings in a row that
+      verified through that halving, and its size with them is an accident of the path); a cell,
+      a cut piece too, that verified only after in-cell splits that computed ``MIN_GAIN`` of its
+      steps again (``steps_redone``: a split restarts where the enclosure was last precise, step
+      0 on Mountain Car, so it costs a run of its own) says that cells half its size are, halved
+      along the state the engine split most (on Mountain Car's contrast row, cut pieces that
+      verified after 1-7 such splits cost 3-17 times a clean one). Forks, and splits where a
+      piece was lost, go on from there and say nothing of the size. A cell verified after ``STALLED`` halvings in a row that
       gained nothing says nothing of the size needed (its size is the path's accident: cut to
       it, its neighbours would spread it). A cell about to run is cut to one size needed where it is,
       the latest learnt (of the cells it touches; with ``tile=True`` also of the nearest one
@@ -198,15 +201,20 @@ class Adaptive(Bisection):
       unknown cells, and any cell lost because an operation left its domain (``division is
       undefined``, a square root of a negative range) or an enclosure blew up (remainders that
       feed back and grow make both), run again with ``rebox=True`` before they are halved. A
-      retry pays if it verifies, or if it gets more steps deeper than the plain run than
-      ``REBOX_COST`` times what a plain halving of a cell of its size gains (the mean of the
-      latest, for the state where halving gains most, once every state has been halved plain at
-      that size): a reboxed step carries a Taylor-model variable per state and costs about two
-      plain ones, while halving moves the loss of precision later at no such cost. Steps, not
+      retry pays if it gets more steps deeper than the plain run than ``REBOX_COST`` times what a
+      plain halving of a cell of its size gains (the mean of the latest, for the state where
+      halving gains most, once every state has been halved plain at that size), whether it
+      verified or not: a reboxed step carries a Taylor-model variable per state and costs about
+      two plain ones, while halving moves the loss of precision later at no such cost (near the
+      Mountain Car wall, retries that verified a few steps deeper than plain runs made every cell
+      there run reboxed, at an eighth of the plain cells' width in dc). Steps, not
       seconds, decide: the first runs last a fraction of a second, and their seconds say more
       about the load than about the method. New cells (halves, cut pieces) run reboxed where the
-      retries near their size paid more often than not (so a loop where it decides at every size,
-      such as F1/10's LiDAR loop, pays a plain run or two per new size), else plain; halves
+      retries near their size paid more often than not and plain cells of their very size (within
+      half a halving) were lost more often than not; the first cell of a size runs plain, a trial
+      (so a loop where it decides at every size, such as F1/10's LiDAR loop, pays a plain run or
+      two per new size; near the Mountain Car wall, retries of cells four times larger paid, while
+      the cells that verify there verify plain in half a reboxed run's work); else plain; halves
       compare with the cell's run made as they run. Retries go on while they pay more often than
       not, and for the two reasons above until they have lost ``patience`` times more often than
       paid; retries still running, or not yet comparable with a halving, count as lost.
@@ -235,8 +243,9 @@ class Adaptive(Bisection):
     # half's key -> (parent's steps, deepest step, stalls, state halved, the lineage's earlier halvings as (state, gained))
     lineage: dict = field(default_factory=dict, repr=False)
     retried: dict = field(default_factory=dict, repr=False)  # cell key -> (steps done, deepest step) of the plain run, its size
-    tried: dict = field(default_factory=dict, repr=False)  # cell key -> steps its reboxed retry gained (inf: verified)
+    tried: dict = field(default_factory=dict, repr=False)  # cell key -> steps its reboxed retry went deeper than the plain run
     paid: dict = field(default_factory=dict, repr=False)  # cell key -> whether that retry paid, once decided
+    plain: list = field(default_factory=list, repr=False)  # (size, verified) of every plain run
     pending: set = field(default_factory=set, repr=False)  # keys of reboxed retries not yet run
     verified: list = field(default_factory=list, repr=False)  # (cell, halvings from the initial set) of every verified cell
     arrivals: list = field(default_factory=list, repr=False)  # (cell, step its runs all arrived) of every verified cell
@@ -320,22 +329,27 @@ class Adaptive(Bisection):
             self.gains.setdefault(state, []).append(result.deepest_step - deepest)
             if not result.options.get("rebox") and not reboxed:
                 self.plain_gains.setdefault(state, []).append((size, result.deepest_step - deepest))
+        if not result.options.get("rebox") and result.verdict in ("verified", "unknown"):
+            self.plain.append((_halvings(cell, init), result.verdict == "verified"))
         if result.verdict == "verified":
             self.verified.append((cell, _halvings(cell, init)))
             self.arrivals.append((cell, result.deepest_step))
         if key in self.retried and result.options.get("rebox") and key in self.pending:
             self.pending.discard(key)
-            self.tried[key] = np.inf if result.verdict == "verified" else result.deepest_step - self.retried[key][1]
+            # A retry that verified went as deep as its runs needed: that counts, not the verdict
+            # (a plain halving might have verified too, for as little).
+            self.tried[key] = result.deepest_step - self.retried[key][1]
         if key in self.cut:
             self._grow(key, result)
         if result.verdict == "verified" and (result.branches or key in self.lineage) and not self._stalled(key):
-            # A cell already cut to the size needed near it that still branches (forks on a
-            # condition that crosses it at every size) keeps its cut's shape (as grown from its
-            # pieces): halving it again would spread ever smaller sizes from cell to cell.
-            halve = result.branches and key not in self.cut
+            # Only splits that computed steps again say the cell was too big: halves cut ahead
+            # would have verified without that work. A cell that forked, or split where a piece
+            # was lost (on a condition that crosses it at every size), cost little more than its
+            # run, and keeps its size (a cut piece: its cut's shape, as grown from its pieces).
+            halve = _redid(result)
             size = bisect(cell, init, self._min(init), result.split or self._gaining_state())[0] if halve else cell
             widths = {n: hi - lo for n, (lo, hi) in zip(size.names, size.bounds)}
-            if key in self.cut:
+            if key in self.cut and not halve:
                 widths = self.cuts[self.cut[key][0]].shape()
             if key in self.lineage and not halve:
                 _, _, _, state, path = self.lineage[key]
@@ -349,7 +363,8 @@ class Adaptive(Bisection):
         doc)."""
         cut, index = self.cut[key]
         c = self.cuts[cut]
-        outcome = (result.deepest_step, result.branches) if result.verdict == "verified" else None
+        # A piece that computed steps again ends like no other: its width mattered.
+        outcome = (result.deepest_step, result.branches) if result.verdict == "verified" and not _redid(result) else None
         c.seen[index] = outcome
         before = c.shape()
         for j, name in enumerate(c.cell.names):
@@ -507,15 +522,20 @@ class Adaptive(Bisection):
             gain, size = self.tried[key], self.retried[key][2]
             states = [n for ok, n in zip(above_min_width(init, init, self._min(init), 0), init.names) if ok]
             near = {n: [g for s, g in self.plain_gains.get(n, []) if _near_size(s, size)] for n in states}
-            if gain != np.inf and not (states and all(near.values())):
+            if not (states and all(near.values())):
                 return False
-            self.paid[key] = gain == np.inf or gain > REBOX_COST * max(np.mean(near[n][-RECENT:]) for n in states)
+            self.paid[key] = gain > REBOX_COST * max(np.mean(near[n][-RECENT:]) for n in states)
         return self.paid[key]
 
     def _reboxing(self, size: float, init: Box) -> bool:
-        """Whether cells of ``size`` run reboxed: retries near it paid more often than not."""
+        """Whether cells of ``size`` run reboxed: retries near it paid more often than not, and
+        plain cells of that very size (within half a halving) were lost more often than not (none
+        run yet: the next runs plain, a trial)."""
         wins, losses = self.rebox_score(init, size)
-        return self.rebox is not False and wins > losses
+        if self.rebox is False or wins <= losses:
+            return False
+        plain = [verified for s, verified in self.plain if abs(s - size) < 0.5]
+        return bool(plain) and 2 * sum(plain) < len(plain)
 
     def _rebox_pays(self, cell: Box, result, init: Box) -> bool:
         key, size = _key(cell), _halvings(cell, init)
@@ -578,6 +598,14 @@ class _Cut:
     def shape(self) -> dict:
         """The widths needed here: the pieces', doubled in the states grown."""
         return {n: w * (2 if n in self.grown else 1) for n, w in self.widths.items()}
+
+
+def _redid(result) -> bool:
+    """Whether the run computed steps again after splitting a lost piece at an earlier step, for
+    at least ``MIN_GAIN`` of the steps it reached: cut along the split state ahead of the run, the
+    cell's halves would have verified without that work (an in-cell split that restarts from step
+    0 costs a run of its own)."""
+    return result.steps_redone >= max(1, MIN_GAIN * result.deepest_step)
 
 
 def _undo_stalled(widths: dict, path: tuple) -> dict:
