@@ -469,10 +469,11 @@ def test_a_state_whose_width_does_not_change_how_the_pieces_of_a_cut_end_is_grow
     """A cell cut to a needed 1/8 x 1/8: pieces side by side along d that verify at the same step
     with as many splits say d's width did not matter there, so the next cell is cut twice as wide
     in d; along p they differ, so p keeps its width. One piece that differs (or is lost) along a
-    state keeps that state's width."""
+    state keeps that state's width. Pieces that verified with no in-cell split at all end alike
+    at any step."""
     init = Box(("p", "d"), ((0.0, 1.0), (0.0, 1.0)))
 
-    def cut_and_settle(step_of):
+    def cut_and_settle(step_of, branches=1):
         a = pv.Adaptive(rebox=False)
         a.needed.append((Box(("p", "d"), ((0.0, 0.125), (0.0, 0.125))), {"p": 0.125, "d": 0.125}))
         pieces = [c for c, _ in a.prepare(Box(("p", "d"), ((0.0, 0.5), (0.0, 0.5))), init)]
@@ -481,7 +482,7 @@ def test_a_state_whose_width_does_not_change_how_the_pieces_of_a_cut_end_is_grow
             (plo, _), (dlo, _) = piece.bounds
             deepest = step_of(round(plo * 8), round(dlo * 8))
             verdict = "unknown" if deepest is None else "verified"
-            a.learn(piece, _cell(piece, verdict, steps_done=deepest or 50, deepest_step=deepest or 50, branches=1), init)
+            a.learn(piece, _cell(piece, verdict, steps_done=deepest or 50, deepest_step=deepest or 50, branches=branches), init)
         nxt = [c if isinstance(c, Box) else c[0] for c in a.prepare(Box(("p", "d"), ((0.5, 1.0), (0.0, 0.5))), init)]
         return {(round(hi - lo, 6), round(dhi - dlo, 6)) for (lo, hi), (dlo, dhi) in (c.bounds for c in nxt)}
 
@@ -489,6 +490,8 @@ def test_a_state_whose_width_does_not_change_how_the_pieces_of_a_cut_end_is_grow
     assert cut_and_settle(lambda i, j: 90 + i + (j == 3)) == {(0.125, 0.125)}
     assert cut_and_settle(lambda i, j: None if (i, j) == (3, 3) else 90 + i) == {(0.125, 0.125)}
     assert cut_and_settle(lambda i, j: 90) == {(0.25, 0.25)}
+    # Pieces that verified without any in-cell split end alike whatever their step: p grows too.
+    assert cut_and_settle(lambda i, j: 90 + i, branches=0) == {(0.25, 0.25)}
 
 
 def test_pieces_that_split_and_computed_steps_again_make_the_next_cells_smaller_forks_do_not():
@@ -512,6 +515,22 @@ def test_pieces_that_split_and_computed_steps_again_make_the_next_cells_smaller_
     assert cut_and_settle(60) == {(0.125, 0.0625)}
     assert cut_and_settle(0) == {(0.125, 0.25)}
     assert cut_and_settle(5) == {(0.125, 0.25)}  # a split where part arrived redoes a few steps
+
+
+def test_a_cut_piece_that_redid_steps_makes_the_rest_of_its_cut_smaller():
+    """A 4 x 4 cut of a needed 1/8 x 1/8; its corner piece verifies only after a split along d
+    that restarted from step 0. A piece of the same cut far from it is cut in two along d when
+    drawn (its cut's shape was the one that failed), not only the pieces touching the corner."""
+    init = Box(("p", "d"), ((0.0, 1.0), (0.0, 1.0)))
+    a = pv.Adaptive(rebox=False)
+    a.needed.append((Box(("p", "d"), ((0.0, 0.125), (0.0, 0.125))), {"p": 0.125, "d": 0.125}))
+    pieces = [c for c, _ in a.prepare(Box(("p", "d"), ((0.0, 0.5), (0.0, 0.5))), init)]
+    corner = next(c for c in pieces if c.bounds[0][0] == 0.0 and c.bounds[1][0] == 0.0)
+    far = next(c for c in pieces if c.bounds[0][0] == 0.375 and c.bounds[1][0] == 0.375)
+    assert len(a.prepare(far, init)) == 1
+    a.learn(corner, _cell(corner, "verified", deepest_step=95, branches=1, steps_redone=60, split="d"), init)
+    halves = [c if isinstance(c, Box) else c[0] for c in a.prepare(far, init)]
+    assert [(round(p[1] - p[0], 6), round(d[1] - d[0], 6)) for p, d in (c.bounds for c in halves)] == [(0.125, 0.0625)] * 2
 
 
 def test_a_cell_verified_after_halvings_that_gained_nothing_teaches_no_size():

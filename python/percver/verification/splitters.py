@@ -176,7 +176,8 @@ class Adaptive(Bisection):
       that verifies whole proves nothing about its size, and counting it would spread the
       smallest size over the whole set. But its pieces tell which widths did not matter there:
       once ``GROW_PAIRS`` neighbours along a state in the cut's grid verified at the same step
-      with as many in-cell splits, and no two along it ended differently, cells twice as wide in
+      with as many in-cell splits, or both with none, and no two along it ended differently
+      (lost, or redoing steps, ends like no other), cells twice as wide in
       that state are needed there (a size learnt where another state decided, such as a noise
       level halved on the way down to cells near the Mountain Car wall, where the runs' arrival
       depends on p0 alone, is outgrown a halving per cut; a grown cell that fails is halved and
@@ -355,6 +356,16 @@ class Adaptive(Bisection):
                 _, _, _, state, path = self.lineage[key]
                 widths = _undo_stalled(widths, (*path, (state, True)))
             self.needed.append((cell, widths))
+            if halve and key in self.cut:
+                # The whole cut was cut to one shape: its pieces not yet run are cut to the half's
+                # (else only those touching this piece are, and the next ones along redo the same).
+                c = self.cuts[self.cut[key][0]]
+                for n in c.widths:
+                    if widths[n] < 0.75 * c.widths[n]:  # the state halved
+                        c.widths[n] = widths[n]
+                        c.grown.discard(n)
+                        c.differ.add(n)
+                self.needed.append((c.cell, c.shape()))
 
     def _grow(self, key: tuple, result) -> None:
         """Compares the outcome of cut piece ``key`` with its settled neighbours in the cut's grid;
@@ -374,7 +385,7 @@ class Adaptive(Bisection):
                 other = c.seen.get((*index[:j], index[j] + side, *index[j + 1 :]), False)
                 if other is False:
                     continue
-                if outcome is not None and other == outcome:
+                if outcome is not None and other is not None and (other == outcome or other[1] == outcome[1] == 0):
                     c.alike[name] = c.alike.get(name, 0) + 1
                 else:
                     c.differ.add(name)
