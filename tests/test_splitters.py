@@ -533,6 +533,25 @@ def test_a_cut_piece_that_redid_steps_makes_the_rest_of_its_cut_smaller():
     assert [(round(p[1] - p[0], 6), round(d[1] - d[0], 6)) for p, d in (c.bounds for c in halves)] == [(0.125, 0.0625)] * 2
 
 
+def test_a_cell_at_min_width_is_retried_with_rebox_before_it_is_given_up():
+    """Nothing can be halved: a plain cell lost with the call's splits runs once more reboxed
+    (whatever the rebox trials near its size said), and then its verdict is final; with
+    ``rebox=False`` it is final at once."""
+    init = Box(("x",), ((0.0, 1.0),))
+    cell = Box(("x",), ((0.0, 1 / 64),))
+    lost = dict(steps_done=30, deepest_step=31, reason="step 31: 'x > 0' could not be proved")
+    a = pv.Adaptive(min_width={"x": 1 / 64})
+    for k in range(2):  # two retries at its size that did not pay: the rebox trials there are over
+        a.retried[("trial", k)], a.tried[("trial", k)], a.paid[("trial", k)] = (30, 31, 6.0), 0, False
+    assert a.rebox_score(init, 6.0) == (0, 2)
+    a.learn(cell, _cell(cell, "unknown", **lost), init)
+    assert a.again(cell, _cell(cell, "unknown", **lost), init, False) == Retry({"rebox": True})
+    a.learn(cell, _cell(cell, "unknown", options={"rebox": True}, **lost), init)
+    assert a.again(cell, _cell(cell, "unknown", options={"rebox": True}, **lost), init, False) is None
+    b = pv.Adaptive(min_width={"x": 1 / 64}, rebox=False)
+    assert b.again(cell, _cell(cell, "unknown", **lost), init, False) is None
+
+
 def test_a_cell_verified_after_halvings_that_gained_nothing_teaches_no_size():
     """p and d halved in turn, each gaining a step of ~95: the half that verifies has a size the
     path made by accident, and cutting its neighbours to it would spread it; after one such

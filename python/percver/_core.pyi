@@ -378,7 +378,8 @@ class CellOutcome:
         """Steps computed again because a lost piece was split at an earlier step."""
     @property
     def split(self) -> Optional[int]:
-        """The state the engine would have split next (an index into the state names)."""
+        """The state the engine would have split next (an index into the state names); for a
+        verified cell, the one it split most, if any."""
     def __reduce__(self) -> Tuple[Any, Tuple[Any, ...]]: ...
 
 def verify_cells(

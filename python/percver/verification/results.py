@@ -45,7 +45,8 @@ class Cell:
     # Peak resident memory (MB) of the process that ran the cell, from the start of the cell's
     # batch to its end: an upper bound shared by the cells that ran beside it.
     peak_rss_mb: Optional[float] = None
-    # The state the engine would have split next when it gave up: refinement halves it.
+    # The state the engine would have split next when it gave up: refinement halves it (for a
+    # verified cell: the one it split most, if any).
     split: Optional[str] = None
     # The deepest step any part of the cell reached (an unknown cell's parts stop at different
     # steps; steps_done is the shallowest, where the boxes stop being complete).

@@ -140,7 +140,7 @@ class Bisection(Grid):
 class Adaptive(Bisection):
     """The default: the initial set as it is (or ``start`` pieces along each state it is wide in,
     the first six of them), so a set that verifies whole costs one run; unknown cells halved down
-    to ``min_width`` (default 1/1024 of the initial set); at most ``max_cells`` cells in all
+    to ``min_width`` (default ``FLOOR``, 1/8192 of the initial set); at most ``max_cells`` cells in all
     (then what is left is reported unknown, with its reason). What it learns from the cells
     settled so far (it never makes a verdict, only cells: every cell gets its own proof):
 
@@ -216,7 +216,8 @@ class Adaptive(Bisection):
       (so a loop where it decides at every size, such as F1/10's LiDAR loop, pays a plain run or
       two per new size; near the Mountain Car wall, retries of cells four times larger paid, while
       the cells that verify there verify plain in half a reboxed run's work); else plain; halves
-      compare with the cell's run made as they run. Retries go on while they pay more often than
+      compare with the cell's run made as they run. A cell at ``min_width`` that cannot be halved
+      is retried with rebox before it is given up. Retries go on while they pay more often than
       not, and for the two reasons above until they have lost ``patience`` times more often than
       paid; retries still running, or not yet comparable with a halving, count as lost.
       ``rebox=False`` never retries (``True`` is ``pv.verify(rebox=True)``: every cell reboxed
@@ -284,7 +285,7 @@ class Adaptive(Bisection):
         return ((cell, self._budget(cell, init)) for cell in cells), count
 
     def _min(self, init: Box) -> dict:
-        return {n: self.min_width.get(n, (hi - lo) / 1024) for n, (lo, hi) in zip(init.names, init.bounds)}
+        return {n: self.min_width.get(n, (hi - lo) * FLOOR) for n, (lo, hi) in zip(init.names, init.bounds)}
 
     def prepare(self, cell: Box, init: Box) -> list:
         """``cell`` cut to the widths its settled neighbours needed (where they are narrower)."""
@@ -295,7 +296,7 @@ class Adaptive(Bisection):
         pieces, floor = {}, self._min(init)
         for n, (lo, hi) in zip(cell.names, cell.bounds):
             if target.get(n, 0.0) > 0.0 and hi - lo > 1.5 * target[n]:
-                # Never below min_width: the floor the user set (or 1/1024 of the initial set).
+                # Never below min_width: the floor the user set (or FLOOR of the initial set).
                 most = 2 ** int(np.floor(np.log2((hi - lo) / floor[n]))) if floor[n] > 0 else 64
                 # Widths made by the same halvings differ by float rounding: a ratio of 2.0000001 is 2 pieces, not 4.
                 pieces[n] = min(int(2 ** np.ceil(np.log2((hi - lo) / target[n]) - 1e-6)), 64, most)
@@ -410,7 +411,15 @@ class Adaptive(Bisection):
         explored = "max_splits" in result.options  # ran with the small budget: the call's is left to try
         widths = self._min(init)
         if not splittable(cell, init, widths, 0):
-            return Retry({"max_splits": None}) if explored else None
+            if explored:
+                return Retry({"max_splits": None})
+            if self.rebox is not False and not result.options.get("rebox") and key not in self.retried:
+                # The last thing left to try on a cell at min_width (F1/10's row left five such
+                # cells unknown, plain, after the rebox trials near their size had stopped).
+                self.retried[key] = (result.steps_done, result.deepest_step, size)
+                self.pending.add(key)
+                return Retry({"rebox": True})
+            return None
         options = dict(result.options)
         steps, deepest_step, reboxed = result.steps_done, result.deepest_step, bool(options.pop("rebox", False))
         # The halves run as decided at their size (``_options``); the cell's plain run, where it had
@@ -572,6 +581,11 @@ GOAL_PART = " holds on part of the set only since step "
 STALLED = 2
 
 
+# The default min_width of pv.Adaptive, per state relative to the initial set: halving stops where
+# it stops gaining (patience) or at max_cells long before this on most loops; F1/10's whole row
+# (y1 0.2 wide) needs cells of 1/4096 of it where knock-outs fork, and at 1/1024 it left 19 cells
+# unknown (3.7% of the row).
+FLOOR = 1 / 8192
 REBOX_TRIALS = 2  # unknown cells retried with rebox whatever the reason, per size, to find out whether it pays
 # Halvings apart within which a retry's outcome decides for other cells, and plain halvings' gains compare
 # with it: on Mountain Car the whole set's retry goes twice as deep, while cells eight halvings smaller
