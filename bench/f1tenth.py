@@ -52,23 +52,22 @@ def main():
     ap.add_argument("--only", choices=list(RUNS), help="one of the two runs")
     args = ap.parse_args()
     doc = json.loads(OUT.read_text()) if OUT.exists() else {}
-    entry = {
-        "y1": args.y1,
-        "workers": args.workers,
-        "date": time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime()),
-        "cpu_count": os.cpu_count(),
-    }
+    key = f"{args.y1[0]:g},{args.y1[1]:g}"
+    # With --only, the other run of an earlier entry stays (each run carries its own date); a
+    # ratio is only of two runs made together.
+    entry = {k: v for k, v in doc.get(key, {}).items() if k in RUNS} if args.only else {}
+    entry.update({"y1": args.y1, "workers": args.workers, "cpu_count": os.cpu_count()})
     for name, options in RUNS.items():
         if args.only in (None, name):
-            entry[name] = run(args.y1, args.workers, options)
+            entry[name] = {"date": time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime()), **run(args.y1, args.workers, options)}
             r = entry[name]
             print(
                 f"{name:12s} cells {r['cells']:5d}  coverage {100 * r['coverage']:.2f}%  wall {r['wall_seconds']:.1f} s  cpu {r['cpu_seconds']:.1f} s"
             )
-    if len(RUNS) == sum(name in entry for name in RUNS):
+    if args.only is None:
         entry["ratio_wall"] = entry["adaptive"]["wall_seconds"] / entry["paper cells"]["wall_seconds"]
         entry["ratio_cpu"] = entry["adaptive"]["cpu_seconds"] / entry["paper cells"]["cpu_seconds"]
-    doc[f"{args.y1[0]:g},{args.y1[1]:g}"] = entry
+    doc[key] = entry
     OUT.write_text(json.dumps(doc, indent=1))
     print(f"-> {OUT}")
 
