@@ -247,7 +247,7 @@ class Adaptive(Bisection):
     retried: dict = field(default_factory=dict, repr=False)  # cell key -> (steps done, deepest step) of the plain run, its size
     tried: dict = field(default_factory=dict, repr=False)  # cell key -> steps its reboxed retry went deeper than the plain run
     paid: dict = field(default_factory=dict, repr=False)  # cell key -> whether that retry paid, once decided
-    plain: list = field(default_factory=list, repr=False)  # (size, verified) of every plain run
+    plain: dict = field(default_factory=dict, repr=False)  # size -> [verified, runs] of plain runs (sizes are few)
     pending: set = field(default_factory=set, repr=False)  # keys of reboxed retries not yet run
     verified: list = field(default_factory=list, repr=False)  # (cell, halvings from the initial set) of every verified cell
     arrivals: list = field(default_factory=list, repr=False)  # (cell, step its runs all arrived) of every verified cell
@@ -332,7 +332,9 @@ class Adaptive(Bisection):
             if not result.options.get("rebox") and not reboxed:
                 self.plain_gains.setdefault(state, []).append((size, result.deepest_step - deepest))
         if not result.options.get("rebox") and result.verdict in ("verified", "unknown"):
-            self.plain.append((_halvings(cell, init), result.verdict == "verified"))
+            tally = self.plain.setdefault(round(_halvings(cell, init), 6), [0, 0])
+            tally[0] += result.verdict == "verified"
+            tally[1] += 1
         if result.verdict == "verified":
             self.verified.append((cell, _halvings(cell, init)))
             self.arrivals.append((cell, result.deepest_step))
@@ -554,8 +556,8 @@ class Adaptive(Bisection):
         wins, losses = self.rebox_score(init, size)
         if self.rebox is False or wins <= losses:
             return False
-        plain = [verified for s, verified in self.plain if abs(s - size) < 0.5]
-        return bool(plain) and 2 * sum(plain) < len(plain)
+        verified, runs = np.sum([tally for s, tally in self.plain.items() if abs(s - size) < 0.5] or [[0, 0]], axis=0)
+        return runs > 0 and 2 * verified < runs
 
     def _rebox_pays(self, cell: Box, result, init: Box) -> bool:
         key, size = _key(cell), _halvings(cell, init)
