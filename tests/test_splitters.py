@@ -85,6 +85,14 @@ def test_adaptive_stops_where_halving_does_not_push_the_loss_later():
         splits += 1
         cell = halves[0][0]
     assert splits == 2  # the first halving is free; two stalls in a row end the lineage
+    # Next to a cell that verified smaller, a stalled lineage goes on to one halving below its size.
+    wide = Box(("x",), ((0.0, 2.0),))
+    c = pv.Adaptive(patience=2, rebox=False)
+    c.verified.append((Box(("x",), ((1.0, 1.0 + 1 / 32),)), 6.0))
+    cell = Box(("x",), ((0.0, 1.0),))
+    while (halves := c.again(cell, Cell(cell.to_dict(), "unknown", steps_done=5), wide, False)) is not None:
+        cell = halves[1][0]
+    assert cell.bounds[0] == (1.0 - 1 / 64, 1.0)
     # A lineage that keeps gaining steps goes on, down to min_width.
     b, cell, steps = pv.Adaptive(min_width={"x": 0.1}, rebox=False), init, 0
     while (halves := b.again(cell, Cell(cell.to_dict(), "unknown", steps_done=steps), init, False)) is not None:
@@ -509,7 +517,7 @@ def test_pieces_that_split_and_computed_steps_again_make_the_next_cells_smaller_
         for piece in pieces:
             deepest = 90 + round(piece.bounds[0][0] * 8)  # differ along p, alike along d
             a.learn(piece, _cell(piece, "verified", deepest_step=deepest, branches=1, steps_redone=redone, split="d"), init)
-        nxt = [c if isinstance(c, Box) else c[0] for c in a.prepare(Box(("p", "d"), ((0.5, 1.0), (0.0, 0.5))), init)]
+        nxt = [c if isinstance(c, Box) else c[0] for c in a.prepare(Box(("p", "d"), ((0.5, 0.75), (0.0, 0.25))), init)]
         return {(round(hi - lo, 6), round(dhi - dlo, 6)) for (lo, hi), (dlo, dhi) in (c.bounds for c in nxt)}
 
     assert cut_and_settle(60) == {(0.125, 0.0625)}
@@ -536,7 +544,8 @@ def test_a_cut_piece_that_redid_steps_makes_the_rest_of_its_cut_smaller():
 def test_a_cell_at_min_width_is_retried_with_rebox_before_it_is_given_up():
     """Nothing can be halved: a plain cell lost with the call's splits runs once more reboxed
     (whatever the rebox trials near its size said), and then its verdict is final; with
-    ``rebox=False`` it is final at once."""
+    ``rebox=False`` it is final at once, unless it split inside: then it runs once more with
+    ``DEEPEN`` times the splits it used up."""
     init = Box(("x",), ((0.0, 1.0),))
     cell = Box(("x",), ((0.0, 1 / 64),))
     lost = dict(steps_done=30, deepest_step=31, reason="step 31: 'x > 0' could not be proved")
@@ -550,6 +559,12 @@ def test_a_cell_at_min_width_is_retried_with_rebox_before_it_is_given_up():
     assert a.again(cell, _cell(cell, "unknown", options={"rebox": True}, **lost), init, False) is None
     b = pv.Adaptive(min_width={"x": 1 / 64}, rebox=False)
     assert b.again(cell, _cell(cell, "unknown", **lost), init, False) is None
+    # A cell that used up 16 in-cell splits runs once more with four times as many, then is final.
+    split = dict(lost, branches=16)
+    assert b.again(cell, _cell(cell, "unknown", **split), init, False) == Retry({"max_splits": 64})
+    deeper = _cell(cell, "unknown", options={"max_splits": 64}, **split)
+    b.learn(cell, deeper, init)
+    assert b.again(cell, deeper, init, False) is None
 
 
 def test_a_cell_verified_after_halvings_that_gained_nothing_teaches_no_size():
@@ -635,3 +650,25 @@ def test_a_reboxed_retry_is_not_judged_by_the_halvings_of_cells_much_smaller_tha
     a.learn(cell, _cell(cell, "unknown", steps_done=68, deepest_step=68, options=options), init)
     assert a.gains == {"d": [31, 1, 1, 1, 1], "p": [0]}
     assert not a._rebox_won(_key(init), init)
+
+
+def test_a_size_needed_on_one_side_of_a_wide_cell_cuts_it_finer_only_towards_that_side():
+    """A cut makes at most GRADE pieces along a state; the pieces that still touch the cells that
+    needed the size are cut again when drawn, the others run as they are (a size needed at the
+    Mountain Car wall had cut a cell 64 times as wide into 128 pieces)."""
+    init = Box(("x", "y"), ((0.0, 2.0), (0.0, 1.0)))
+    a = pv.Adaptive(rebox=False)
+    needed = Box(("x", "y"), ((1.0, 1.0 + 1 / 64), (0.0, 1.0)))
+    a.needed.append((needed, {"x": 1 / 64, "y": 1.0}))
+    settled, todo = [], [Box(("x", "y"), ((0.0, 1.0), (0.0, 1.0)))]
+    while todo:
+        cell = todo.pop()
+        pieces = a.prepare(cell, init)
+        if pieces == [cell]:
+            settled.append(cell)
+        else:
+            assert len(pieces) == 4
+            todo += [piece for piece, _ in pieces]
+    widths = sorted(c.bounds[0] for c in settled)
+    assert [hi - lo for lo, hi in widths] == [0.25] * 3 + [1 / 16] * 3 + [1 / 64] * 4
+    assert widths[0][0] == 0.0 and widths[-1][1] == 1.0 and all(p[1] == q[0] for p, q in zip(widths, widths[1:]))

@@ -172,7 +172,10 @@ class Adaptive(Bisection):
       the latest learnt (of the cells it touches; with ``tile=True`` also of the nearest one
       when it touches none, which spreads the first size found over the whole set), instead of
       spending runs on the sizes that failed there; the narrowest widths of several sizes
-      together would make cells smaller than any that was needed. A cell cut ahead of its run
+      together would make cells smaller than any that was needed. A cut makes at most ``GRADE``
+      pieces along a state: the pieces that still touch the cells that needed the size are cut
+      again when drawn, the others run at their size, so cells grow away from where a size was
+      needed (a size needed at a wall holds near it). A cell cut ahead of its run
       that verifies whole proves nothing about its size, and counting it would spread the
       smallest size over the whole set. But its pieces tell which widths did not matter there:
       once ``GROW_PAIRS`` neighbours along a state in the cut's grid verified at the same step
@@ -193,7 +196,9 @@ class Adaptive(Bisection):
       ``learn_states=False``: that first choice, and after a halving that gained no step the
       widest other state relative to the initial set.
     - Where halving stops paying: a lineage that gains no step ``patience`` times per state it
-      can halve in a row stops (the loss is not the cell's width). Once a cell is falsified the
+      can halve in a row stops (the loss is not the cell's width), unless a cell it touches
+      verified at its size or smaller (it then goes on to one halving below it: a loss that no
+      halving moves may still end at the size where the cell verifies). Once a cell is falsified the
       loop is unsafe: unknown cells are no longer halved (the coverage is then a lower bound).
     - Whether restarting from boxes pays (``rebox``, see :func:`percver.verify`), per size: what
       it gains depends on the cell's size (Mountain Car's whole set goes twice as deep reboxed,
@@ -217,7 +222,8 @@ class Adaptive(Bisection):
       two per new size; near the Mountain Car wall, retries of cells four times larger paid, while
       the cells that verify there verify plain in half a reboxed run's work); else plain; halves
       compare with the cell's run made as they run. A cell at ``min_width`` that cannot be halved
-      is retried with rebox before it is given up. Retries go on while they pay more often than
+      is retried with rebox, then (if it split inside) with ``DEEPEN`` times the in-cell splits it
+      used up, before it is given up. Retries go on while they pay more often than
       not, and for the two reasons above until they have lost ``patience`` times more often than
       paid; retries still running, or not yet comparable with a halving, count as lost.
       ``rebox=False`` never retries (``True`` is ``pv.verify(rebox=True)``: every cell reboxed
@@ -249,6 +255,7 @@ class Adaptive(Bisection):
     paid: dict = field(default_factory=dict, repr=False)  # cell key -> whether that retry paid, once decided
     plain: dict = field(default_factory=dict, repr=False)  # size -> [verified, runs] of plain runs (sizes are few)
     pending: set = field(default_factory=set, repr=False)  # keys of reboxed retries not yet run
+    deepened: set = field(default_factory=set, repr=False)  # keys of cells at min_width retried with DEEPEN times the in-cell splits
     verified: list = field(default_factory=list, repr=False)  # (cell, halvings from the initial set) of every verified cell
     arrivals: list = field(default_factory=list, repr=False)  # (cell, step its runs all arrived) of every verified cell
     goal_retried: dict = field(default_factory=dict, repr=False)  # cell key -> (steps, deepest step, reboxed) before its split retry
@@ -293,13 +300,17 @@ class Adaptive(Bisection):
         # One shape, the latest learnt: the narrowest widths of several shapes together make
         # cells smaller than any that was needed.
         target = shapes[-1] if shapes else {}
-        pieces, floor = {}, self._min(init)
+        wanted, floor = {}, self._min(init)
         for n, (lo, hi) in zip(cell.names, cell.bounds):
             if target.get(n, 0.0) > 0.0 and hi - lo > 1.5 * target[n]:
                 # Never below min_width: the floor the user set (or FLOOR of the initial set).
                 most = 2 ** int(np.floor(np.log2((hi - lo) / floor[n]))) if floor[n] > 0 else 64
                 # Widths made by the same halvings differ by float rounding: a ratio of 2.0000001 is 2 pieces, not 4.
-                pieces[n] = min(int(2 ** np.ceil(np.log2((hi - lo) / target[n]) - 1e-6)), 64, most)
+                wanted[n] = min(int(2 ** np.ceil(np.log2((hi - lo) / target[n]) - 1e-6)), most)
+        # At most GRADE pieces a state: those that still touch the cells that needed the size are
+        # cut again when drawn, the others run at their size (the size needed where precision is
+        # lost holds near there, not across a cell 64 times as wide).
+        pieces = {n: min(k, GRADE) for n, k in wanted.items()}
         pieces = {n: k for n, k in pieces.items() if k > 1}
         # At most max_cells cells in all: a cut that would pass it is coarsened (the pieces are cut
         # again when drawn, while room is left), since a size needed at a fork can be tiny in every
@@ -410,17 +421,23 @@ class Adaptive(Bisection):
             self.retried[key] = (result.steps_done, result.deepest_step, size)
             self.pending.add(key)
             return Retry({"rebox": True})
-        explored = "max_splits" in result.options  # ran with the small budget: the call's is left to try
+        # Ran with the small budget: the call's is left to try.
+        explored = "max_splits" in result.options and key not in self.deepened
         widths = self._min(init)
         if not splittable(cell, init, widths, 0):
             if explored:
                 return Retry({"max_splits": None})
             if self.rebox is not False and not result.options.get("rebox") and key not in self.retried:
-                # The last thing left to try on a cell at min_width (F1/10's row left five such
+                # The last things left to try on a cell at min_width (F1/10's row left five such
                 # cells unknown, plain, after the rebox trials near their size had stopped).
                 self.retried[key] = (result.steps_done, result.deepest_step, size)
                 self.pending.add(key)
                 return Retry({"rebox": True})
+            if result.branches > 0 and key not in self.deepened:
+                # In-cell splits are the halvings left to it: DEEPEN times the ones it used up
+                # (a cell of 1/4096 of F1/10's row needs 19 of them, where the call gives 16).
+                self.deepened.add(key)
+                return Retry({"max_splits": DEEPEN * result.branches})
             return None
         options = dict(result.options)
         steps, deepest_step, reboxed = result.steps_done, result.deepest_step, bool(options.pop("rebox", False))
@@ -443,7 +460,7 @@ class Adaptive(Bisection):
             self.lineage[key] = (reached, deepest, stalls, halved, path)
             self.goal_retried[key] = (steps, deepest_step, reboxed)
             return Retry({"max_splits": None, "rebox": True if reboxed else None})
-        if stalls >= self.patience * sum(above_min_width(init, init, widths, 0)):
+        if stalls >= self.patience * sum(above_min_width(init, init, widths, 0)) and not self._as_small_verified(cell, init):
             if explored:
                 self.lineage[key] = (reached, deepest, stalls - 1, halved, path)  # the retry stops the lineage unless it goes deeper
                 return Retry({"max_splits": None})
@@ -505,6 +522,14 @@ class Adaptive(Bisection):
         verified cells near it all arrived (or none has verified yet)."""
         near = _near(cell, self.arrivals, init)
         return not near or step >= (1 - MIN_GAIN) * max(near)
+
+    def _as_small_verified(self, cell: Box, init: Box) -> bool:
+        """Whether a cell it touches verified at its size or smaller: there halving reached a
+        verdict, so a lineage whose halvings gained no step goes on to one halving below that size
+        (on F1/10's row the knock-outs are lost near the last step at every size down to the one
+        where a cell verifies at once, and a cell of 1/64 of the row stopped there, between cells
+        of 1/256 that verified)."""
+        return any(h >= _halvings(cell, init) - 1e-6 for box, h in self.verified if _touches(cell, box))
 
     def _stalled(self, key: tuple) -> bool:
         """Whether the cell ``key`` comes from ``STALLED`` halvings in a row that gained nothing
@@ -588,6 +613,7 @@ STALLED = 2
 # (y1 0.2 wide) needs cells of 1/4096 of it where knock-outs fork, and at 1/1024 it left 19 cells
 # unknown (3.7% of the row).
 FLOOR = 1 / 8192
+DEEPEN = 4  # a cell at min_width lost after in-cell splits runs once more with this many times as many
 REBOX_TRIALS = 2  # unknown cells retried with rebox whatever the reason, per size, to find out whether it pays
 # Halvings apart within which a retry's outcome decides for other cells, and plain halvings' gains compare
 # with it: on Mountain Car the whole set's retry goes twice as deep, while cells eight halvings smaller
@@ -607,6 +633,12 @@ MIN_GAIN = 1 / 8
 # as many in-cell splits) before cells twice as wide in it are tried there: pieces whose runs do
 # not depend on a state's width within a cell end alike, others differ by a step or more.
 GROW_PAIRS = 3
+
+# Pieces a cut makes along a state at most (see Adaptive.prepare): 4 lets a cut's grid hold
+# GROW_PAIRS neighbours along it. On Mountain Car's contrast row, a size needed at the wall
+# (p0 1/128 of the set's width) cut a cell 64 times as wide into 128 pieces that verified clean,
+# where the hand's cells are 7 times as large.
+GRADE = 4
 
 
 @dataclass
