@@ -672,3 +672,21 @@ def test_a_size_needed_on_one_side_of_a_wide_cell_cuts_it_finer_only_towards_tha
     widths = sorted(c.bounds[0] for c in settled)
     assert [hi - lo for lo, hi in widths] == [0.25] * 3 + [1 / 16] * 3 + [1 / 64] * 4
     assert widths[0][0] == 0.0 and widths[-1][1] == 1.0 and all(p[1] == q[0] for p, q in zip(widths, widths[1:]))
+
+
+def test_a_state_a_cut_did_not_split_grows_from_the_pieces_of_other_cuts_beside_it():
+    """Cuts of 4 x 1 along p (their d width is already the one needed): p differs piece to piece,
+    and along d each piece ends like the piece of the cut below it. Those pairs across cuts say
+    d's width did not matter: the next cell is cut twice as wide in d."""
+    init = Box(("p", "d"), ((0.0, 1.0), (0.0, 1.0)))
+    a = pv.Adaptive(rebox=False)
+    a.needed.append((Box(("p", "d"), ((0.0, 0.125), (0.0, 0.125))), {"p": 0.125, "d": 0.125}))
+    for k in range(2):
+        pieces = [c for c, _ in a.prepare(Box(("p", "d"), ((0.0, 0.5), (k / 8, (k + 1) / 8))), init)]
+        assert len(pieces) == 4
+        for piece in pieces:
+            deepest = 90 + round(piece.bounds[0][0] * 8)
+            a.learn(piece, _cell(piece, "verified", steps_done=deepest, deepest_step=deepest, branches=1), init)
+    nxt = [c if isinstance(c, Box) else c[0] for c in a.prepare(Box(("p", "d"), ((0.0, 0.5), (0.25, 0.5))), init)]
+    assert {(round(p[1] - p[0], 6), round(d[1] - d[0], 6)) for p, d in (c.bounds for c in nxt)} == {(0.125, 0.25)}
+

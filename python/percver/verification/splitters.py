@@ -178,7 +178,8 @@ class Adaptive(Bisection):
       needed (a size needed at a wall holds near it). A cell cut ahead of its run
       that verifies whole proves nothing about its size, and counting it would spread the
       smallest size over the whole set. But its pieces tell which widths did not matter there:
-      once ``GROW_PAIRS`` neighbours along a state in the cut's grid verified at the same step
+      once ``GROW_PAIRS`` neighbours along a state in the cut's grid (along a state the cut did
+      not split, pieces of other cuts of the same shape beside them) verified at the same step
       with as many in-cell splits, or both with none, and no two along it ended differently
       (lost, or redoing steps, ends like no other), cells twice as wide in
       that state are needed there (a size learnt where another state decided, such as a noise
@@ -268,6 +269,7 @@ class Adaptive(Bisection):
     falsified: bool = field(default=False, repr=False)  # a counterexample decided the loop: no more halvings
     cut: dict = field(default_factory=dict, repr=False)  # key of a piece cut ahead of its run -> (its cut, its index in the cut's grid)
     cuts: list = field(default_factory=list, repr=False)  # every cut's _Cut, in order
+    ended: dict = field(default_factory=dict, repr=False)  # rounded bounds of a settled cut piece -> its outcome for growth
     made: int = field(default=0, repr=False)  # cells made so far (initial, halves, cut pieces), held to max_cells
 
     def __post_init__(self):
@@ -382,7 +384,8 @@ class Adaptive(Bisection):
                 self.needed.append((c.cell, c.shape()))
 
     def _grow(self, key: tuple, result) -> None:
-        """Compares the outcome of cut piece ``key`` with its settled neighbours in the cut's grid;
+        """Compares the outcome of cut piece ``key`` with its settled neighbours in the cut's grid
+        (along a state the cut did not split: pieces of other cuts of the same shape beside it);
         once ``GROW_PAIRS`` neighbours along a state ended alike and none differently, that
         state's width needed there doubles, until two along it end differently (see the class
         doc)."""
@@ -391,12 +394,22 @@ class Adaptive(Bisection):
         # A piece that computed steps again ends like no other: its width mattered.
         outcome = (result.deepest_step, result.branches) if result.verdict == "verified" and not _redid(result) else None
         c.seen[index] = outcome
+        self.ended[_rounded(key)] = outcome
         before = c.shape()
         for j, name in enumerate(c.cell.names):
-            if c.pieces.get(name, 1) < 2 or name in c.differ:
+            if name in c.differ or not c.widths[name] > 0:
                 continue
-            for side in (-1, 1):
-                other = c.seen.get((*index[:j], index[j] + side, *index[j + 1 :]), False)
+            if c.pieces.get(name, 1) >= 2:
+                others = [c.seen.get((*index[:j], index[j] + side, *index[j + 1 :]), False) for side in (-1, 1)]
+            else:
+                # A state the cut did not split: its neighbours along it are pieces of other cuts of
+                # the same shape (at the Mountain Car wall the cuts split p0 alone, while 391 of 416
+                # pairs of wall cells side by side in dc ended alike).
+                lo, hi = key[j]
+                others = [
+                    self.ended.get(_rounded((*key[:j], face, *key[j + 1 :])), False) for face in ((2 * lo - hi, lo), (hi, 2 * hi - lo))
+                ]
+            for other in others:
                 if other is False:
                     continue
                 if outcome is not None and other is not None and (other == outcome or other[1] == outcome[1] == 0):
@@ -711,6 +724,11 @@ def _gap(a: Box, b: Box, init: Box) -> float:
             if ihi > ilo
         )
     )
+
+
+def _rounded(bounds: tuple) -> tuple:
+    """Bounds made by different cuts meet in their last bits: rounded, a face is found from both sides."""
+    return tuple((round(lo, 12), round(hi, 12)) for lo, hi in bounds)
 
 
 def _key(box: Box) -> tuple:
