@@ -690,3 +690,16 @@ def test_a_state_a_cut_did_not_split_grows_from_the_pieces_of_other_cuts_beside_
     nxt = [c if isinstance(c, Box) else c[0] for c in a.prepare(Box(("p", "d"), ((0.0, 0.5), (0.25, 0.5))), init)]
     assert {(round(p[1] - p[0], 6), round(d[1] - d[0], 6)) for p, d in (c.bounds for c in nxt)} == {(0.125, 0.25)}
 
+
+def test_a_cell_that_redid_many_runs_teaches_a_halving_per_doubling_of_them():
+    """A cell verified after splits that restarted from step 0: steps of under 4 runs teach one
+    halving along the state split most, of 8-15 runs three (it was as costly as 8-16 cells)."""
+    init = Box(("p", "d"), ((0.0, 1.0), (0.0, 1.0)))
+    cell = Box(("p", "d"), ((0.0, 0.25), (0.0, 0.25)))
+    learnt = {}
+    for redone in (150, 1300):
+        a = pv.Adaptive(rebox=False)
+        a.lineage[_key(cell)] = (-1, -1, 0, "p", ())
+        a.learn(cell, _cell(cell, "verified", deepest_step=100, branches=3, steps_redone=redone, split="d"), init)
+        learnt[redone] = a.needed[-1][1]
+    assert learnt == {150: {"p": 0.25, "d": 0.125}, 1300: {"p": 0.25, "d": 0.25 / 8}}

@@ -163,8 +163,9 @@ class Adaptive(Bisection):
       verified through that halving, and its size with them is an accident of the path); a cell,
       a cut piece too, that verified only after in-cell splits that computed ``MIN_GAIN`` of its
       steps again (``steps_redone``: a split restarts where the enclosure was last precise, step
-      0 on Mountain Car, so it costs a run of its own) says that cells half its size are, halved
-      along the state the engine split most (on Mountain Car's contrast row, cut pieces that
+      0 on Mountain Car, so it costs a run of its own) says that cells smaller by a halving per
+      doubling of the runs its steps made are (one halving for up to three runs' steps, three for
+      8-15), halved along the state the engine split most (on Mountain Car's contrast row, cut pieces that
       verified after 1-7 such splits cost 3-17 times a clean one). Forks, and splits where a
       piece was lost, go on from there and say nothing of the size. A cell verified after ``STALLED`` halvings in a row that
       gained nothing says nothing of the size needed (its size is the path's accident: cut to
@@ -364,7 +365,9 @@ class Adaptive(Bisection):
             # was lost (on a condition that crosses it at every size), cost little more than its
             # run, and keeps its size (a cut piece: its cut's shape, as grown from its pieces).
             halve = _redid(result)
-            size = bisect(cell, init, self._min(init), result.split or self._gaining_state())[0] if halve else cell
+            size = cell
+            for _ in range(_redone_runs(result) if halve else 0):
+                size = bisect(size, init, self._min(init), result.split or self._gaining_state())[0]
             widths = {n: hi - lo for n, (lo, hi) in zip(size.names, size.bounds)}
             if key in self.cut and not halve:
                 widths = self.cuts[self.cut[key][0]].shape()
@@ -678,6 +681,14 @@ def _redid(result) -> bool:
     cell's halves would have verified without that work (an in-cell split that restarts from step
     0 costs a run of its own)."""
     return result.steps_redone >= max(1, MIN_GAIN * result.deepest_step)
+
+
+def _redone_runs(result) -> int:
+    """The halvings a cell that redid steps says were needed: log2 of the runs its steps made
+    (floored, at least one). A composite Mountain Car cell that verified after 15 splits that
+    restarted from step 0 made 14 runs' steps, as 16 cells would have; taught one halving, its
+    neighbours redid as much."""
+    return max(1, int(np.floor(np.log2(1 + result.steps_redone / max(1, result.deepest_step)))))
 
 
 def _undo_stalled(widths: dict, path: tuple) -> dict:
