@@ -652,8 +652,7 @@ GROW_PAIRS = 3
 
 # Pieces a cut makes along a state at most (see Adaptive.prepare): 4 lets a cut's grid hold
 # GROW_PAIRS neighbours along it. On Mountain Car's contrast row, a size needed at the wall
-# (p0 1/128 of the set's width) cut a cell 64 times as wide into 128 pieces that verified clean,
-# where the hand's cells are 7 times as large.
+# (p0 1/256 of the row's width) had cut a cell 64 times as wide in p0 into 128 pieces.
 GRADE = 4
 
 
