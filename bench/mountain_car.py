@@ -18,6 +18,7 @@ plus a coverage map per entry (``bench/results/mountain_car_<row>_<networks>.png
 import argparse
 import json
 import os
+import re
 import time
 from pathlib import Path
 
@@ -273,7 +274,16 @@ def compare(args) -> None:
             earlier = doc.get(key)  # a single comparison (written before --variants) becomes the first of the list
             doc[key] = {"runs": (earlier["runs"] if "runs" in earlier else [earlier]) if earlier else []}
             doc[key]["runs"].append(runs)
-            COMPARED.write_text(json.dumps(doc, indent=1))
+            COMPARED.write_text(_dumps(doc))
+
+
+def _dumps(doc: dict) -> str:
+    """``doc`` as JSON, indented, with each list of plain values (a cell's row) on one line: with
+    every value on its own line, the results of a few dozen rows pass 5 MB. Checked by reading it
+    back (a string holding a bracket could fool the pattern): if it differs, plain indented JSON."""
+    text = json.dumps(doc, indent=1)
+    packed = re.sub(r"\[\s*\n\s*([^\[\]{}]*?)\s*\]", lambda m: "[" + re.sub(r",\s*\n\s*", ", ", m.group(1)) + "]", text)
+    return packed if json.loads(packed) == json.loads(text) else text
 
 
 def _commit() -> str:
@@ -324,7 +334,7 @@ def main() -> None:
             for noise in args.rows.split(","):
                 entry = combine(doc, noise, key)
                 doc[f"{noise}/{key}/slices"] = entry
-                out.write_text(json.dumps(doc, indent=1))
+                out.write_text(_dumps(doc))
                 print(verification.format_row(noise, entry["row"], entry["paper"]), "gaps:", entry["gaps"], flush=True)
         return
     journal_dir = Path(args.journal_dir)
@@ -341,7 +351,7 @@ def main() -> None:
                 + ("/survey" if args.survey else "")
                 + ("" if args.p0 is None else f"/{args.p0[0]:g},{args.p0[1]:g}")
             ] = entry
-            out.write_text(json.dumps(doc, indent=1))
+            out.write_text(_dumps(doc))
             print(verification.format_row(noise, entry["row"], entry["paper"]), flush=True)
 
 
