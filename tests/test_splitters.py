@@ -691,6 +691,33 @@ def test_a_state_a_cut_did_not_split_grows_from_the_pieces_of_other_cuts_beside_
     assert {(round(p[1] - p[0], 6), round(d[1] - d[0], 6)) for p, d in (c.bounds for c in nxt)} == {(0.125, 0.25)}
 
 
+def test_growth_evidence_is_pooled_over_cuts_of_two_pieces_and_outweighs_one_pair_that_differed():
+    """Cuts of two pieces along p stacked along d, as at the Mountain Car wall: no cut holds
+    GROW_PAIRS pairs along d, but together their pieces do, and d grows though one pair along it
+    ended differently (it is outnumbered GROW_RATIO to one); p, whose pieces all differ, keeps its
+    width. A lost cell as small as the grown shape beside the next cell keeps d too."""
+    init = Box(("p", "d"), ((0.0, 1.0), (0.0, 1.0)))
+
+    def stacked(lost_beside=False):
+        a = pv.Adaptive(rebox=False)
+        a.needed.append((Box(("p", "d"), ((0.0, 0.125), (0.0, 0.125))), {"p": 0.125, "d": 0.125}))
+        for k in range(4):
+            pieces = [c for c, _ in a.prepare(Box(("p", "d"), ((0.0, 0.25), (k / 8, (k + 1) / 8))), init)]
+            assert len(pieces) == 2
+            for piece in pieces:
+                i = round(piece.bounds[0][0] * 8)
+                deepest = 90 + i + (i == 0 and k == 0)  # the pair (i 0, k 0-1) along d differs
+                a.learn(piece, _cell(piece, "verified", steps_done=deepest, deepest_step=deepest, branches=1), init)
+        if lost_beside:
+            lost = Box(("p", "d"), ((0.125, 0.25), (0.5, 0.75)))
+            a.learn(lost, _cell(lost, "unknown", steps_done=50, deepest_step=50), init)
+        nxt = [c if isinstance(c, Box) else c[0] for c in a.prepare(Box(("p", "d"), ((0.0, 0.25), (0.5, 1.0))), init)]
+        return {(round(p[1] - p[0], 6), round(d[1] - d[0], 6)) for p, d in (c.bounds for c in nxt)}
+
+    assert stacked() == {(0.125, 0.25)}
+    assert stacked(lost_beside=True) == {(0.125, 0.125)}
+
+
 def test_a_cell_that_redid_many_runs_teaches_a_halving_per_doubling_of_them():
     """A cell verified after splits that restarted from step 0: steps of under 4 runs teach one
     halving along the state split most, of 8-15 runs three (it was as costly as 8-16 cells)."""

@@ -178,15 +178,18 @@ class Adaptive(Bisection):
       again when drawn, the others run at their size, so cells grow away from where a size was
       needed (a size needed at a wall holds near it). A cell cut ahead of its run
       that verifies whole proves nothing about its size, and counting it would spread the
-      smallest size over the whole set. But its pieces tell which widths did not matter there:
-      once ``GROW_PAIRS`` neighbours along a state in the cut's grid (along a state the cut did
-      not split, pieces of other cuts of the same shape beside them) verified at the same step
-      with as many in-cell splits, or both with none, and no two along it ended differently
-      (lost, or redoing steps, ends like no other), cells twice as wide in
-      that state are needed there (a size learnt where another state decided, such as a noise
-      level halved on the way down to cells near the Mountain Car wall, where the runs' arrival
-      depends on p0 alone, is outgrown a halving per cut; a grown cell that fails is halved and
-      its verified half teaches the size again).
+      smallest size over the whole set. But settled cells tell which widths did not matter
+      there: pairs of neighbours of one shape along a state (any cells, cut pieces or halves)
+      that verified at the same step with as many in-cell splits, or both with none, ended
+      alike; lost, or redoing steps, ends like no other. Where, within ``GRADE`` widths of the
+      shape around the cell about to be cut, ``GROW_PAIRS`` pairs of that width along a state
+      ended alike and ``GROW_RATIO`` times as many as ended differently, or were lost there no
+      wider than the grown shape in any state (a halving's verified halves do not grow back into
+      their lost parent), the cell is cut twice as wide in that state (and again, while the
+      wider pairs agree). A size learnt where another state decided, such as a noise level
+      halved on the way down to cells near the Mountain Car wall, where the runs' arrival
+      depends on p0 alone, is outgrown that way; a grown cell that fails is halved and its
+      verified half teaches the size again.
     - Which state to halve: the one whose recent halvings pushed the loss of precision furthest
       (the halves' ``deepest_step`` against their parent's), each state tried once first in
       the order of the one whose width moves the runs most up to the step where the cell was
@@ -268,9 +271,11 @@ class Adaptive(Bisection):
     halvings: int = field(default=0, repr=False)  # halvings decided so far
     last: dict = field(default_factory=dict, repr=False)  # state -> the halving that last cut it
     falsified: bool = field(default=False, repr=False)  # a counterexample decided the loop: no more halvings
-    cut: dict = field(default_factory=dict, repr=False)  # key of a piece cut ahead of its run -> (its cut, its index in the cut's grid)
+    cut: dict = field(default_factory=dict, repr=False)  # key of a piece cut ahead of its run -> its cut's index in cuts
     cuts: list = field(default_factory=list, repr=False)  # every cut's _Cut, in order
-    ended: dict = field(default_factory=dict, repr=False)  # rounded bounds of a settled cut piece -> its outcome for growth
+    ended: dict = field(default_factory=dict, repr=False)  # rounded bounds of a settled cell -> how it ended, for growth
+    pairs: "_Boxes" = field(default_factory=lambda: _Boxes(3), repr=False)  # neighbours' union -> (state, width, ended alike)
+    lost: "_Boxes" = field(default_factory=lambda: _Boxes(None), repr=False)  # cells lost or redoing steps -> their widths
     made: int = field(default=0, repr=False)  # cells made so far (initial, halves, cut pieces), held to max_cells
 
     def __post_init__(self):
@@ -302,7 +307,7 @@ class Adaptive(Bisection):
         shapes = _near(cell, self.needed, init) if self.tile else [w for box, w in self.needed if _touches(cell, box)]
         # One shape, the latest learnt: the narrowest widths of several shapes together make
         # cells smaller than any that was needed.
-        target = shapes[-1] if shapes else {}
+        target = self._grown(cell, shapes[-1]) if shapes else {}
         wanted, floor = {}, self._min(init)
         for n, (lo, hi) in zip(cell.names, cell.bounds):
             if target.get(n, 0.0) > 0.0 and hi - lo > 1.5 * target[n]:
@@ -327,13 +332,9 @@ class Adaptive(Bisection):
         cells, count = grid(cell, pieces)
         self.made += count - 1
         cells = list(cells)
-        self.cuts.append(_Cut(cell, {n: (hi - lo) / pieces.get(n, 1) for n, (lo, hi) in zip(cell.names, cell.bounds)}, pieces))
+        self.cuts.append(_Cut(cell, {n: (hi - lo) / pieces.get(n, 1) for n, (lo, hi) in zip(cell.names, cell.bounds)}))
         for piece in cells:
-            index = tuple(
-                int(round((plo - lo) / (hi - lo) * pieces[n])) if n in pieces else 0
-                for n, (plo, _), (lo, hi) in zip(cell.names, piece.bounds, cell.bounds)
-            )
-            self.cut[_key(piece)] = (len(self.cuts) - 1, index)
+            self.cut[_key(piece)] = len(self.cuts) - 1
         return [(piece, self._options(piece, init)) for piece in cells]
 
     def learn(self, cell: Box, result, init: Box) -> None:
@@ -357,8 +358,8 @@ class Adaptive(Bisection):
             # A retry that verified went as deep as its runs needed: that counts, not the verdict
             # (a plain halving might have verified too, for as little).
             self.tried[key] = result.deepest_step - self.retried[key][1]
-        if key in self.cut:
-            self._grow(key, result)
+        if result.verdict in ("verified", "unknown"):
+            self._compare(cell, result)
         if result.verdict == "verified" and (result.branches or key in self.lineage) and not self._stalled(key):
             # Only splits that computed steps again say the cell was too big: halves cut ahead
             # would have verified without that work. A cell that forked, or split where a piece
@@ -370,7 +371,7 @@ class Adaptive(Bisection):
                 size = bisect(size, init, self._min(init), result.split or self._gaining_state())[0]
             widths = {n: hi - lo for n, (lo, hi) in zip(size.names, size.bounds)}
             if key in self.cut and not halve:
-                widths = self.cuts[self.cut[key][0]].shape()
+                widths = dict(self.cuts[self.cut[key]].widths)
             if key in self.lineage and not halve:
                 _, _, _, state, path = self.lineage[key]
                 widths = _undo_stalled(widths, (*path, (state, True)))
@@ -378,52 +379,73 @@ class Adaptive(Bisection):
             if halve and key in self.cut:
                 # The whole cut was cut to one shape: its pieces not yet run are cut to the half's
                 # (else only those touching this piece are, and the next ones along redo the same).
-                c = self.cuts[self.cut[key][0]]
-                for n in c.widths:
-                    if widths[n] < 0.75 * c.widths[n]:  # the state halved
-                        c.widths[n] = widths[n]
-                        c.grown.discard(n)
-                        c.differ.add(n)
-                self.needed.append((c.cell, c.shape()))
+                c = self.cuts[self.cut[key]]
+                c.widths = {n: min(w, widths[n]) if widths[n] < 0.75 * w else w for n, w in c.widths.items()}
+                self.needed.append((c.cell, dict(c.widths)))
 
-    def _grow(self, key: tuple, result) -> None:
-        """Compares the outcome of cut piece ``key`` with its settled neighbours in the cut's grid
-        (along a state the cut did not split: pieces of other cuts of the same shape beside it);
-        once ``GROW_PAIRS`` neighbours along a state ended alike and none differently, that
-        state's width needed there doubles, until two along it end differently (see the class
-        doc)."""
-        cut, index = self.cut[key]
-        c = self.cuts[cut]
-        # A piece that computed steps again ends like no other: its width mattered.
-        outcome = (result.deepest_step, result.branches) if result.verdict == "verified" and not _redid(result) else None
-        c.seen[index] = outcome
-        self.ended[_rounded(key)] = outcome
-        before = c.shape()
-        for j, name in enumerate(c.cell.names):
-            if name in c.differ or not c.widths[name] > 0:
+    def _compare(self, cell: Box, result) -> None:
+        """Compares how a settled cell ended with its settled neighbours of the same shape (one face
+        shared) along each state: the pairs are the evidence :meth:`_grown` reads. A cell lost, or
+        one that computed steps again (its width mattered), ends like no other and is kept in
+        ``lost`` with its widths."""
+        key = _rounded(_key(cell))
+        reboxed = bool(result.options.get("rebox"))
+        outcome = (result.deepest_step, result.branches, reboxed) if result.verdict == "verified" and not _redid(result) else None
+        if outcome is None:
+            self.lost.add(cell, [hi - lo for lo, hi in cell.bounds])
+        self.ended[key] = outcome
+        for j, (lo, hi) in enumerate(key):
+            if not hi > lo:
                 continue
-            if c.pieces.get(name, 1) >= 2:
-                others = [c.seen.get((*index[:j], index[j] + side, *index[j + 1 :]), False) for side in (-1, 1)]
-            else:
-                # A state the cut did not split: its neighbours along it are pieces of other cuts of
-                # the same shape (at the Mountain Car wall the cuts split p0 alone, while 391 of 416
-                # pairs of wall cells side by side in dc ended alike).
-                lo, hi = key[j]
-                others = [
-                    self.ended.get(_rounded((*key[:j], face, *key[j + 1 :])), False) for face in ((2 * lo - hi, lo), (hi, 2 * hi - lo))
-                ]
-            for other in others:
+            for face in ((2 * lo - hi, lo), (hi, 2 * hi - lo)):
+                other = self.ended.get(_rounded((*key[:j], face, *key[j + 1 :])), False)
                 if other is False:
                     continue
-                if outcome is not None and other is not None and (other == outcome or other[1] == outcome[1] == 0):
-                    c.alike[name] = c.alike.get(name, 0) + 1
-                else:
-                    c.differ.add(name)
-                    c.grown.discard(name)
-            if name not in c.differ and c.alike.get(name, 0) >= GROW_PAIRS:
-                c.grown.add(name)
-        if c.shape() != before:
-            self.needed.append((c.cell, c.shape()))
+                alike = outcome is not None and other is not None and (other == outcome or other[1:] == outcome[1:] == (0, reboxed))
+                pair = Box(cell.names, tuple(key[:j]) + ((min(lo, face[0]), max(hi, face[1])),) + tuple(key[j + 1 :]))
+                self.pairs.add(pair, [j, hi - lo, alike])
+        if _key(cell) in self.cut:
+            # The cut's shape grown where its pieces say so spreads as a needed one would (to
+            # cells beside the cut that no needed shape touches).
+            c = self.cuts[self.cut[_key(cell)]]
+            grown = self._grown(c.cell, c.widths)
+            if grown != c.widths and grown != c.grown:
+                c.grown = grown
+                self.needed.append((c.cell, grown))
+
+    def _grown(self, cell: Box, target: dict) -> dict:
+        """``target`` (a shape needed near ``cell``) doubled in each state, again and again, while
+        the settled neighbour pairs of its width along that state near ``cell`` (within ``GRADE``
+        widths of the shape) ended alike: at least ``GROW_PAIRS`` of them, and ``GROW_RATIO`` times
+        as many as ended differently or were lost there no wider than the grown shape in any
+        state (that size failed there already: a halving's two verified halves, alike, do not grow
+        back into their lost parent); such a cell touching ``cell`` is enough to keep the width."""
+        # The pairs within a cut's reach (GRADE pieces of the shape on each side): those touching
+        # a cell at the Mountain Car wall are two or three, its neighbourhood holds dozens.
+        reach = Box(
+            cell.names,
+            tuple((lo - GRADE * target.get(n, 0.0), hi + GRADE * target.get(n, 0.0)) for n, (lo, hi) in zip(cell.names, cell.bounds)),
+        )
+        pairs = self.pairs.touching(reach)
+        if not len(pairs):
+            return target
+        lost = np.flatnonzero(self.lost.mask(reach)) if len(self.lost) else np.empty(0, dtype=int)
+        out = dict(target)
+        for j, (n, (lo, hi)) in enumerate(zip(cell.names, cell.bounds)):
+            while out.get(n, 0.0) > 0.0 and hi - lo > 1.5 * out[n]:
+                votes = pairs[(pairs[:, 0] == j) & np.isclose(pairs[:, 1], out[n], rtol=1e-6, atol=0.0), 2]
+                grown = {**out, n: 2 * out[n]}
+                shape = np.array([grown.get(m, np.inf) for m in cell.names]) * (1 + 1e-6)
+                failed = lost[np.all(self.lost.values[lost] <= shape, axis=1)] if len(lost) else lost
+                alike = int(votes.sum())
+                if (
+                    alike < GROW_PAIRS
+                    or alike < GROW_RATIO * (len(votes) - alike + len(failed))
+                    or (len(failed) and self.lost.mask(cell, failed).any())
+                ):
+                    break
+                out = grown
+        return out
 
     def again(self, cell: Box, result, init: Box, timed_out: bool):
         """A :class:`Retry` (with rebox, or with the call's in-cell splits), halves (with their
@@ -645,10 +667,14 @@ RECENT = 4  # halvings of a state whose gains choose the next state to halve
 MIN_GAIN = 1 / 8
 
 
-# Neighbours along a state, in a cut's grid, that must end alike (verified at the same step with
-# as many in-cell splits) before cells twice as wide in it are tried there: pieces whose runs do
-# not depend on a state's width within a cell end alike, others differ by a step or more.
+# Neighbour pairs along a state that must end alike (verified at the same step with as many
+# in-cell splits, or both with none) before cells twice as wide in it are tried there, and how many
+# times the pairs that ended differently: cells whose runs do not depend on a state's width end
+# alike, others differ by a step or more. Counted over every settled cell near the one cut, not
+# per cut: at the Mountain Car wall, cuts of two pieces along p0 never held three pairs along dc,
+# and 400 of 428 pairs there ended alike while dc stayed at a quarter of the hand's width.
 GROW_PAIRS = 3
+GROW_RATIO = 4
 
 # Pieces a cut makes along a state at most (see Adaptive.prepare): 4 lets a cut's grid hold
 # GROW_PAIRS neighbours along it. On Mountain Car's contrast row, a size needed at the wall
@@ -658,20 +684,43 @@ GRADE = 4
 
 @dataclass
 class _Cut:
-    """A cell cut ahead of its run into a grid of ``pieces`` (per state) of ``widths``, and what
-    its settled pieces said (``seen``: index -> (deepest step, branches), None if not verified)."""
+    """A cell cut ahead of its run into pieces of ``widths`` (narrowed where a piece redid steps),
+    and the shape its pieces' outcomes grew it to last (see :meth:`Adaptive._grown`)."""
 
     cell: Box
     widths: dict
-    pieces: dict
-    seen: dict = field(default_factory=dict)
-    alike: dict = field(default_factory=dict)  # state -> neighbour pairs along it that ended alike
-    differ: set = field(default_factory=set)  # states along which two neighbours ended differently
-    grown: set = field(default_factory=set)  # states whose width was doubled from this cut
+    grown: Optional[dict] = None
 
-    def shape(self) -> dict:
-        """The widths needed here: the pieces', doubled in the states grown."""
-        return {n: w * (2 if n in self.grown else 1) for n, w in self.widths.items()}
+
+class _Boxes:
+    """Boxes with a row of values each, in arrays: which touch a cell is asked at every cut, over
+    thousands of them (``width=None``: the values are the box's own widths, one per state)."""
+
+    def __init__(self, width: Optional[int]):
+        self.width, self.n = width, 0
+        self.lo = self.hi = self.values = None
+
+    def add(self, box: Box, values: list) -> None:
+        if self.lo is None:
+            self.lo, self.hi, self.values = np.empty((64, len(box.bounds))), np.empty((64, len(box.bounds))), np.empty((64, len(values)))
+        elif self.n == len(self.lo):
+            self.lo, self.hi, self.values = (np.concatenate([a, np.empty_like(a)]) for a in (self.lo, self.hi, self.values))
+        self.lo[self.n], self.hi[self.n] = zip(*box.bounds)
+        self.values[self.n] = values
+        self.n += 1
+
+    def __len__(self) -> int:
+        return self.n
+
+    def touching(self, cell: Box) -> np.ndarray:
+        """The values of the boxes that touch ``cell`` (a shared face counts)."""
+        return self.values[: self.n][self.mask(cell)] if self.n else np.empty((0, self.width or len(cell.bounds)))
+
+    def mask(self, cell: Box, rows: Optional[np.ndarray] = None) -> np.ndarray:
+        """Which boxes (of ``rows``, else all) touch ``cell``."""
+        rows = np.arange(self.n) if rows is None else rows
+        lo, hi = np.array(cell.bounds).T
+        return np.all((self.lo[rows] <= hi) & (lo <= self.hi[rows]), axis=1)
 
 
 def _redid(result) -> bool:
