@@ -67,14 +67,17 @@ def bisect(box: Box, init: Box, min_width: dict, hint: Optional[str] = None) -> 
     return _halves(box, j)
 
 
-def _halves(box: Box, j: int) -> list:
+def _halves(box: Box, j: int, times: int = 1) -> list:
+    """``box`` halved along state ``j``, and each half again, ``times`` times in all (the pieces
+    are those of that many halvings in a row, bounds and all)."""
     lo, hi = box.bounds[j]
     mid = 0.5 * (lo + hi)
     left = list(box.bounds)
     right = list(box.bounds)
     left[j] = (lo, mid)
     right[j] = (mid, hi)
-    return [Box(box.names, tuple(left)), Box(box.names, tuple(right))]
+    halves = [Box(box.names, tuple(left)), Box(box.names, tuple(right))]
+    return halves if times <= 1 else [piece for half in halves for piece in _halves(half, j, times - 1)]
 
 
 def above_min_width(cell: Box, init: Box, min_width: dict, default: float = 1 / 64) -> list:
@@ -199,7 +202,10 @@ class Adaptive(Bisection):
       parent reached; after one that did not, its lineage halves another state at once (gains
       measured elsewhere, at other sizes, say little about this one).
       ``learn_states=False``: that first choice, and after a halving that gained no step the
-      widest other state relative to the initial set.
+      widest other state relative to the initial set. A cell lost after in-cell splits that
+      computed steps again is cut along the state the engine split, into a halving per doubling
+      of the runs its steps made (at most ``GRADE`` pieces): its own splits were those halvings,
+      each at the cost of a run.
     - Where halving stops paying: a lineage that gains no step ``patience`` times per state it
       can halve in a row stops (the loss is not the cell's width), unless a cell it touches
       verified at its size or smaller (it then goes on to one halving below it: a loss that no
@@ -505,9 +511,20 @@ class Adaptive(Bisection):
             return None
         if halved is not None:
             path = (*path, (halved, gained))
-        state = self._state_to_halve(cell, result, init, widths, stalls, halved, gained)
+        times, j = 1, None if result.split is None else cell.names.index(result.split)
+        if _redid(result) and j is not None and above_min_width(cell, init, widths, 0)[j]:
+            # The engine's splits along it restarted, and the cell was still lost: halved along
+            # it once per doubling of the runs its steps made (at most GRADE pieces), as a cell
+            # verified that way teaches (blur cells near p0 -0.55 halved along the noise, each
+            # losing 16 splits that restarted from step 0, while the engine split p0).
+            state, (lo, hi) = result.split, cell.bounds[j]
+            times = min(_redone_runs(result), int(np.log2(GRADE)))
+            while times > 1 and (hi - lo) / 2**times < widths[state]:
+                times -= 1
+        else:
+            state = self._state_to_halve(cell, result, init, widths, stalls, halved, gained)
         options.pop("max_splits", None)
-        halves = _halves(cell, cell.names.index(state))
+        halves = _halves(cell, cell.names.index(state), times)
         self.halvings += 1
         self.made += len(halves) - 1
         self.last[state] = self.halvings
