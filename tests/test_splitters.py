@@ -10,7 +10,7 @@ import percver as pv
 from percver.sets import Box
 from percver.verification.journal import journal_cells
 from percver.verification.results import Cell
-from percver.verification.splitters import Retry, _key
+from percver.verification.splitters import REDONE, Retry, _key
 from test_verify import assert_contains_simulations, mountain_car
 
 
@@ -246,7 +246,9 @@ def test_spread_names_the_dimension_that_moves_the_runs():
 
 def test_adaptive_gives_cells_far_above_the_verified_size_a_small_in_cell_budget():
     """Cells run with ``explore`` in-cell splits until a verified cell near them is at most
-    ``reach`` halvings smaller; then with the call's (no ``max_splits`` of their own)."""
+    ``reach`` halvings smaller; then with the call's (no ``max_splits`` of their own), those that
+    restart bounded by ``REDONE`` runs' steps, except at min_width. A cell at min_width lost with
+    either bound runs again without it."""
     init = Box(("p", "d"), ((0.0, 1.0), (0.0, 1.0)))
     a = pv.Adaptive(rebox=False, explore=1, reach=1)
     (whole, options), *_ = a.initial(init)[0]
@@ -256,11 +258,16 @@ def test_adaptive_gives_cells_far_above_the_verified_size_a_small_in_cell_budget
     # A quarter verifies: cells within one halving of it get the call's budget, bigger ones do not.
     quarter = Box(("p", "d"), ((0.0, 0.5), (0.0, 0.5)))
     a.learn(quarter, _cell(quarter, "verified"), init)
-    assert a._budget(Box(("p", "d"), ((0.5, 1.0), (0.0, 1.0))), init) == {}
+    assert a._budget(Box(("p", "d"), ((0.5, 1.0), (0.0, 1.0))), init) == {"max_redone": REDONE}
     assert a._budget(init, init) == {"max_splits": 1}
-    # A cell whose small budget was not enough and that cannot be halved runs again with the call's.
+    floor = pv.Adaptive(rebox=False, min_width={"p": 0.5, "d": 0.5})
+    floor.learn(quarter, _cell(quarter, "verified"), init)
+    assert floor._budget(Box(("p", "d"), ((0.5, 1.0), (0.0, 0.5))), init) == {}
+    # A cell whose budget was not enough and that cannot be halved runs again with the call's.
     tiny = pv.Adaptive(rebox=False, min_width={"p": 0.5, "d": 0.5})
-    assert tiny.again(quarter, _cell(quarter, "unknown", options={"max_splits": 0}), init, False) == Retry({"max_splits": None})
+    unbounded = Retry({"max_splits": None, "max_redone": None})
+    assert tiny.again(quarter, _cell(quarter, "unknown", options={"max_splits": 0}), init, False) == unbounded
+    assert tiny.again(quarter, _cell(quarter, "unknown", options={"max_redone": REDONE}), init, False) == unbounded
     assert tiny.again(quarter, _cell(quarter, "unknown", options={}), init, False) is None
 
 

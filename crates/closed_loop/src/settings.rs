@@ -23,6 +23,11 @@ pub struct CellSettings {
     /// Branches allowed per cell: domain splits when a part is lost, and forks of parts at an
     /// expression stage's undecided conditions (0: never; conditions then take the hull).
     pub max_splits: usize,
+    /// Steps the splits that restart a lost part from an earlier step may compute again, in runs
+    /// of the deepest step the cell has reached (None: no bound). A split that would pass it
+    /// gives the cell up instead, naming the variable it would have split: a caller that halves
+    /// the cell ahead pays a run per piece, while each such split repeats most of a run.
+    pub max_redone: Option<f64>,
     /// Restart a part from its box when a remainder is most of a state's enclosure: the
     /// dependency on the initial state is lost, but remainders stop feeding back through the
     /// loop (they can grow geometrically when the controller's correction adds to them).
@@ -49,6 +54,7 @@ impl Default for CellSettings {
             timeout: None,
             blow_up_width: 1e6,
             max_splits: 16,
+            max_redone: None,
             rebox: false,
             state_symbols: false,
             progress: None,

@@ -120,10 +120,12 @@ pub(crate) fn run(lp: &ClosedLoop, cell: &[Interval], settings: &CellSettings, o
                         (piece.history, v)
                     }
                 };
-                match v.filter(|_| splits < settings.max_splits) {
+                let from = history.last().expect("non-empty").0;
+                let redone = out.steps_redone + step.saturating_sub(from);
+                let within = settings.max_redone.is_none_or(|runs| redone as f64 <= runs * out.deepest_step.max(1) as f64);
+                match v.filter(|_| splits < settings.max_splits && within) {
                     Some(v) => {
-                        let from = history.last().expect("non-empty").0;
-                        out.steps_redone += step.saturating_sub(from);
+                        out.steps_redone = redone;
                         for half in [-0.5, 0.5] {
                             let history: Vec<_> = history.iter().map(|(k, s)| (*k, restrict_half(s, v, half, &ctx))).collect();
                             // Margins from `from` on are computed again by the halves.
@@ -143,7 +145,11 @@ pub(crate) fn run(lp: &ClosedLoop, cell: &[Interval], settings: &CellSettings, o
                         verified = false;
                         stopped_at = Some(piece.step);
                         out.split = v.and_then(|v| state_of.get(v).copied());
-                        out.reason = Some(if splits == 0 { reason } else { format!("{reason} (after {splits} splits)") });
+                        out.reason = Some(match (splits, within) {
+                            (_, false) => format!("{reason} (after {splits} splits; the next would compute steps again past max_redone)"),
+                            (0, true) => reason,
+                            _ => format!("{reason} (after {splits} splits)"),
+                        });
                         break;
                     }
                 }

@@ -45,6 +45,7 @@ fn loop_settings(state_symbols: bool) -> CellSettings {
         timeout: None,
         blow_up_width: 1e6,
         max_splits: 0,
+        max_redone: None,
         rebox: false,
         state_symbols,
         progress: None,
@@ -145,6 +146,7 @@ fn reach_verdict(update: &str, x0: (f64, f64), steps: usize) -> CellOutcome {
         timeout: None,
         blow_up_width: 1e6,
         max_splits: 0,
+        max_redone: None,
         rebox: false,
         state_symbols: true,
         progress: None,
@@ -271,6 +273,21 @@ fn deepest_step_is_where_a_part_gave_up() {
     assert_eq!(out.verdict, Verdict::Unknown, "{:?}", out.reason);
     assert!(out.reason.as_deref().unwrap_or("").starts_with("step 20:"), "{:?}", out.reason);
     assert_eq!((out.steps_done, out.boxes.len(), out.deepest_step), (1, 2, 20));
+}
+
+/// The cell of the test above with its splits' restarts bounded: at half a run it gives up at
+/// the first split, unknown, naming the variable it would have split (a, as the verified run's
+/// first split), without computing a step again; at ten runs it verifies as without the bound.
+#[test]
+fn max_redone_gives_a_cell_up_before_a_split_that_would_compute_too_many_steps_again() {
+    let (lp, _) = truncated_cubic();
+    let cell = [Interval::new(-1.0, 1.0).unwrap(), Interval::new(-1.0, 1.0).unwrap(), Interval::point(0.0)];
+    let settings = CellSettings { order: 2, max_splits: 3, ..loop_settings(false) };
+    let out = verify_cell(&lp, &cell, &CellSettings { max_redone: Some(0.5), ..settings.clone() });
+    assert_eq!((out.verdict, out.branches, out.steps_redone, out.split), (Verdict::Unknown, 0, 0, Some(0)), "{:?}", out.reason);
+    assert!(out.reason.as_deref().unwrap_or("").contains("past max_redone"), "{:?}", out.reason);
+    let out = verify_cell(&lp, &cell, &CellSettings { max_redone: Some(10.0), ..settings });
+    assert_eq!((out.verdict, out.branches), (Verdict::Verified, 3), "{:?}", out.reason);
 }
 
 /// x' = y, y' = -x from around (1, 0) for one period of pi (half a turn); safe while

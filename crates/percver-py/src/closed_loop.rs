@@ -251,7 +251,7 @@ pub struct PyCellSettings(pub CellSettings);
 #[pymethods]
 impl PyCellSettings {
     #[new]
-    #[pyo3(signature = (*, order=None, cutoff=None, method=None, timeout=None, nn_order=None, blow_up_width=None, max_splits=None, rebox=None, state_symbols=None))]
+    #[pyo3(signature = (*, order=None, cutoff=None, method=None, timeout=None, nn_order=None, blow_up_width=None, max_splits=None, max_redone=None, rebox=None, state_symbols=None))]
     #[allow(clippy::too_many_arguments)]
     fn new(
         order: Option<usize>,
@@ -261,6 +261,7 @@ impl PyCellSettings {
         nn_order: Option<usize>,
         blow_up_width: Option<f64>,
         max_splits: Option<usize>,
+        max_redone: Option<f64>,
         rebox: Option<bool>,
         state_symbols: Option<bool>,
     ) -> PyResult<Self> {
@@ -272,6 +273,7 @@ impl PyCellSettings {
             timeout: timeout.or(d.timeout),
             blow_up_width: blow_up_width.unwrap_or(d.blow_up_width),
             max_splits: max_splits.unwrap_or(d.max_splits),
+            max_redone: max_redone.or(d.max_redone),
             rebox: rebox.unwrap_or(d.rebox),
             state_symbols: state_symbols.unwrap_or(d.state_symbols),
             nn: d.nn,
@@ -308,6 +310,10 @@ impl PyCellSettings {
         self.0.max_splits
     }
     #[getter]
+    fn max_redone(&self) -> Option<f64> {
+        self.0.max_redone
+    }
+    #[getter]
     fn rebox(&self) -> bool {
         self.0.rebox
     }
@@ -318,14 +324,15 @@ impl PyCellSettings {
     fn __repr__(&self) -> String {
         let s = &self.0;
         format!(
-            "CellSettings(order={}, cutoff={:e}, method='{}', timeout={:?}, nn_order={}, blow_up_width={:e}, max_splits={}, rebox={}, state_symbols={})",
+            "CellSettings(order={}, cutoff={:e}, method='{}', timeout={}, nn_order={}, blow_up_width={:e}, max_splits={}, max_redone={}, rebox={}, state_symbols={})",
             s.order,
             s.cutoff,
             s.method.name(),
-            s.timeout,
+            py_optional(s.timeout),
             s.nn.order,
             s.blow_up_width,
             s.max_splits,
+            py_optional(s.max_redone),
             s.rebox,
             s.state_symbols
         )
@@ -343,11 +350,17 @@ impl PyCellSettings {
         kwargs.set_item("nn_order", s.nn.order)?;
         kwargs.set_item("blow_up_width", s.blow_up_width)?;
         kwargs.set_item("max_splits", s.max_splits)?;
+        kwargs.set_item("max_redone", s.max_redone)?;
         kwargs.set_item("rebox", s.rebox)?;
         kwargs.set_item("state_symbols", s.state_symbols)?;
         let rebuild = py.import("percver._core")?.getattr("_cell_settings")?;
         Ok((rebuild, (kwargs.into_any(),)))
     }
+}
+
+/// An optional number as Python writes it (None, or the number).
+fn py_optional(v: Option<f64>) -> String {
+    v.map_or_else(|| "None".to_string(), |v| v.to_string())
 }
 
 /// `CellSettings(**kwargs)` for unpickling.
@@ -362,6 +375,7 @@ pub fn _cell_settings(kwargs: &Bound<'_, PyDict>) -> PyResult<PyCellSettings> {
         get("nn_order").map(|v| v.extract()).transpose()?,
         get("blow_up_width").map(|v| v.extract()).transpose()?,
         get("max_splits").map(|v| v.extract()).transpose()?,
+        get("max_redone").and_then(|v| v.extract().ok()),
         get("rebox").map(|v| v.extract()).transpose()?,
         get("state_symbols").map(|v| v.extract()).transpose()?,
     )

@@ -467,10 +467,11 @@ class Adaptive(Bisection):
             return Retry({"rebox": True})
         # Ran with the small budget: the call's is left to try.
         explored = "max_splits" in result.options and key not in self.deepened
+        capped = explored or "max_redone" in result.options
         widths = self._min(init)
         if not splittable(cell, init, widths, 0):
-            if explored:
-                return Retry({"max_splits": None})
+            if capped:
+                return Retry({"max_splits": None, "max_redone": None})
             if self.rebox is not False and not result.options.get("rebox") and key not in self.retried:
                 # The last things left to try on a cell at min_width (F1/10's row left five such
                 # cells unknown, plain, after the rebox trials near their size had stopped).
@@ -505,9 +506,9 @@ class Adaptive(Bisection):
             self.goal_retried[key] = (steps, deepest_step, reboxed)
             return Retry({"max_splits": None, "rebox": True if reboxed else None})
         if stalls >= self.patience * sum(above_min_width(init, init, widths, 0)) and not self._as_small_verified(cell, init):
-            if explored:
+            if capped:
                 self.lineage[key] = (reached, deepest, stalls - 1, halved, path)  # the retry stops the lineage unless it goes deeper
-                return Retry({"max_splits": None})
+                return Retry({"max_splits": None, "max_redone": None})
             return None
         if halved is not None:
             path = (*path, (halved, gained))
@@ -524,6 +525,7 @@ class Adaptive(Bisection):
         else:
             state = self._state_to_halve(cell, result, init, widths, stalls, halved, gained)
         options.pop("max_splits", None)
+        options.pop("max_redone", None)
         halves = _halves(cell, cell.names.index(state), times)
         self.halvings += 1
         self.made += len(halves) - 1
@@ -603,10 +605,16 @@ class Adaptive(Bisection):
 
     def _budget(self, cell: Box, init: Box) -> dict:
         """The in-cell splits of a cell about to run: the call's when a verified cell near it (one
-        it touches, else the nearest) is at most ``reach`` halvings smaller, else ``explore`` (a
-        cell far too big fails fast and is halved, instead of splitting inside many times)."""
+        it touches, else the nearest) is at most ``reach`` halvings smaller (with ``REDONE`` runs'
+        steps for those that restart), else ``explore`` (a cell far too big fails fast and is
+        halved, instead of splitting inside many times)."""
         near = _near(cell, self.verified, init)
-        return {} if near and max(near) - _halvings(cell, init) <= self.reach else {"max_splits": self.explore}
+        if not (near and max(near) - _halvings(cell, init) <= self.reach):
+            return {"max_splits": self.explore}
+        # Splits that restart from an earlier step cost most of a run each: past REDONE runs'
+        # steps the cell is given up and cut along the split state instead, except at min_width,
+        # where in-cell splits are the halvings left.
+        return {"max_redone": REDONE} if splittable(cell, init, self._min(init), 0) else {}
 
     def rebox_score(self, init: Box, size: Optional[float] = None) -> tuple:
         """Reboxed retries that paid, and not (see the class doc); with ``size``, those of cells
@@ -697,6 +705,11 @@ GROW_RATIO = 4
 # GROW_PAIRS neighbours along it. On Mountain Car's contrast row, a size needed at the wall
 # (p0 1/256 of the row's width) had cut a cell 64 times as wide in p0 into 128 pieces.
 GRADE = 4
+
+# Runs' steps a cell near the size needed may compute again in splits that restart (the engine's
+# ``max_redone``): with them it costs as much as the GRADE pieces a cut along the split state
+# makes. Composite Mountain Car cells lost after 16 such splits cost 15 runs (30 s) each.
+REDONE = GRADE - 1
 
 
 @dataclass
