@@ -726,16 +726,17 @@ def test_growth_evidence_is_pooled_over_cuts_of_two_pieces_and_outweighs_one_pai
 
 
 def test_a_lost_cell_whose_splits_restarted_is_halved_along_the_engines_state_once_per_doubling_of_its_runs():
-    """A cell lost after in-cell splits along d that redid 3 runs' steps is cut into 4 pieces
-    along d, whatever the probe prefers; one that redid little is halved once along the probe's
-    state; a cell near d's min_width gets the halvings left."""
+    """A cell lost after in-cell splits along d that redid 3 runs' steps (``REDONE``) is cut into
+    4 pieces along d, whatever the probe prefers, and one given up at its ``max_redone`` into a
+    piece per doubling of its runs; one that redid less is halved once along the probe's state;
+    a cell near d's min_width gets the halvings left."""
     init = Box(("p", "d"), ((0.0, 1.0), (0.0, 1.0)))
     cell = Box(("p", "d"), ((0.0, 0.25), (0.0, 0.25)))
 
-    def pieces(redone, min_width=None):
+    def pieces(redone, min_width=None, reason="step 100: lost"):
         a = pv.Adaptive(rebox=False, min_width=min_width or {})
         a.probe = lambda c, step: {"p": 1.0, "d": 0.0}
-        lost = _cell(cell, "unknown", steps_done=40, deepest_step=100, branches=16, steps_redone=redone, split="d")
+        lost = _cell(cell, "unknown", steps_done=40, deepest_step=100, branches=16, steps_redone=redone, split="d", reason=reason)
         a.learn(cell, lost, init)
         return sorted(
             (round(p[1] - p[0], 6), round(d[1] - d[0], 6), d[0]) for p, d in (c.bounds for c, _ in a.again(cell, lost, init, False))
@@ -743,6 +744,11 @@ def test_a_lost_cell_whose_splits_restarted_is_halved_along_the_engines_state_on
 
     assert pieces(300) == [(0.25, 0.0625, k / 16) for k in range(4)]
     assert pieces(5) == [(0.125, 0.25, 0.0)] * 2
+    assert pieces(100) == [(0.125, 0.25, 0.0)] * 2  # a run's steps: arrivals split, say
+    assert pieces(150, reason="step 100: lost (after 2 splits; the next would compute steps again past max_redone)") == [
+        (0.25, 0.125, 0.0),
+        (0.25, 0.125, 0.125),
+    ]
     assert pieces(300, {"d": 0.1}) == [(0.25, 0.125, 0.0), (0.25, 0.125, 0.125)]
 
 

@@ -513,11 +513,14 @@ class Adaptive(Bisection):
         if halved is not None:
             path = (*path, (halved, gained))
         times, j = 1, None if result.split is None else cell.names.index(result.split)
-        if _redid(result) and j is not None and above_min_width(cell, init, widths, 0)[j]:
-            # The engine's splits along it restarted, and the cell was still lost: halved along
-            # it once per doubling of the runs its steps made (at most GRADE pieces), as a cell
-            # verified that way teaches (blur cells near p0 -0.55 halved along the noise, each
-            # losing 16 splits that restarted from step 0, while the engine split p0).
+        heavy = REDONE_PAST in (result.reason or "") or result.steps_redone >= REDONE * max(1, result.deepest_step)
+        if heavy and j is not None and above_min_width(cell, init, widths, 0)[j] and (gained or halved != result.split):
+            # The engine's splits along it restarted, computing REDONE runs' steps again, and the
+            # cell was still lost: halved along it once per doubling of the runs its steps made (at
+            # most GRADE pieces), as a cell verified that way teaches (blur cells near p0 -0.55
+            # halved along the noise, each losing 16 splits that restarted from step 0, while the
+            # engine split p0). Splits where part of the cell arrived redo a few steps each: a
+            # big cell's 16 of them, a run's steps, say nothing of the state to halve.
             state, (lo, hi) = result.split, cell.bounds[j]
             times = min(_redone_runs(result), int(np.log2(GRADE)))
             while times > 1 and (hi - lo) / 2**times < widths[state]:
@@ -666,6 +669,8 @@ class Adaptive(Bisection):
 PRECISION_LOST = (" is undefined on ", " blew up ")
 # The engine's reason when runs from parts of a cell arrive at the goal at different steps.
 GOAL_PART = " holds on part of the set only since step "
+# The engine's words when a cell gives up before a split that would pass its max_redone.
+REDONE_PAST = "past max_redone"
 # Halvings in a row that gained nothing before a cell verified, after which its size is an
 # accident of the path and is not learnt as needed.
 STALLED = 2
