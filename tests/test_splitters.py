@@ -752,6 +752,21 @@ def test_a_lost_cell_whose_splits_restarted_is_halved_along_the_engines_state_on
     assert pieces(300, {"d": 0.1}) == [(0.25, 0.125, 0.0), (0.25, 0.125, 0.125)]
 
 
+def test_a_plain_cell_given_up_at_its_max_redone_does_not_count_as_a_plain_loss_for_rebox():
+    """Plain cells of a size lost more often than not (with retries near it that paid) make cells
+    of that size run reboxed; a cell given up before a split past its ``max_redone`` is not such a
+    loss (it asks for halving)."""
+    init = Box(("x",), ((0.0, 1.0),))
+    cell = Box(("x",), ((0.0, 0.25),))
+    for reason, counted in (
+        ("step 9: lost", [0, 1]),
+        ("step 9: lost (after 3 splits; the next would compute steps again past max_redone)", None),
+    ):
+        a = pv.Adaptive()
+        a.learn(cell, _cell(cell, "unknown", options={"max_redone": REDONE}, steps_done=9, deepest_step=9, reason=reason), init)
+        assert a.plain.get(2.0) == counted
+
+
 def test_a_cell_that_redid_many_runs_teaches_a_halving_per_doubling_of_them():
     """A cell verified after splits that restarted from step 0: steps of under 4 runs teach one
     halving along the state split most, of 8-15 runs three (it was as costly as 8-16 cells)."""

@@ -228,7 +228,7 @@ class Adaptive(Bisection):
       seconds, decide: the first runs last a fraction of a second, and their seconds say more
       about the load than about the method. New cells (halves, cut pieces) run reboxed where the
       retries near their size paid more often than not and plain cells of their very size (within
-      half a halving) were lost more often than not; the first cell of a size runs plain, a trial
+      half a halving; not those given up at their ``max_redone``) were lost more often than not; the first cell of a size runs plain, a trial
       (so a loop where it decides at every size, such as F1/10's LiDAR loop, pays a plain run or
       two per new size; near the Mountain Car wall, retries of cells four times larger paid, while
       the cells that verify there verify plain in half a reboxed run's work); else plain; halves
@@ -352,7 +352,9 @@ class Adaptive(Bisection):
             self.gains.setdefault(state, []).append(result.deepest_step - deepest)
             if not result.options.get("rebox") and not reboxed:
                 self.plain_gains.setdefault(state, []).append((size, result.deepest_step - deepest))
-        if not result.options.get("rebox") and result.verdict in ("verified", "unknown"):
+        if not result.options.get("rebox") and result.verdict in ("verified", "unknown") and REDONE_PAST not in (result.reason or ""):
+            # A cell given up at its max_redone asks for halving, whatever rebox would do: it
+            # counts for neither (blur's cells near p0 -0.5 ran reboxed where it counted).
             tally = self.plain.setdefault(round(_halvings(cell, init), 6), [0, 0])
             tally[0] += result.verdict == "verified"
             tally[1] += 1
