@@ -305,6 +305,7 @@ class CellSettings:
         nn_order: Optional[int] = None,
         blow_up_width: Optional[float] = None,
         max_splits: Optional[int] = None,
+        max_redone: Optional[float] = None,
         rebox: Optional[bool] = None,
         state_symbols: Optional[bool] = None,
     ) -> None: ...
@@ -322,6 +323,9 @@ class CellSettings:
     def blow_up_width(self) -> float: ...
     @property
     def max_splits(self) -> int: ...
+    @property
+    def max_redone(self) -> Optional[float]:
+        """Runs' steps the splits that restart may compute again before the cell is given up (None: no bound)."""
     @property
     def rebox(self) -> bool: ...
     @property
