@@ -40,7 +40,7 @@ def _cell(box: Box, verdict: str, **kwargs) -> Cell:
 
 def test_adaptive_cuts_a_cell_to_the_size_its_neighbours_needed():
     init = Box(("p", "v"), ((0.0, 1.0), (0.0, 0.0)))
-    a = pv.Adaptive(rebox=False)
+    a = pv.Adaptive(grade=4, rebox=False)
     parent = Box(("p", "v"), ((0.0, 0.25), (0.0, 0.0)))
     a.learn(parent, _cell(parent, "unknown"), init)
     (left, _), (right, _) = a.again(parent, _cell(parent, "unknown", split="p"), init, False)
@@ -53,7 +53,7 @@ def test_adaptive_cuts_a_cell_to_the_size_its_neighbours_needed():
         (0.40625, 0.5),
     ]
     # A verified cell that was cut ahead of its run (no parent failed) is no evidence of its size.
-    b = pv.Adaptive(rebox=False)
+    b = pv.Adaptive(grade=4, rebox=False)
     b.learn(left, _cell(left, "verified"), init)
     assert b.prepare(right, init) == [right]
 
@@ -327,7 +327,7 @@ def test_adaptive_cuts_a_cell_to_the_nearest_size_needed_when_none_touches_it():
     parent = Box(("p", "v"), ((0.0, 0.25), (0.0, 0.0)))
     far = Box(("p", "v"), ((0.5, 1.0), (0.0, 0.0)))
     for tile, pieces in ((True, 4), (False, 1)):
-        a = pv.Adaptive(rebox=False, tile=tile)
+        a = pv.Adaptive(grade=4, rebox=False, tile=tile)
         (left, _), _ = a.again(parent, _cell(parent, "unknown", split="p"), init, False)
         a.learn(left, _cell(left, "verified"), init)
         assert len(a.prepare(far, init)) == pieces
@@ -420,7 +420,7 @@ def test_the_size_a_verified_half_needed_undoes_the_halvings_of_its_lineage_that
 
 def test_a_cell_is_cut_to_one_shape_needed_near_it_not_to_the_narrowest_widths_of_several():
     init = Box(("p", "d"), ((0.0, 1.0), (0.0, 1.0)))
-    a = pv.Adaptive(rebox=False)
+    a = pv.Adaptive(grade=4, rebox=False)
     a.needed += [(Box(("p", "d"), ((0.25, 0.5), (0.0, 0.5))), {"p": 0.25, "d": 0.5})]
     a.needed += [(Box(("p", "d"), ((0.0, 0.5), (0.5, 1.0))), {"p": 0.5, "d": 0.25})]
     cell = Box(("p", "d"), ((0.5, 1.0), (0.0, 1.0)))
@@ -489,7 +489,7 @@ def test_a_state_whose_width_does_not_change_how_the_pieces_of_a_cut_end_is_grow
     init = Box(("p", "d"), ((0.0, 1.0), (0.0, 1.0)))
 
     def cut_and_settle(step_of, branches=1):
-        a = pv.Adaptive(rebox=False)
+        a = pv.Adaptive(grade=4, rebox=False)
         a.needed.append((Box(("p", "d"), ((0.0, 0.125), (0.0, 0.125))), {"p": 0.125, "d": 0.125}))
         pieces = [c for c, _ in a.prepare(Box(("p", "d"), ((0.0, 0.5), (0.0, 0.5))), init)]
         assert len(pieces) == 16
@@ -518,7 +518,7 @@ def test_pieces_that_split_and_computed_steps_again_make_the_next_cells_smaller_
     init = Box(("p", "d"), ((0.0, 1.0), (0.0, 1.0)))
 
     def cut_and_settle(redone):
-        a = pv.Adaptive(rebox=False)
+        a = pv.Adaptive(grade=4, rebox=False)
         a.needed.append((Box(("p", "d"), ((0.0, 0.125), (0.0, 0.125))), {"p": 0.125, "d": 0.125}))
         pieces = [c for c, _ in a.prepare(Box(("p", "d"), ((0.0, 0.5), (0.0, 0.5))), init)]
         for piece in pieces:
@@ -537,7 +537,7 @@ def test_a_cut_piece_that_redid_steps_makes_the_rest_of_its_cut_smaller():
     that restarted from step 0. A piece of the same cut far from it is cut in two along d when
     drawn (its cut's shape was the one that failed), not only the pieces touching the corner."""
     init = Box(("p", "d"), ((0.0, 1.0), (0.0, 1.0)))
-    a = pv.Adaptive(rebox=False)
+    a = pv.Adaptive(grade=4, rebox=False)
     a.needed.append((Box(("p", "d"), ((0.0, 0.125), (0.0, 0.125))), {"p": 0.125, "d": 0.125}))
     pieces = [c for c, _ in a.prepare(Box(("p", "d"), ((0.0, 0.5), (0.0, 0.5))), init)]
     corner = next(c for c in pieces if c.bounds[0][0] == 0.0 and c.bounds[1][0] == 0.0)
@@ -659,12 +659,16 @@ def test_a_reboxed_retry_is_not_judged_by_the_halvings_of_cells_much_smaller_tha
     assert not a._rebox_won(_key(init), init)
 
 
-def test_a_size_needed_on_one_side_of_a_wide_cell_cuts_it_finer_only_towards_that_side():
-    """A cut makes at most GRADE pieces along a state; the pieces that still touch the cells that
-    needed the size are cut again when drawn, the others run as they are (a size needed at the
-    Mountain Car wall had cut a cell 64 times as wide into 128 pieces)."""
+@pytest.mark.parametrize(
+    "grade, widths",
+    [(2, [0.5, 0.25, 0.125, 1 / 16, 1 / 32, 1 / 64, 1 / 64]), (4, [0.25] * 3 + [1 / 16] * 3 + [1 / 64] * 4)],
+)
+def test_a_size_needed_on_one_side_of_a_wide_cell_cuts_it_finer_only_towards_that_side(grade, widths):
+    """A cut makes at most ``grade`` pieces along a state (4 by default); the pieces that still
+    touch the cells that needed the size are cut again when drawn, the others run as they are (a
+    size needed at the Mountain Car wall had cut a cell 64 times as wide into 128 pieces)."""
     init = Box(("x", "y"), ((0.0, 2.0), (0.0, 1.0)))
-    a = pv.Adaptive(rebox=False)
+    a = pv.Adaptive(grade=grade, rebox=False)
     needed = Box(("x", "y"), ((1.0, 1.0 + 1 / 64), (0.0, 1.0)))
     a.needed.append((needed, {"x": 1 / 64, "y": 1.0}))
     settled, todo = [], [Box(("x", "y"), ((0.0, 1.0), (0.0, 1.0)))]
@@ -674,11 +678,13 @@ def test_a_size_needed_on_one_side_of_a_wide_cell_cuts_it_finer_only_towards_tha
         if pieces == [cell]:
             settled.append(cell)
         else:
-            assert len(pieces) == 4
+            assert len(pieces) == grade
             todo += [piece for piece, _ in pieces]
-    widths = sorted(c.bounds[0] for c in settled)
-    assert [hi - lo for lo, hi in widths] == [0.25] * 3 + [1 / 16] * 3 + [1 / 64] * 4
-    assert widths[0][0] == 0.0 and widths[-1][1] == 1.0 and all(p[1] == q[0] for p, q in zip(widths, widths[1:]))
+    bounds = sorted(c.bounds[0] for c in settled)
+    assert [hi - lo for lo, hi in bounds] == widths
+    assert bounds[0][0] == 0.0 and bounds[-1][1] == 1.0 and all(p[1] == q[0] for p, q in zip(bounds, bounds[1:]))
+    with pytest.raises(pv.InputError, match="grade"):
+        pv.Adaptive(grade=1)
 
 
 def test_a_state_a_cut_did_not_split_grows_from_the_pieces_of_other_cuts_beside_it():
@@ -686,7 +692,7 @@ def test_a_state_a_cut_did_not_split_grows_from_the_pieces_of_other_cuts_beside_
     and along d each piece ends like the piece of the cut below it. Those pairs across cuts say
     d's width did not matter: the next cell is cut twice as wide in d."""
     init = Box(("p", "d"), ((0.0, 1.0), (0.0, 1.0)))
-    a = pv.Adaptive(rebox=False)
+    a = pv.Adaptive(grade=4, rebox=False)
     a.needed.append((Box(("p", "d"), ((0.0, 0.125), (0.0, 0.125))), {"p": 0.125, "d": 0.125}))
     for k in range(2):
         pieces = [c for c, _ in a.prepare(Box(("p", "d"), ((0.0, 0.5), (k / 8, (k + 1) / 8))), init)]
@@ -706,7 +712,7 @@ def test_growth_evidence_is_pooled_over_cuts_of_two_pieces_and_outweighs_one_pai
     init = Box(("p", "d"), ((0.0, 1.0), (0.0, 1.0)))
 
     def stacked(lost_beside=False):
-        a = pv.Adaptive(rebox=False)
+        a = pv.Adaptive(grade=4, rebox=False)
         a.needed.append((Box(("p", "d"), ((0.0, 0.125), (0.0, 0.125))), {"p": 0.125, "d": 0.125}))
         for k in range(4):
             pieces = [c for c, _ in a.prepare(Box(("p", "d"), ((0.0, 0.25), (k / 8, (k + 1) / 8))), init)]
@@ -734,7 +740,7 @@ def test_a_lost_cell_whose_splits_restarted_is_halved_along_the_engines_state_on
     cell = Box(("p", "d"), ((0.0, 0.25), (0.0, 0.25)))
 
     def pieces(redone, min_width=None, reason="step 100: lost"):
-        a = pv.Adaptive(rebox=False, min_width=min_width or {})
+        a = pv.Adaptive(grade=4, rebox=False, min_width=min_width or {})
         a.probe = lambda c, step: {"p": 1.0, "d": 0.0}
         lost = _cell(cell, "unknown", steps_done=40, deepest_step=100, branches=16, steps_redone=redone, split="d", reason=reason)
         a.learn(cell, lost, init)

@@ -176,15 +176,15 @@ class Adaptive(Bisection):
       the latest learnt (of the cells it touches; with ``tile=True`` also of the nearest one
       when it touches none, which spreads the first size found over the whole set), instead of
       spending runs on the sizes that failed there; the narrowest widths of several sizes
-      together would make cells smaller than any that was needed. A cut makes at most ``GRADE``
-      pieces along a state: the pieces that still touch the cells that needed the size are cut
+      together would make cells smaller than any that was needed. A cut makes at most ``grade``
+      pieces along a state (default 4): the pieces that still touch the cells that needed the size are cut
       again when drawn, the others run at their size, so cells grow away from where a size was
       needed (a size needed at a wall holds near it). A cell cut ahead of its run
       that verifies whole proves nothing about its size, and counting it would spread the
       smallest size over the whole set. But settled cells tell which widths did not matter
       there: pairs of neighbours of one shape along a state (any cells, cut pieces or halves)
       that verified at the same step with as many in-cell splits, or both with none, ended
-      alike; lost, or redoing steps, ends like no other. Where, within ``GRADE`` widths of the
+      alike; lost, or redoing steps, ends like no other. Where, within ``grade`` widths of the
       shape around the cell about to be cut, ``GROW_PAIRS`` pairs of that width along a state
       ended alike and ``GROW_RATIO`` times as many as ended differently, or were lost there no
       wider than the grown shape in any state (a halving's verified halves do not grow back into
@@ -204,7 +204,7 @@ class Adaptive(Bisection):
       ``learn_states=False``: that first choice, and after a halving that gained no step the
       widest other state relative to the initial set. A cell lost after in-cell splits that
       computed steps again is cut along the state the engine split, into a halving per doubling
-      of the runs its steps made (at most ``GRADE`` pieces): its own splits were those halvings,
+      of the runs its steps made (at most ``grade`` pieces): its own splits were those halvings,
       each at the cost of a run.
     - Where halving stops paying: a lineage that gains no step ``patience`` times per state it
       can halve in a row stops (the loss is not the cell's width), unless a cell it touches
@@ -256,6 +256,11 @@ class Adaptive(Bisection):
     reach: int = 2
     learn_states: bool = True
     tile: bool = False
+    # Pieces a cut makes along a state at most: the pieces still touching where the size was
+    # needed are cut again when drawn, with what was learnt by then. 64 had cut a cell at the
+    # Mountain Car wall into 128 pieces; 2 against 4, one run each: contrast 398 CPU s against
+    # 431-573, the composite slice 972 against 555-644 (bench/README.md, "Growth evidence pooled").
+    grade: int = 4
     needed: list = field(default_factory=list, repr=False)  # (cell, widths needed there)
     probe: Optional[Callable] = field(default=None, repr=False)  # (cell, steps) -> {state: spread}, set by the campaign
     runs: int = field(default=0, repr=False)
@@ -292,6 +297,8 @@ class Adaptive(Bisection):
             raise InputError(f"Adaptive(max_cells=...) must be a positive integer, got {self.max_cells!r}")
         if not (isinstance(self.patience, int) and self.patience >= 1):
             raise InputError(f"Adaptive(patience=...) must be a positive integer, got {self.patience!r}")
+        if not (isinstance(self.grade, int) and self.grade >= 2):
+            raise InputError(f"Adaptive(grade=...) must be an integer of at least 2, got {self.grade!r}")
         for name in ("explore", "reach"):
             value = getattr(self, name)
             if not (isinstance(value, int) and value >= 0):
@@ -321,10 +328,10 @@ class Adaptive(Bisection):
                 most = 2 ** int(np.floor(np.log2((hi - lo) / floor[n]))) if floor[n] > 0 else 64
                 # Widths made by the same halvings differ by float rounding: a ratio of 2.0000001 is 2 pieces, not 4.
                 wanted[n] = min(int(2 ** np.ceil(np.log2((hi - lo) / target[n]) - 1e-6)), most)
-        # At most GRADE pieces a state: those that still touch the cells that needed the size are
+        # At most `grade` pieces a state: those that still touch the cells that needed the size are
         # cut again when drawn, the others run at their size (the size needed where precision is
         # lost holds near there, not across a cell 64 times as wide).
-        pieces = {n: min(k, GRADE) for n, k in wanted.items()}
+        pieces = {n: min(k, self.grade) for n, k in wanted.items()}
         pieces = {n: k for n, k in pieces.items() if k > 1}
         # At most max_cells cells in all: a cut that would pass it is coarsened (the pieces are cut
         # again when drawn, while room is left), since a size needed at a fork can be tiny in every
@@ -423,16 +430,18 @@ class Adaptive(Bisection):
 
     def _grown(self, cell: Box, target: dict) -> dict:
         """``target`` (a shape needed near ``cell``) doubled in each state, again and again, while
-        the settled neighbour pairs of its width along that state near ``cell`` (within ``GRADE``
+        the settled neighbour pairs of its width along that state near ``cell`` (within ``grade``
         widths of the shape) ended alike: at least ``GROW_PAIRS`` of them, and ``GROW_RATIO`` times
         as many as ended differently or were lost there no wider than the grown shape in any
         state (that size failed there already: a halving's two verified halves, alike, do not grow
         back into their lost parent); such a cell touching ``cell`` is enough to keep the width."""
-        # The pairs within a cut's reach (GRADE pieces of the shape on each side): those touching
+        # The pairs within a cut's reach (`grade` pieces of the shape on each side): those touching
         # a cell at the Mountain Car wall are two or three, its neighbourhood holds dozens.
         reach = Box(
             cell.names,
-            tuple((lo - GRADE * target.get(n, 0.0), hi + GRADE * target.get(n, 0.0)) for n, (lo, hi) in zip(cell.names, cell.bounds)),
+            tuple(
+                (lo - self.grade * target.get(n, 0.0), hi + self.grade * target.get(n, 0.0)) for n, (lo, hi) in zip(cell.names, cell.bounds)
+            ),
         )
         pairs = self.pairs.touching(reach)
         if not len(pairs):
@@ -519,12 +528,12 @@ class Adaptive(Bisection):
         if heavy and j is not None and above_min_width(cell, init, widths, 0)[j] and (gained or halved != result.split):
             # The engine's splits along it restarted, computing REDONE runs' steps again, and the
             # cell was still lost: halved along it once per doubling of the runs its steps made (at
-            # most GRADE pieces), as a cell verified that way teaches (blur cells near p0 -0.55
+            # most `grade` pieces), as a cell verified that way teaches (blur cells near p0 -0.55
             # halved along the noise, each losing 16 splits that restarted from step 0, while the
             # engine split p0). Splits where part of the cell arrived redo a few steps each: a
             # big cell's 16 of them, a run's steps, say nothing of the state to halve.
             state, (lo, hi) = result.split, cell.bounds[j]
-            times = min(_redone_runs(result), int(np.log2(GRADE)))
+            times = min(_redone_runs(result), int(np.log2(self.grade)))
             while times > 1 and (hi - lo) / 2**times < widths[state]:
                 times -= 1
         else:
@@ -708,15 +717,10 @@ MIN_GAIN = 1 / 8
 GROW_PAIRS = 3
 GROW_RATIO = 4
 
-# Pieces a cut makes along a state at most (see Adaptive.prepare): 4 lets a cut's grid hold
-# GROW_PAIRS neighbours along it. On Mountain Car's contrast row, a size needed at the wall
-# (p0 1/256 of the row's width) had cut a cell 64 times as wide in p0 into 128 pieces.
-GRADE = 4
-
 # Runs' steps a cell near the size needed may compute again in splits that restart (the engine's
-# ``max_redone``): with them it costs as much as the GRADE pieces a cut along the split state
-# makes. Composite Mountain Car cells lost after 16 such splits cost 15 runs (30 s) each.
-REDONE = GRADE - 1
+# ``max_redone``): with them it costs as much as four cells. Composite Mountain Car cells lost
+# after 16 such splits cost 15 runs (30 s) each.
+REDONE = 3
 
 
 @dataclass
