@@ -257,9 +257,9 @@ class Adaptive(Bisection):
     learn_states: bool = True
     tile: bool = False
     # Pieces a cut makes along a state at most: the pieces still touching where the size was
-    # needed are cut again when drawn, with what was learnt by then. 64 had cut a cell at the
-    # Mountain Car wall into 128 pieces; 2 against 4, one run each: contrast 398 CPU s against
-    # 431-573, the composite slice 972 against 555-644 (bench/README.md, "Growth evidence pooled").
+    # needed are cut again when drawn, with what was learnt by then (a size needed at the
+    # Mountain Car wall had cut a cell 64 times as wide into 128 pieces). 2 and 4 are compared in
+    # bench/README.md ("Growth evidence pooled").
     grade: int = 4
     needed: list = field(default_factory=list, repr=False)  # (cell, widths needed there)
     probe: Optional[Callable] = field(default=None, repr=False)  # (cell, steps) -> {state: spread}, set by the campaign
@@ -395,7 +395,7 @@ class Adaptive(Bisection):
                 # The whole cut was cut to one shape: its pieces not yet run are cut to the half's
                 # (else only those touching this piece are, and the next ones along redo the same).
                 c = self.cuts[self.cut[key]]
-                c.widths = {n: min(w, widths[n]) if widths[n] < 0.75 * w else w for n, w in c.widths.items()}
+                c.widths = {n: widths[n] if widths[n] < 0.75 * w else w for n, w in c.widths.items()}  # the states halved
                 self.needed.append((c.cell, dict(c.widths)))
 
     def _compare(self, cell: Box, result) -> None:
