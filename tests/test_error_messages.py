@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 import percver as pv
+from percver import _core
 
 FLOWSTAR = """continuous reachability
 {
@@ -143,3 +144,12 @@ def test_mountain_car_commands_share_their_network_default():
     verify = parser.parse_args(["cases", "mountain-car", "verify"])
     evaluate = parser.parse_args(["cases", "mountain-car", "evaluate"])
     assert verify.networks == evaluate.networks == "ours"
+
+
+@pytest.mark.parametrize("value, shown", [(-1.0, "-1"), (float("nan"), "NaN"), (float("inf"), "inf")])
+def test_a_bad_max_redone_names_the_setting_and_the_value(value, shown):
+    """The engine's bound on steps computed again by splits that restart: a negative or
+    non-finite one is refused by name, not run as a bound no split can meet."""
+    with pytest.raises(pv.InputError, match=f"max_redone .* must be a finite non-negative number, got {shown}$"):
+        _core.CellSettings(max_redone=value)
+    assert _core.CellSettings(max_redone=0.0).max_redone == 0.0

@@ -71,6 +71,11 @@ impl CellSettings {
         if !(self.blow_up_width > 0.0) {
             return Err(ReachError::input(format!("blow_up_width must be positive, got {}", self.blow_up_width)));
         }
+        if let Some(r) = self.max_redone.filter(|r| !(*r >= 0.0 && r.is_finite())) {
+            return Err(ReachError::input(format!(
+                "max_redone (runs' steps that splits restarting may compute again) must be a finite non-negative number, got {r}"
+            )));
+        }
         if self.timeout.is_some_and(|t| !(t > 0.0)) {
             return Err(ReachError::input(format!("the timeout per cell must be positive, got {:?}", self.timeout)));
         }
