@@ -100,6 +100,29 @@ def test_adaptive_stops_where_halving_does_not_push_the_loss_later():
     assert 0.1 <= cell.bounds[0][1] - cell.bounds[0][0] < 0.2
 
 
+def test_a_stalled_lineage_of_plain_cells_runs_its_last_cell_reboxed_before_giving_it_up():
+    """Halving stopped gaining: before the lineage's cell is given up it runs with the call's
+    in-cell splits, then reboxed (a lineage of plain cells can stall where one reboxed run
+    verifies), and only then is its verdict final."""
+    init = Box(("x",), ((0.0, 1.0),))
+    a = pv.Adaptive(patience=2)
+    cell, options, asked = init, {}, []
+    while True:
+        out = _cell(cell, "unknown", steps_done=5, deepest_step=5, options=options)
+        a.learn(cell, out, init)
+        pieces = a.again(cell, out, init, False)
+        asked.append((cell, pieces))
+        if pieces is None:
+            break
+        if isinstance(pieces, Retry):
+            options = {k: v for k, v in {**options, **pieces.options}.items() if v is not None}
+        else:
+            cell, options = pieces[0]
+    last = [p for c, p in asked if c == cell]
+    assert last[-3:] == [Retry({"max_splits": None, "max_redone": None}), Retry({"rebox": True}), None]
+    assert cell.bounds[0][1] - cell.bounds[0][0] > 2 * pv.Adaptive().min_width.get("x", 1 / 8192)
+
+
 def test_grid_and_bisection_keep_the_old_keywords():
     loop, kwargs = _wall_problem()
     grid = pv.verify(loop, split={"p": 4}, **kwargs)
@@ -761,16 +784,23 @@ def test_a_lost_cell_whose_splits_restarted_is_halved_along_the_engines_state_on
 def test_a_plain_cell_given_up_at_its_max_redone_does_not_count_as_a_plain_loss_for_rebox():
     """Plain cells of a size lost more often than not (with retries near it that paid) make cells
     of that size run reboxed; a cell given up before a split past its ``max_redone`` is not such a
-    loss (it asks for halving)."""
+    loss (it asks for halving), unless no other plain cell of its size ran: then two of them are."""
     init = Box(("x",), ((0.0, 1.0),))
     cell = Box(("x",), ((0.0, 0.25),))
-    for reason, counted in (
-        ("step 9: lost", [0, 1]),
-        ("step 9: lost (after 3 splits; the next would compute steps again past max_redone)", None),
-    ):
+    given_up = "step 9: lost (after 3 splits; the next would compute steps again past max_redone)"
+    for reason, counted in (("step 9: lost", [0, 1, 0]), (given_up, [0, 0, 1])):
         a = pv.Adaptive()
         a.learn(cell, _cell(cell, "unknown", options={"max_redone": REDONE}, steps_done=9, deepest_step=9, reason=reason), init)
         assert a.plain.get(2.0) == counted
+    b = pv.Adaptive()
+    b.retried[("retry",)], b.tried[("retry",)], b.paid[("retry",)] = (9, 9, 2.0), 11, True
+    for other in (Box(("x",), ((0.25, 0.5),)), cell):
+        assert not b._reboxing(2.0, init)
+        b.learn(other, _cell(other, "unknown", options={"max_redone": REDONE}, steps_done=9, deepest_step=9, reason=given_up), init)
+    assert b._reboxing(2.0, init)
+    verified = Box(("x",), ((0.5, 0.75),))
+    b.learn(verified, _cell(verified, "verified", steps_done=20, deepest_step=20), init)
+    assert not b._reboxing(2.0, init)
 
 
 def test_a_cell_that_redid_many_runs_teaches_a_halving_per_doubling_of_them():

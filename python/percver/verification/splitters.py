@@ -207,7 +207,8 @@ class Adaptive(Bisection):
       of the runs its steps made (at most ``grade`` pieces): its own splits were those halvings,
       each at the cost of a run.
     - Where halving stops paying: a lineage that gains no step ``patience`` times per state it
-      can halve in a row stops (the loss is not the cell's width), unless a cell it touches
+      can halve in a row stops (the loss is not the cell's width; its last cell runs with the
+      call's in-cell splits, then reboxed, before it is given up), unless a cell it touches
       verified at its size or smaller (it then goes on to one halving below it: a loss that no
       halving moves may still end at the size where the cell verifies). Once a cell is falsified the
       loop is unsafe: unknown cells are no longer halved (the coverage is then a lower bound).
@@ -228,7 +229,8 @@ class Adaptive(Bisection):
       seconds, decide: the first runs last a fraction of a second, and their seconds say more
       about the load than about the method. New cells (halves, cut pieces) run reboxed where the
       retries near their size paid more often than not and plain cells of their very size (within
-      half a halving; not those given up at their ``max_redone``) were lost more often than not; the first cell of a size runs plain, a trial
+      half a halving; those given up at their ``max_redone`` only where no other plain cell of the
+      size ran, ``REBOX_TRIALS`` of them) were lost more often than not; the first cell of a size runs plain, a trial
       (so a loop where it decides at every size, such as F1/10's LiDAR loop, pays a plain run or
       two per new size; near the Mountain Car wall, retries of cells four times larger paid, while
       the cells that verify there verify plain in half a reboxed run's work); else plain; halves
@@ -269,7 +271,7 @@ class Adaptive(Bisection):
     retried: dict = field(default_factory=dict, repr=False)  # cell key -> (steps done, deepest step) of the plain run, its size
     tried: dict = field(default_factory=dict, repr=False)  # cell key -> steps its reboxed retry went deeper than the plain run
     paid: dict = field(default_factory=dict, repr=False)  # cell key -> whether that retry paid, once decided
-    plain: dict = field(default_factory=dict, repr=False)  # size -> [verified, runs] of plain runs (sizes are few)
+    plain: dict = field(default_factory=dict, repr=False)  # size -> [verified, runs, given up at max_redone] of plain runs
     pending: set = field(default_factory=set, repr=False)  # keys of reboxed retries not yet run
     deepened: set = field(default_factory=set, repr=False)  # keys of cells at min_width retried with DEEPEN times the in-cell splits
     verified: list = field(default_factory=list, repr=False)  # (cell, halvings from the initial set) of every verified cell
@@ -359,12 +361,15 @@ class Adaptive(Bisection):
             self.gains.setdefault(state, []).append(result.deepest_step - deepest)
             if not result.options.get("rebox") and not reboxed:
                 self.plain_gains.setdefault(state, []).append((size, result.deepest_step - deepest))
-        if not result.options.get("rebox") and result.verdict in ("verified", "unknown") and REDONE_PAST not in (result.reason or ""):
-            # A cell given up at its max_redone asks for halving, whatever rebox would do: it
-            # counts for neither (blur's cells near p0 -0.5 ran reboxed where it counted).
-            tally = self.plain.setdefault(round(_halvings(cell, init), 6), [0, 0])
-            tally[0] += result.verdict == "verified"
-            tally[1] += 1
+        if not result.options.get("rebox") and result.verdict in ("verified", "unknown"):
+            tally = self.plain.setdefault(round(_halvings(cell, init), 6), [0, 0, 0])
+            if REDONE_PAST in (result.reason or ""):
+                # A cell given up at its max_redone asks for halving, whatever rebox would do: it
+                # counts apart (blur's cells near p0 -0.5 ran reboxed where it counted as lost).
+                tally[2] += 1
+            else:
+                tally[0] += result.verdict == "verified"
+                tally[1] += 1
         if result.verdict == "verified":
             self.verified.append((cell, _halvings(cell, init)))
             self.arrivals.append((cell, result.deepest_step))
@@ -481,20 +486,13 @@ class Adaptive(Bisection):
         capped = explored or "max_redone" in result.options
         widths = self._min(init)
         if not splittable(cell, init, widths, 0):
-            if capped:
-                return Retry({"max_splits": None, "max_redone": None})
-            if self.rebox is not False and not result.options.get("rebox") and key not in self.retried:
-                # The last things left to try on a cell at min_width (F1/10's row left five such
-                # cells unknown, plain, after the rebox trials near their size had stopped).
-                self.retried[key] = (result.steps_done, result.deepest_step, size)
-                self.pending.add(key)
-                return Retry({"rebox": True})
-            if result.branches > 0 and key not in self.deepened:
+            retry = self._last_tries(key, result, size, capped)
+            if retry is None and result.branches > 0 and key not in self.deepened:
                 # In-cell splits are the halvings left to it: DEEPEN times the ones it used up
                 # (a cell of 1/4096 of F1/10's row needs 19 of them, where the call gives 16).
                 self.deepened.add(key)
                 return Retry({"max_splits": DEEPEN * result.branches})
-            return None
+            return retry
         options = dict(result.options)
         steps, deepest_step, reboxed = result.steps_done, result.deepest_step, bool(options.pop("rebox", False))
         # The halves run as decided at their size (``_options``); the cell's plain run, where it had
@@ -517,10 +515,10 @@ class Adaptive(Bisection):
             self.goal_retried[key] = (steps, deepest_step, reboxed)
             return Retry({"max_splits": None, "rebox": True if reboxed else None})
         if stalls >= self.patience * sum(above_min_width(init, init, widths, 0)) and not self._as_small_verified(cell, init):
-            if capped:
+            retry = self._last_tries(key, result, size, capped)
+            if retry is not None:
                 self.lineage[key] = (reached, deepest, stalls - 1, halved, path)  # the retry stops the lineage unless it goes deeper
-                return Retry({"max_splits": None, "max_redone": None})
-            return None
+            return retry
         if halved is not None:
             path = (*path, (halved, gained))
         times, j = 1, None if result.split is None else cell.names.index(result.split)
@@ -551,6 +549,20 @@ class Adaptive(Bisection):
             else:  # no run of the cell made as the halves run: their lineage compares afresh
                 self.lineage[_key(half)] = (-1, -1, stalls, state, path)
         return [(half, {**options, **self._options(half, init)}) for half in halves]
+
+    def _last_tries(self, key: tuple, result, size: float, capped: bool) -> Optional[Retry]:
+        """Before a cell is given up (at ``min_width``, or its lineage stalled): a run with the
+        call's in-cell budget if it had a smaller one, then one reboxed if it never ran so (F1/10's
+        row left five cells at min_width unknown, plain, after the rebox trials near their size had
+        stopped; a lineage of plain cells can stall where one reboxed run verifies, when the
+        retries that would have taught rebox ran on the other thread)."""
+        if capped:
+            return Retry({"max_splits": None, "max_redone": None})
+        if self.rebox is not False and not result.options.get("rebox") and key not in self.retried:
+            self.retried[key] = (result.steps_done, result.deepest_step, size)
+            self.pending.add(key)
+            return Retry({"rebox": True})
+        return None
 
     def _state_to_halve(self, cell: Box, result, init: Box, widths: dict, stalls: int, halved: Optional[str], gained: bool) -> str:
         """The state whose halvings have gained the most steps lately (each state above its
@@ -654,12 +666,16 @@ class Adaptive(Bisection):
     def _reboxing(self, size: float, init: Box) -> bool:
         """Whether cells of ``size`` run reboxed: retries near it paid more often than not, and
         plain cells of that very size (within half a halving) were lost more often than not (none
-        run yet: the next runs plain, a trial)."""
+        run yet: the next runs plain, a trial). Plain cells given up at their ``max_redone`` count
+        only where no other plain cell of the size ran: ``REBOX_TRIALS`` of them are then lost
+        trials (else every cell of a lineage whose plain runs are all given up so is a trial, and
+        its halves are new sizes with trials of their own)."""
         wins, losses = self.rebox_score(init, size)
         if self.rebox is False or wins <= losses:
             return False
-        verified, runs = np.sum([tally for s, tally in self.plain.items() if abs(s - size) < 0.5] or [[0, 0]], axis=0)
-        return runs > 0 and 2 * verified < runs
+        tallies = [tally for s, tally in self.plain.items() if abs(s - size) < 0.5]
+        verified, runs, given_up = np.sum(tallies or [[0, 0, 0]], axis=0)
+        return (runs > 0 and 2 * verified < runs) or (runs == 0 and given_up >= REBOX_TRIALS)
 
     def _rebox_pays(self, cell: Box, result, init: Box) -> bool:
         key, size = _key(cell), _halvings(cell, init)
