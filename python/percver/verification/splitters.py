@@ -286,7 +286,7 @@ class Adaptive(Bisection):
     falsified: bool = field(default=False, repr=False)  # a counterexample decided the loop: no more halvings
     cut: dict = field(default_factory=dict, repr=False)  # key of a piece cut ahead of its run -> its cut's index in cuts
     cuts: list = field(default_factory=list, repr=False)  # every cut's _Cut, in order
-    ended: dict = field(default_factory=dict, repr=False)  # rounded bounds of a settled cell -> how it ended, for growth
+    ended: dict = field(default_factory=dict, repr=False)  # placed bounds (_place) of a settled cell -> how it ended, for growth
     pairs: "_Boxes" = field(default_factory=lambda: _Boxes(3), repr=False)  # neighbours' union -> (state, width, ended alike)
     lost: "_Boxes" = field(default_factory=lambda: _Boxes(None), repr=False)  # cells lost or redoing steps -> their widths
     made: int = field(default=0, repr=False)  # cells made so far (initial, halves, cut pieces), held to max_cells
@@ -379,7 +379,7 @@ class Adaptive(Bisection):
             # (a plain halving might have verified too, for as little).
             self.tried[key] = result.deepest_step - self.retried[key][1]
         if result.verdict in ("verified", "unknown"):
-            self._compare(cell, result)
+            self._compare(cell, result, init)
         if result.verdict == "verified" and (result.branches or key in self.lineage) and not self._stalled(key):
             # Only splits that computed steps again say the cell was too big: halves cut ahead
             # would have verified without that work. A cell that forked, or split where a piece
@@ -403,22 +403,22 @@ class Adaptive(Bisection):
                 c.widths = {n: widths[n] if widths[n] < 0.75 * w else w for n, w in c.widths.items()}  # the states halved
                 self.needed.append((c.cell, dict(c.widths)))
 
-    def _compare(self, cell: Box, result) -> None:
+    def _compare(self, cell: Box, result, init: Box) -> None:
         """Compares how a settled cell ended with its settled neighbours of the same shape (one face
         shared) along each state: the pairs are the evidence :meth:`_grown` reads. A cell lost, or
         one that computed steps again (its width mattered), ends like no other and is kept in
         ``lost`` with its widths."""
-        key = _rounded(_key(cell))
+        key = _key(cell)
         reboxed = bool(result.options.get("rebox"))
         outcome = (result.deepest_step, result.branches, reboxed) if result.verdict == "verified" and not _redid(result) else None
         if outcome is None:
             self.lost.add(cell, [hi - lo for lo, hi in cell.bounds])
-        self.ended[key] = outcome
+        self.ended[self._place(key, init)] = outcome
         for j, (lo, hi) in enumerate(key):
             if not hi > lo:
                 continue
             for face in ((2 * lo - hi, lo), (hi, 2 * hi - lo)):
-                other = self.ended.get(_rounded((*key[:j], face, *key[j + 1 :])), False)
+                other = self.ended.get(self._place((*key[:j], face, *key[j + 1 :]), init), False)
                 if other is False:
                     continue
                 alike = outcome is not None and other is not None and (other == outcome or other[1:] == outcome[1:] == (0, reboxed))
@@ -432,6 +432,18 @@ class Adaptive(Bisection):
             if grown != c.widths and grown != c.grown:
                 c.grown = grown
                 self.needed.append((c.cell, grown))
+
+    def _place(self, bounds: tuple, init: Box) -> tuple:
+        """Bounds as whole units of 1/64 of ``min_width`` from the initial set's lower corner: the
+        bounds of neighbours made by different cuts meet only up to their last bits, which are
+        far coarser than decimals where a state sits far from zero (at 1e6, a cut and a halving
+        of a 1e-3 wide set put one face 1e-10 apart), and rounded decimals would make cells of a
+        set narrower than them all one."""
+        floor = self._min(init)
+        return tuple(
+            (round((lo - ilo) * 64 / floor[n]), round((hi - ilo) * 64 / floor[n])) if floor[n] > 0 else (lo, hi)
+            for n, (lo, hi), (ilo, _) in zip(init.names, bounds, init.bounds)
+        )
 
     def _grown(self, cell: Box, target: dict) -> dict:
         """``target`` (a shape needed near ``cell``) doubled in each state, again and again, while
@@ -840,11 +852,6 @@ def _gap(a: Box, b: Box, init: Box) -> float:
             if ihi > ilo
         )
     )
-
-
-def _rounded(bounds: tuple) -> tuple:
-    """Bounds made by different cuts meet in their last bits: rounded, a face is found from both sides."""
-    return tuple((round(lo, 12), round(hi, 12)) for lo, hi in bounds)
 
 
 def _key(box: Box) -> tuple:
