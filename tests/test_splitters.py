@@ -10,7 +10,7 @@ import percver as pv
 from percver.sets import Box
 from percver.verification.journal import journal_cells
 from percver.verification.results import Cell
-from percver.verification.splitters import REDONE, Retry, _key, grid
+from percver.verification.splitters import REDONE, Retry, _key, _touches, grid
 from test_verify import assert_contains_simulations, mountain_car
 
 
@@ -758,15 +758,16 @@ def test_growth_evidence_is_pooled_over_cuts_of_two_pieces_and_outweighs_one_pai
 def test_neighbours_made_by_a_cut_and_by_halvings_are_a_pair_far_from_zero_and_in_a_tiny_set(offset, width):
     """A state far from zero: a cut's piece and the half of a halving meet only up to their last
     bits, and a set narrower than rounded decimals would make all its cells one. Either way two
-    cells side by side are one pair, and a cell apart from them is in none."""
+    cells side by side touch and are one pair, and a cell apart from them is in none."""
     init = Box(("x",), ((offset, offset + width),))
     a = pv.Adaptive(rebox=False)
     pieces = list(grid(init, {"x": 8})[0])
     cell, steps = init, 5
-    for side in (1, 0, 0):  # halvings down to the eighth [1/2, 5/8] of the set
+    for side in (1, 0, 1):  # halvings down to the eighth [5/8, 3/4] of the set
         cell, steps = a.again(cell, _cell(cell, "unknown", steps_done=steps, deepest_step=steps), init, False)[side][0], steps + 4
-    assert cell.bounds[0][1] != pieces[5].bounds[0][0] or offset == 0.0  # its face and the cut's differ in their last bits
-    for each in (pieces[0], cell, pieces[5]):
+    assert pieces[4].bounds[0][1] < cell.bounds[0][0] or offset == 0.0  # the cut's face lies below the halving's, by last bits
+    assert _touches(cell, pieces[4]) and _touches(pieces[4], cell) and not _touches(cell, pieces[3])
+    for each in (pieces[0], cell, pieces[4]):
         a.learn(each, _cell(each, "verified", steps_done=20, deepest_step=20), init)
     assert len(a.pairs) == 1
     assert a.pairs.values[0].tolist() == [0, pytest.approx(width / 8), 1]

@@ -27,6 +27,7 @@ Timed-out cells (``timeout_per_cell``) are halved by every splitter that can.
 from __future__ import annotations
 
 import itertools
+import math
 from dataclasses import dataclass, field
 from typing import Callable, Optional
 
@@ -789,7 +790,10 @@ class _Boxes:
         """Which boxes (of ``rows``, else all) touch ``cell``."""
         rows = np.arange(self.n) if rows is None else rows
         lo, hi = np.array(cell.bounds).T
-        return np.all((self.lo[rows] <= hi) & (lo <= self.hi[rows]), axis=1)
+        return np.all(
+            (self.lo[rows] <= hi + SLACK * np.spacing(np.abs(hi))) & (lo <= self.hi[rows] + SLACK * np.spacing(np.abs(self.hi[rows]))),
+            axis=1,
+        )
 
 
 def _redid(result) -> bool:
@@ -859,5 +863,13 @@ def _key(box: Box) -> tuple:
 
 
 def _touches(a: Box, b: Box) -> bool:
-    """Whether the closed boxes intersect (a shared face counts: neighbours)."""
-    return all(alo <= bhi and blo <= ahi for (alo, ahi), (blo, bhi) in zip(a.bounds, b.bounds))
+    """Whether the closed boxes intersect (a shared face counts: neighbours, also where the face
+    made by one cut and by another differs in its last bits, by up to ``SLACK`` units)."""
+    return all(
+        alo <= bhi + SLACK * math.ulp(bhi) and blo <= ahi + SLACK * math.ulp(ahi) for (alo, ahi), (blo, bhi) in zip(a.bounds, b.bounds)
+    )
+
+
+# Units in the last place by which one face, computed by two cuts (or halvings), may differ (a
+# cut's and a halving's at 1e6 were one apart); cells are far wider than this.
+SLACK = 64
