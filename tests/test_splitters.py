@@ -773,24 +773,6 @@ def test_neighbours_made_by_a_cut_and_by_halvings_are_a_pair_far_from_zero_and_i
     assert a.pairs.values[0].tolist() == [0, pytest.approx(width / 8), 1]
 
 
-@pytest.mark.parametrize("retried_first", [True, False])
-def test_a_retried_cell_replaces_how_it_ended_in_the_growth_evidence(retried_first):
-    """A cell lost and then verified on a retry of the same box ended as the retry did: its pair
-    with a neighbour counts once, alike, and it is no longer among the lost cells (whichever of
-    the two settled first)."""
-    init = Box(("x",), ((0.0, 1.0),))
-    left, right = Box(("x",), ((0.0, 0.25),)), Box(("x",), ((0.25, 0.5),))
-    a = pv.Adaptive(rebox=False)
-    verified = dict(steps_done=20, deepest_step=20)
-    runs = [(right, _cell(right, "unknown", steps_done=9, deepest_step=9, options={"max_splits": 0}))]
-    runs.insert(1 if retried_first else 0, (left, _cell(left, "verified", **verified)))
-    runs.append((right, _cell(right, "verified", **verified)))
-    for cell, out in runs:
-        a.learn(cell, out, init)
-    assert a.pairs.touching(init).tolist() == [[0, 0.25, 1]]
-    assert not a.lost.mask(init).any()
-
-
 def test_a_lost_cell_whose_splits_restarted_is_halved_along_the_engines_state_once_per_doubling_of_its_runs():
     """A cell lost after in-cell splits along d that redid 3 runs' steps (``REDONE``) is cut into
     4 pieces along d, whatever the probe prefers, and one given up at its ``max_redone`` into a

@@ -290,7 +290,6 @@ class Adaptive(Bisection):
     ended: dict = field(default_factory=dict, repr=False)  # placed bounds (_place) of a settled cell -> how it ended, for growth
     pairs: "_Boxes" = field(default_factory=lambda: _Boxes(3), repr=False)  # neighbours' union -> (state, width, ended alike)
     lost: "_Boxes" = field(default_factory=lambda: _Boxes(None), repr=False)  # cells lost or redoing steps -> their widths
-    rows: dict = field(default_factory=dict, repr=False)  # placed bounds of a settled cell -> (its rows in pairs, in lost)
     made: int = field(default=0, repr=False)  # cells made so far (initial, halves, cut pieces), held to max_cells
 
     def __post_init__(self):
@@ -411,30 +410,21 @@ class Adaptive(Bisection):
         one that computed steps again (its width mattered), ends like no other and is kept in
         ``lost`` with its widths."""
         key = _key(cell)
-        place = self._place(key, init)
-        # A retry (the same box run again) replaces how the cell ended: its earlier rows go.
-        rows, lost = self.rows.pop(place, ([], None))
-        self.pairs.drop(rows)
-        self.lost.drop([] if lost is None else [lost])
         reboxed = bool(result.options.get("rebox"))
         outcome = (result.deepest_step, result.branches, reboxed) if result.verdict == "verified" and not _redid(result) else None
         if outcome is None:
-            lost = self.lost.add(cell, [hi - lo for lo, hi in cell.bounds])
-        self.ended[place] = outcome
-        self.rows[place] = rows = ([], lost if outcome is None else None)
+            self.lost.add(cell, [hi - lo for lo, hi in cell.bounds])
+        self.ended[self._place(key, init)] = outcome
         for j, (lo, hi) in enumerate(key):
             if not hi > lo:
                 continue
             for face in ((2 * lo - hi, lo), (hi, 2 * hi - lo)):
-                beside = self._place((*key[:j], face, *key[j + 1 :]), init)
-                other = self.ended.get(beside, False)
+                other = self.ended.get(self._place((*key[:j], face, *key[j + 1 :]), init), False)
                 if other is False:
                     continue
                 alike = outcome is not None and other is not None and (other == outcome or other[1:] == outcome[1:] == (0, reboxed))
                 pair = Box(cell.names, tuple(key[:j]) + ((min(lo, face[0]), max(hi, face[1])),) + tuple(key[j + 1 :]))
-                row = self.pairs.add(pair, [j, hi - lo, alike])
-                rows[0].append(row)
-                self.rows[beside][0].append(row)
+                self.pairs.add(pair, [j, hi - lo, alike])
         if _key(cell) in self.cut:
             # The cut's shape grown where its pieces say so spreads as a needed one would (to
             # cells beside the cut that no needed shape touches).
@@ -778,25 +768,16 @@ class _Boxes:
 
     def __init__(self, width: Optional[int]):
         self.width, self.n = width, 0
-        self.lo = self.hi = self.values = self.alive = None
+        self.lo = self.hi = self.values = None
 
-    def add(self, box: Box, values: list) -> int:
+    def add(self, box: Box, values: list) -> None:
         if self.lo is None:
             self.lo, self.hi, self.values = np.empty((64, len(box.bounds))), np.empty((64, len(box.bounds))), np.empty((64, len(values)))
-            self.alive = np.ones(64, dtype=bool)
         elif self.n == len(self.lo):
-            self.lo, self.hi, self.values, self.alive = (
-                np.concatenate([a, np.ones_like(a)]) for a in (self.lo, self.hi, self.values, self.alive)
-            )
+            self.lo, self.hi, self.values = (np.concatenate([a, np.empty_like(a)]) for a in (self.lo, self.hi, self.values))
         self.lo[self.n], self.hi[self.n] = zip(*box.bounds)
         self.values[self.n] = values
         self.n += 1
-        return self.n - 1
-
-    def drop(self, rows: list) -> None:
-        """Rows that no longer hold: they touch nothing from now on."""
-        if rows:
-            self.alive[rows] = False
 
     def __len__(self) -> int:
         return self.n
@@ -809,8 +790,10 @@ class _Boxes:
         """Which boxes (of ``rows``, else all) touch ``cell``."""
         rows = np.arange(self.n) if rows is None else rows
         lo, hi = np.array(cell.bounds).T
-        touch = (self.lo[rows] <= hi + SLACK * np.spacing(np.abs(hi))) & (lo <= self.hi[rows] + SLACK * np.spacing(np.abs(self.hi[rows])))
-        return np.all(touch, axis=1) & self.alive[rows]
+        return np.all(
+            (self.lo[rows] <= hi + SLACK * np.spacing(np.abs(hi))) & (lo <= self.hi[rows] + SLACK * np.spacing(np.abs(self.hi[rows]))),
+            axis=1,
+        )
 
 
 def _redid(result) -> bool:
