@@ -373,15 +373,26 @@ class _Recorded(pv.Adaptive):
         super().learn(cell, result, init)
 
 
-def test_the_adaptive_default_draws_each_cell_after_the_outcomes_before_it():
-    """With one worker, no cell is drawn (and cut) before the previous cell's outcome is learnt:
-    a stock of cells drawn ahead would be cut before the outcomes that should shape them."""
+@pytest.mark.parametrize("window", [1, 3])
+def test_the_adaptive_default_draws_each_cell_after_the_outcomes_before_its_window(window):
+    """No cell is drawn (and cut) before the outcomes of all cells drawn before it but the last
+    ``window`` are learnt (a stock of cells drawn ahead would be cut before the outcomes that
+    should shape them), and no outcome is learnt earlier than that while cells are left to draw."""
     loop, kwargs = _wall_problem()
     _Recorded.events.clear()
-    result = pv.verify(loop, splitter=_Recorded(rebox=False), workers=1, **kwargs)
+    result = pv.verify(loop, splitter=_Recorded(rebox=False, window=window), workers=1, **kwargs)
     assert result.coverage == pytest.approx(1.0)
     events = _Recorded.events
-    assert events.count("draw") > 3 and not any(a == b == "draw" for a, b in zip(events, events[1:]))
+    assert events.count("draw") > 3
+    draws = learns = 0
+    for event in events:
+        if event == "draw":
+            assert learns >= draws - window + 1
+            draws += 1
+        else:
+            learns += 1
+    lags = [events[: k + 1].count("draw") - events[:k].count("learn") for k, e in enumerate(events) if e == "draw"]
+    assert max(lags) == 1 if window == 1 else max(lags) > 1  # held back while cells were left
 
 
 def test_only_settled_unknown_cells_are_sampled(monkeypatch):

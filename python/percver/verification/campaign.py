@@ -53,19 +53,31 @@ class Campaign:
         self.cells: list = []
         self.cell_seconds = [0.0, 0]  # engine seconds and cells so far, to size executor batches
         self.lock = lock  # the parts of one call share it, with their progress bar
+        # Outcomes are applied (learnt, split, journaled) in the order their cells were drawn, and
+        # the next cell is drawn only once every outcome but the last ``window`` draws' is applied
+        # (None: each as soon as it and all earlier ones are in): what the splitter knows when it
+        # draws a cell is then the same on every run, whichever cell finishes first.
+        self.window: Optional[int] = getattr(splitter, "window", None)
+        self.drawn = 0  # cells given a turn (run, or read from the journal) so far
+        self.applied = 0  # turns whose outcome is applied, in order
+        self.outcomes: dict = {}  # turn -> its outcome applied (a function, called under the lock), once in
+        self.turn_of: dict = {}  # cell key -> its turn, while it is out
+        # (cell, Cell, claimed) of the cell settled unknown whose random runs the next turns wait for
+        self.awaiting: Optional[tuple] = None
         if hasattr(splitter, "probe"):
             splitter.probe = functools.partial(spread, loop)
 
     def remaining(self) -> int:
         """Cells known to be still to run (sub-cells of running cells may add more)."""
         with self.lock:
-            return self.left + len(self.queue) + len(self.ready)
+            return self.left + len(self.queue) + len(self.ready) + self.drawn - self.applied + (self.awaiting is not None)
 
     def take(self, n: int, stock: int = 0) -> list:
         """Up to n cells to run (falsifying up to max(n, stock) first), all with the same
         :meth:`options_of`; empty when none is left for now. Threads may take and stock at once:
         cells are drawn under the lock, each by one thread. A splitter with a ``lookahead`` draws at
         most that many ahead (one that learns from each outcome wants its next cells cut after it)."""
+        self._sample_awaiting()
         self.stock(max(n, min(stock, getattr(self.splitter, "lookahead", stock))))
         with self.lock:
             out = []
@@ -81,9 +93,11 @@ class Campaign:
         """Falsifies cells until n are ready to run or none is left for now."""
         while True:
             with self.lock:
-                if len(self.ready) >= n or not (self.queue or self.left):
+                if len(self.ready) >= n:
                     return
                 fresh = self._draw(min(self.chunk, max(n - len(self.ready), min(n, 8))))
+                if not fresh:  # none left, or the next waits for an outcome
+                    return
             found = falsify(self.loop, self.prop, [cell for cell, _ in fresh], self.prop.steps, 0, self.seed)
             with self.lock:
                 for (cell, options), cex in zip(fresh, found):
@@ -92,7 +106,7 @@ class Campaign:
                         if options:
                             self.chosen[cell_key(cell.to_dict())] = options
                     else:
-                        self._probed(cell, cex, options)
+                        self._done(cell, functools.partial(self._probed, cell, cex, options))
 
     def _probed(self, cell: Box, cex: Counterexample, options: dict):
         """A cell whose probe (centre and corners) violates the property: falsified, no engine run."""
@@ -119,23 +133,66 @@ class Campaign:
                     self.chosen[cell_key(cell.to_dict())] = options
             return drawn
 
-    def settle(self, cell: Box, outcome: dict) -> Optional[Cell]:
+    def settle(self, cell: Box, outcome: dict):
         """A cell's outcome from an executor's worker: ``{"probe": cex}`` when its probe falsified it
         (no engine run), else ``{"outcome", "rss", "counterexample"}``: the engine's outcome, the
-        worker's peak RSS and what its random runs found (run for a "violated" verdict only).
-        Returns the cell when it is settled unknown and still to be sampled: the executor's random
-        runs on it go to :meth:`sampled`."""
+        worker's peak RSS and what its random runs found (run for a "violated" verdict only). A cell
+        the splitter settles unknown is then sampled on the executor (:meth:`unsampled`)."""
         with self.lock:
             if outcome.get("probe") is not None:
-                self._probed(cell, outcome["probe"], self.chosen.pop(cell_key(cell.to_dict()), {}))
-                return None
-            return self._record(cell, outcome["outcome"], outcome["rss"], outcome["counterexample"])
+                chosen = self.chosen.pop(cell_key(cell.to_dict()), {})
+                self._done(cell, functools.partial(self._probed, cell, outcome["probe"], chosen))
+            else:
+                self._done(cell, functools.partial(self._record, cell, outcome["outcome"], outcome["rss"], outcome["counterexample"]))
+
+    def unsampled(self) -> list:
+        """``[(cell, Cell)]``: the cell settled unknown whose random runs the next outcomes wait for,
+        if no one runs them yet (an executor samples it and gives the result to :meth:`sampled`)."""
+        with self.lock:
+            if self.awaiting is None or self.awaiting[2]:
+                return []
+            self.awaiting = (*self.awaiting[:2], True)
+            return [self.awaiting[:2]]
+
+    def _sample_awaiting(self):
+        """The random runs the next outcomes wait for, on this thread (outside the lock)."""
+        for cell, c in self.unsampled():
+            self.sampled(cell, c, self.sample(cell))
+
+    def _done(self, cell: Box, apply):
+        """A cell's outcome is in: ``apply`` (under the lock) learns and places it in its turn."""
+        self.outcomes[self.turn_of.pop(cell_key(cell.to_dict()))] = apply
+        self._apply(self._due())
+
+    def _due(self) -> int:
+        """Turns whose outcomes must be applied before the next cell is drawn."""
+        return self.drawn if self.window is None else self.drawn - self.window + 1
+
+    def _apply(self, upto: int) -> bool:
+        """Applies the outcomes that are in, in turn, up to turn ``upto`` (excluded); whether all were."""
+        while self.applied < upto:
+            if self.awaiting is not None or self.applied not in self.outcomes:
+                return False
+            apply = self.outcomes.pop(self.applied)
+            self.applied += 1
+            settled = apply()
+            if settled is not None:
+                self.awaiting = (*settled, False)
+        return True
 
     def _draw(self, want: int) -> list:
         """Up to ``want`` cells ``(box, options)`` not in the journal (the journal's are settled on
-        the way, following its recorded decisions)."""
+        the way, following its recorded decisions, in their turn like the cells that run); fewer
+        while an outcome the next draw must see is not in."""
         fresh = []
-        while len(fresh) < want and (self.queue or self.left):
+        while len(fresh) < want:
+            if not self._apply(self._due()) and self.window is not None:
+                break
+            if not (self.queue or self.left):
+                # Nothing to draw: the next outcome may make more (its turn has come).
+                if self.applied < self.drawn and self._apply(self.applied + 1):
+                    continue
+                break
             if self.queue:
                 cell, options = self.queue.pop()
             else:
@@ -144,9 +201,8 @@ class Campaign:
             key = cell_key(cell.to_dict(), options)
             known = self.journal.done.get(key)
             if known is not None:
-                self.splitter.learn(cell, known, self.init)
-                pieces = self._again(cell, known)
-                self._place(cell, known, self.journal.decided[key] if key in self.journal.decided else pieces)
+                self.outcomes[self.drawn] = functools.partial(self._replay, cell, known, key)
+                self.drawn += 1
                 continue
             # The splitter sees every cut, a replayed one too (what it learns may depend on it).
             pieces = [_with_options(piece, options) for piece in self.splitter.prepare(cell, self.init)]
@@ -158,17 +214,30 @@ class Campaign:
                 self.queue += pieces
                 self.bar.settled(None, more=len(pieces))
             else:
+                self.turn_of[cell_key(cell.to_dict())] = self.drawn
+                self.drawn += 1
                 fresh.append((cell, options))
         return fresh
+
+    def _replay(self, cell: Box, known: Cell, key: str):
+        """A cell the journal holds, in its turn: learnt, and replaced by the pieces it recorded."""
+        self.splitter.learn(cell, known, self.init)
+        pieces = self._again(cell, known)
+        self._place(cell, known, self.journal.decided[key] if key in self.journal.decided else pieces)
+
+    def flush(self):
+        """Applies (journals) every outcome that is in, in turn: at the end of a run, or when it
+        stops early, none of the finished cells' work is lost."""
+        with self.lock:
+            self._apply(self.drawn)
 
     def record(self, cell: Box, outcome: _core.CellOutcome, peak_rss_mb: Optional[float]):
         """A cell's outcome from the engine (``run_cells``) on the local pool. Random runs go
         outside the lock: the simulation must not hold up other threads' outcomes."""
         cex = self.sample(cell) if outcome.verdict == "violated" else None
         with self.lock:
-            settled = self._record(cell, outcome, peak_rss_mb, cex)
-        if settled is not None:
-            self.sampled(cell, settled, self.sample(cell))
+            self._done(cell, functools.partial(self._record, cell, outcome, peak_rss_mb, cex))
+        self._sample_awaiting()
 
     def sample(self, cell: Box) -> Optional[Counterexample]:
         """The first violation among the cell's ``falsify`` random runs (they depend only on the
@@ -177,10 +246,10 @@ class Campaign:
             return None
         return falsify(self.loop, self.prop, [cell], self.prop.steps, self.falsify, self.seed, probe=False)[0]
 
-    def _record(self, cell: Box, outcome: _core.CellOutcome, peak_rss_mb: Optional[float], cex: Optional[Counterexample]) -> Optional[Cell]:
+    def _record(self, cell: Box, outcome: _core.CellOutcome, peak_rss_mb: Optional[float], cex: Optional[Counterexample]) -> Optional[tuple]:
         """The engine's outcome (``cex``: what the random runs of a "violated" verdict found)
-        learnt and finished; or returned, when the splitter settles it unknown and it is still to
-        be sampled (:meth:`sampled` finishes it)."""
+        learnt and finished; or ``(cell, Cell)`` returned, when the splitter settles it unknown and
+        it is still to be sampled (:meth:`sampled` finishes it)."""
         verdict, reason = outcome.verdict, outcome.reason
         violated = verdict == "violated"  # its random runs are done
         if cex is not None:
@@ -210,7 +279,7 @@ class Campaign:
         self.splitter.learn(cell, c, self.init)
         pieces = self._again(cell, c)
         if not pieces and c.verdict == "unknown" and not violated and self.falsify > 0:
-            return c
+            return cell, c
         self._finish(cell, c, pieces)
         return None
 
@@ -222,6 +291,8 @@ class Campaign:
                 c = replace(c, verdict="falsified", reason=_falsified_reason(cex, c.reason), counterexample=cex)
                 self.splitter.learn(cell, c, self.init)
             self._finish(cell, c, None)
+            self.awaiting = None
+            self._apply(self._due())
 
     def _finish(self, cell: Box, c: Cell, pieces: Optional[list]):
         if self._timed_out(c) and not pieces:
@@ -367,6 +438,11 @@ def run_local(jobs: list, workers: Optional[int], bar: Progress):
     if workers is not None and not (isinstance(workers, int) and workers >= 1):
         raise InputError(f"workers must be a positive integer, got {workers!r}")
     count = workers or os.cpu_count() or 1
+    for campaign, _, _ in jobs:
+        if campaign.window is not None:
+            # No thread waits for lack of cells drawn ahead: up to the splitter's window (8 for
+            # pv.Adaptive) the cells, and so the verdicts, do not depend on the number of threads.
+            campaign.window = max(campaign.window, count)
     idle = threading.Condition()
     busy = [0]  # threads taking or running a cell: while any is, more cells may come
     stop = threading.Event()

@@ -234,9 +234,20 @@ class Runner:
                 else:
                     return
 
+        def sample():
+            for campaign, options in jobs:
+                unsampled = campaign.unsampled()
+                if unsampled:
+                    submit(campaign, options, [cell for cell, _ in unsampled], None, 0, [c for _, c in unsampled])
+
+        for campaign, _ in jobs:
+            # Outcomes are applied as each one and all drawn before it are in: a window of draws
+            # would leave a cluster's workers waiting for the last batches' stragglers.
+            campaign.window = None
         try:
             while True:
                 fill()
+                sample()
                 if not inflight:
                     return
                 done, _ = cf.wait(inflight, return_when=cf.FIRST_COMPLETED)
@@ -261,9 +272,8 @@ class Runner:
                         for cell, c, cex in zip(cells, settled, outcomes):
                             campaign.sampled(cell, c, cex)
                         continue
-                    unsampled = [(cell, c) for cell, outcome in zip(cells, outcomes) if (c := campaign.settle(cell, outcome)) is not None]
-                    if unsampled:
-                        submit(campaign, options, [cell for cell, _ in unsampled], None, 0, [c for _, c in unsampled])
+                    for cell, outcome in zip(cells, outcomes):
+                        campaign.settle(cell, outcome)
         finally:
             for future in inflight:
                 future.cancel()

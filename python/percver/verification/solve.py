@@ -240,10 +240,14 @@ def _verify_parts(loop, parts: Sequence[Part], keywords: dict) -> list:
                 jobs.append((campaign, settings, options))
             if o.progress:
                 bar.start(sum(campaign.left for campaign, *_ in jobs))
-            if runner is None:
-                run_local([(campaign, problem, options) for campaign, _, options in jobs], o.workers, bar)
-            else:
-                runner.run([(campaign, options) for campaign, _, options in jobs])
+            try:
+                if runner is None:
+                    run_local([(campaign, problem, options) for campaign, _, options in jobs], o.workers, bar)
+                else:
+                    runner.run([(campaign, options) for campaign, _, options in jobs])
+            finally:
+                for campaign, _, _ in jobs:
+                    campaign.flush()
     finally:
         if runner is not None:
             runner.close()
