@@ -1,6 +1,7 @@
 """Splitters (``pv.verify(splitter=...)``): the grid, bisection and the adaptive default."""
 
 import json
+import threading
 import time
 from dataclasses import replace
 
@@ -873,3 +874,41 @@ def test_the_adaptive_default_makes_the_same_cells_whichever_finishes_first(monk
         made.append(sorted((c.box["p"], c.box["v"], c.verdict, c.steps_done, c.options.get("rebox", False)) for c in result.cells))
     assert len(made[0]) > 8
     assert all(m == made[0] for m in made[1:])
+
+
+def test_a_run_that_stops_journals_every_cell_that_finished(monkeypatch, tmp_path):
+    """Outcomes wait for earlier draws' before they are learnt; when a cell's run fails, the cells
+    drawn after it that finished on the other thread are journaled all the same, and a rerun
+    resumes without running them again."""
+    from percver.verification import campaign
+
+    run = campaign.run_cells
+    calls, finished, lock = [0], [], threading.Lock()
+
+    def failing(problem, cells, done, options, workers, progress=None):
+        with lock:
+            calls[0] += 1
+            mine = calls[0]
+        if mine == 3:
+            time.sleep(1.5)
+            raise RuntimeError("the worker broke")
+
+        def noted(i, outcome, rss):
+            finished.append(tuple(cells[i]))
+            done(i, outcome, rss)
+
+        run(problem, cells, noted, options, workers, progress)
+
+    monkeypatch.setattr(campaign, "run_cells", failing)
+    loop, kwargs = _wall_problem()
+    kwargs["init"] = {"p": (-0.44, -0.40), "v": (-0.004, 0.004)}
+    journal = tmp_path / "run.jsonl"
+    with pytest.raises(RuntimeError, match="the worker broke"):
+        pv.verify(loop, workers=2, journal=journal, **kwargs)
+    later = len(finished)
+    assert later >= 3  # cells drawn after the failed one finished meanwhile
+    journaled = {tuple(tuple(b) for b in c.box.values()) for c in journal_cells(journal)}
+    assert {tuple(tuple(b) for b in cell) for cell in finished} <= journaled
+    monkeypatch.setattr(campaign, "run_cells", run)
+    result = pv.verify(loop, workers=2, journal=journal, **kwargs)
+    assert result.verdict == "verified"

@@ -227,9 +227,15 @@ class Campaign:
 
     def flush(self):
         """Applies (journals) every outcome that is in, in turn: at the end of a run, or when it
-        stops early, none of the finished cells' work is lost."""
+        stops early (then past the turns of cells that did not finish, and of a cell settled
+        unknown still to be sampled, which a resumed run runs again), so no finished cell's work
+        is lost."""
         with self.lock:
-            self._apply(self.drawn)
+            self.awaiting = None
+            for turn in sorted(self.outcomes):
+                self.applied = turn
+                self._apply(turn + 1)
+                self.awaiting = None
 
     def record(self, cell: Box, outcome: _core.CellOutcome, peak_rss_mb: Optional[float]):
         """A cell's outcome from the engine (``run_cells``) on the local pool. Random runs go
