@@ -252,7 +252,9 @@ class Campaign:
             return None
         return falsify(self.loop, self.prop, [cell], self.prop.steps, self.falsify, self.seed, probe=False)[0]
 
-    def _record(self, cell: Box, outcome: _core.CellOutcome, peak_rss_mb: Optional[float], cex: Optional[Counterexample]) -> Optional[tuple]:
+    def _record(
+        self, cell: Box, outcome: _core.CellOutcome, peak_rss_mb: Optional[float], cex: Optional[Counterexample]
+    ) -> Optional[tuple]:
         """The engine's outcome (``cex``: what the random runs of a "violated" verdict found)
         learnt and finished; or ``(cell, Cell)`` returned, when the splitter settles it unknown and
         it is still to be sampled (:meth:`sampled` finishes it)."""
