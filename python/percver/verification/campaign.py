@@ -448,7 +448,7 @@ def run_local(jobs: list, workers: Optional[int], bar: Progress):
     count = workers or os.cpu_count() or 1
     for campaign, _, _ in jobs:
         if campaign.window is not None:
-            # No thread waits for lack of cells drawn ahead: up to the splitter's window (8 for
+            # No thread waits for lack of cells drawn ahead: up to the splitter's window (4 for
             # pv.Adaptive) the cells, and so the verdicts, do not depend on the number of threads.
             campaign.window = max(campaign.window, count)
     idle = threading.Condition()

@@ -246,7 +246,10 @@ class Adaptive(Bisection):
     Decisions are journaled with the cells (:class:`~percver.verification.journal.Journal`): a
     resumed run replays them (the same pieces, with their engine options, for every cell the
     journal decided; none of its cells runs again) and relearns from its cells; what the journal
-    had not decided is decided afresh from all of that."""
+    had not decided is decided afresh from all of that. Outcomes are learnt in the order the cells
+    were drawn, ``window`` draws late (:class:`~percver.verification.campaign.Campaign`): the
+    cells do not depend on which cell finishes first, nor on the number of threads up to
+    ``window``."""
 
     # Cells drawn (and probed) ahead of a free thread: one, so that every outcome can reshape the next cell.
     lookahead = 1
@@ -255,7 +258,7 @@ class Adaptive(Bisection):
     # Cells drawn whose outcomes the next draw does not wait for (the campaign's ``window``): what
     # is learnt when a cell is drawn, and so every cell, is the same on every run and for up to
     # this many threads (with 2 workers, finish order had made 24 to 1,939 cells of one call).
-    window: int = 8
+    window: int = 4
     max_cells: int = 16384
     patience: int = 4
     rebox: Optional[bool] = None
