@@ -87,6 +87,14 @@ def test_adaptive_stops_where_halving_does_not_push_the_loss_later():
         splits += 1
         cell = halves[0][0]
     assert splits == 2  # the first halving is free; two stalls in a row end the lineage
+    # Its neighbour verified smaller only after the cell was given up (drawn later, learnt later):
+    # once every cell is settled the cell is halved again, as it would have been.
+    assert a.revisit(init) == []
+    lo, hi = cell.bounds[0]
+    a.verified.append((Box(("x",), ((hi, hi + (hi - lo) / 2),)), 3.0))
+    (given_up, pieces), *others = a.revisit(init)
+    assert given_up == cell and not others and [p.bounds[0] for p, _ in pieces] == [(lo, (lo + hi) / 2), ((lo + hi) / 2, hi)]
+    assert a.revisit(init) == []
     # Next to a cell that verified smaller, a stalled lineage goes on to one halving below its size.
     wide = Box(("x",), ((0.0, 2.0),))
     c = pv.Adaptive(patience=2, rebox=False)
@@ -912,3 +920,29 @@ def test_a_run_that_stops_journals_every_cell_that_finished(monkeypatch, tmp_pat
     monkeypatch.setattr(campaign, "run_cells", run)
     result = pv.verify(loop, workers=2, journal=journal, **kwargs)
     assert result.verdict == "verified"
+
+
+class _Reopening(pv.Grid):
+    """One cell, given up, then taken back once everything is settled: halved in p."""
+
+    reopened: list = []
+
+    def revisit(self, init):
+        if _Reopening.reopened:
+            return []
+        _Reopening.reopened.append(init)
+        (lo, hi) = init.bounds[0]
+        return [(init, [(Box(init.names, ((lo, mid), *init.bounds[1:])), {}) for lo, mid in ((lo, (lo + hi) / 2), ((lo + hi) / 2, hi))])]
+
+
+def test_a_cell_the_splitter_takes_back_is_replaced_by_its_pieces(tmp_path):
+    """A splitter's ``revisit`` (run when every drawn cell is settled) replaces a settled cell by
+    its pieces: the result holds the pieces, not the cell, and a resumed run makes the same."""
+    loop, kwargs = _wall_problem()
+    _Reopening.reopened.clear()
+    result = pv.verify(loop, splitter=_Reopening(), journal=tmp_path / "j.jsonl", **kwargs)
+    mid = (-0.42 + -0.40) / 2
+    assert sorted(c.box["p"] for c in result.cells) == [(-0.42, mid), (mid, -0.4)]
+    _Reopening.reopened.clear()
+    again = pv.verify(loop, splitter=_Reopening(), journal=tmp_path / "j.jsonl", **kwargs)
+    assert [(c.box, c.verdict) for c in again.cells] == [(c.box, c.verdict) for c in result.cells]

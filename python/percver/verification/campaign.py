@@ -192,6 +192,8 @@ class Campaign:
                 # Nothing to draw: the next outcome may make more (its turn has come).
                 if self.applied < self.drawn and self._apply(self.applied + 1):
                     continue
+                if self.applied == self.drawn and self.awaiting is None and self._reopen():
+                    continue
                 break
             if self.queue:
                 cell, options = self.queue.pop()
@@ -218,6 +220,18 @@ class Campaign:
                 self.drawn += 1
                 fresh.append((cell, options))
         return fresh
+
+    def _reopen(self) -> bool:
+        """Every cell drawn is settled: the splitter may take back cells it gave up (``revisit``),
+        given what it learnt since; their pieces are queued. Whether it did."""
+        revisit = getattr(self.splitter, "revisit", None)
+        reopened = revisit(self.init) if revisit is not None else []
+        for cell, pieces in reopened:
+            box = cell.to_dict()
+            given_up = next(k for k, c in enumerate(self.cells) if c.box == box and c.verdict == "unknown")
+            self.bar.reopened(self.cells.pop(given_up).verdict, len(pieces))
+            self.queue += pieces
+        return bool(reopened)
 
     def _replay(self, cell: Box, known: Cell, key: str):
         """A cell the journal holds, in its turn: learnt, and replaced by the pieces it recorded."""
@@ -392,6 +406,13 @@ class Progress:
             self.tqdm.total += more
             self._postfix()
             self.tqdm.update(1)
+
+    def reopened(self, verdict: str, more: int):
+        """A cell settled with ``verdict`` is replaced by ``more`` sub-cells after all."""
+        self.counts[verdict] -= 1
+        if self.tqdm is not None:
+            self.tqdm.total += more
+            self._postfix()
 
     def close(self):
         self.stopped.set()

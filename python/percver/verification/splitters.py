@@ -282,6 +282,7 @@ class Adaptive(Bisection):
     plain: dict = field(default_factory=dict, repr=False)  # size -> [verified, runs, given up at max_redone] of plain runs
     pending: set = field(default_factory=set, repr=False)  # keys of reboxed retries not yet run
     deepened: set = field(default_factory=set, repr=False)  # keys of cells at min_width retried with DEEPEN times the in-cell splits
+    stopped: dict = field(default_factory=dict, repr=False)  # key of a cell given up by its stalled lineage -> (cell, state split)
     verified: list = field(default_factory=list, repr=False)  # (cell, halvings from the initial set) of every verified cell
     arrivals: list = field(default_factory=list, repr=False)  # (cell, step its runs all arrived) of every verified cell
     goal_retried: dict = field(default_factory=dict, repr=False)  # cell key -> (steps, deepest step, reboxed) before its split retry
@@ -540,6 +541,8 @@ class Adaptive(Bisection):
             retry = self._last_tries(key, result, size, capped)
             if retry is not None:
                 self.lineage[key] = (reached, deepest, stalls - 1, halved, path)  # the retry stops the lineage unless it goes deeper
+            else:
+                self.stopped[key] = (cell, result.split)
             return retry
         if halved is not None:
             path = (*path, (halved, gained))
@@ -571,6 +574,29 @@ class Adaptive(Bisection):
             else:  # no run of the cell made as the halves run: their lineage compares afresh
                 self.lineage[_key(half)] = (-1, -1, stalls, state, path)
         return [(half, {**options, **self._options(half, init)}) for half in halves]
+
+    def revisit(self, init: Box) -> list:
+        """``[(cell, pieces)]``, once every cell drawn is settled: the cells a stalled lineage gave
+        up beside a cell that has since verified at their size or smaller, halved again (a new
+        lineage), as :meth:`again` would have done had that cell verified first. Outcomes are
+        learnt in draw order, and F1/10's row had given up a cell of 1/128 of it whose neighbours
+        of 1/256, drawn after it, all verified."""
+        if self.falsified or self.runs >= self.max_cells:
+            return []
+        out = []
+        for key, (cell, split) in list(self.stopped.items()):
+            widths = self._min(init)
+            if not (splittable(cell, init, widths, 0) and self._as_small_verified(cell, init)):
+                continue
+            del self.stopped[key]
+            above = above_min_width(cell, init, widths, 0)
+            state = split if split in cell.names and above[cell.names.index(split)] else cell.names[above.index(True)]
+            halves = _halves(cell, cell.names.index(state))
+            self.made += len(halves) - 1
+            for half in halves:
+                self.lineage[_key(half)] = (-1, -1, 0, state, ())
+            out.append((cell, [(half, self._options(half, init)) for half in halves]))
+        return out
 
     def _last_tries(self, key: tuple, result, size: float, capped: bool) -> Optional[Retry]:
         """Before a cell is given up (at ``min_width``, or its lineage stalled): a run with the
