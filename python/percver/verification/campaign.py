@@ -226,12 +226,16 @@ class Campaign:
         given what it learnt since; their pieces are queued. Whether it did."""
         revisit = getattr(self.splitter, "revisit", None)
         reopened = revisit(self.init) if revisit is not None else []
+        taken = False
         for cell, pieces in reopened:
             box = cell.to_dict()
-            given_up = next(k for k, c in enumerate(self.cells) if c.box == box and c.verdict == "unknown")
+            given_up = next((k for k, c in enumerate(self.cells) if c.box == box and c.verdict == "unknown"), None)
+            if given_up is None:  # a journal recorded other pieces for it: they stand
+                continue
             self.bar.reopened(self.cells.pop(given_up).verdict, len(pieces))
             self.queue += pieces
-        return bool(reopened)
+            taken = True
+        return taken
 
     def _replay(self, cell: Box, known: Cell, key: str):
         """A cell the journal holds, in its turn: learnt, and replaced by the pieces it recorded."""
