@@ -95,6 +95,10 @@ def test_adaptive_stops_where_halving_does_not_push_the_loss_later():
     (given_up, pieces), *others = a.revisit(init)
     assert given_up == cell and not others and [p.bounds[0] for p, _ in pieces] == [(lo, (lo + hi) / 2), ((lo + hi) / 2, hi)]
     assert a.revisit(init) == []
+    # Its halves that gain nothing stop there, but beside the verified cell (no fresh patience).
+    (left, _), (right, _) = pieces
+    assert a.again(left, Cell(left.to_dict(), "unknown", steps_done=5), init, False) is None
+    assert a.again(right, Cell(right.to_dict(), "unknown", steps_done=5), init, False) is not None
     # Next to a cell that verified smaller, a stalled lineage goes on to one halving below its size.
     wide = Box(("x",), ((0.0, 2.0),))
     c = pv.Adaptive(patience=2, rebox=False)

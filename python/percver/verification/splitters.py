@@ -282,7 +282,9 @@ class Adaptive(Bisection):
     plain: dict = field(default_factory=dict, repr=False)  # size -> [verified, runs, given up at max_redone] of plain runs
     pending: set = field(default_factory=set, repr=False)  # keys of reboxed retries not yet run
     deepened: set = field(default_factory=set, repr=False)  # keys of cells at min_width retried with DEEPEN times the in-cell splits
-    stopped: dict = field(default_factory=dict, repr=False)  # key of a cell given up by its stalled lineage -> (cell, state split)
+    stopped: dict = field(
+        default_factory=dict, repr=False
+    )  # key of a cell its stalled lineage gave up -> (cell, state split, steps, deepest)
     verified: list = field(default_factory=list, repr=False)  # (cell, halvings from the initial set) of every verified cell
     arrivals: list = field(default_factory=list, repr=False)  # (cell, step its runs all arrived) of every verified cell
     goal_retried: dict = field(default_factory=dict, repr=False)  # cell key -> (steps, deepest step, reboxed) before its split retry
@@ -542,7 +544,7 @@ class Adaptive(Bisection):
             if retry is not None:
                 self.lineage[key] = (reached, deepest, stalls - 1, halved, path)  # the retry stops the lineage unless it goes deeper
             else:
-                self.stopped[key] = (cell, result.split)
+                self.stopped[key] = (cell, result.split, steps, deepest_step)
             return retry
         if halved is not None:
             path = (*path, (halved, gained))
@@ -584,7 +586,7 @@ class Adaptive(Bisection):
         if self.falsified or self.runs >= self.max_cells:
             return []
         out = []
-        for key, (cell, split) in list(self.stopped.items()):
+        for key, (cell, split, steps, deepest_step) in list(self.stopped.items()):
             widths = self._min(init)
             if not (splittable(cell, init, widths, 0) and self._as_small_verified(cell, init)):
                 continue
@@ -593,8 +595,12 @@ class Adaptive(Bisection):
             state = split if split in cell.names and above[cell.names.index(split)] else cell.names[above.index(True)]
             halves = _halves(cell, cell.names.index(state))
             self.made += len(halves) - 1
+            # Stalled already: halves that gain nothing stop at once, unless still beside a cell
+            # verified at their size or smaller (no fresh patience, which could cost a binary tree
+            # of patience x states halvings under every cell taken back).
+            stalls = self.patience * sum(above_min_width(init, init, widths, 0))
             for half in halves:
-                self.lineage[_key(half)] = (-1, -1, 0, state, ())
+                self.lineage[_key(half)] = (steps, deepest_step, stalls, state, ())
             out.append((cell, [(half, self._options(half, init)) for half in halves]))
         return out
 
