@@ -153,6 +153,9 @@ def test_bad_splitters_are_clear_errors():
         pv.verify(loop, splitter="adaptive", **kwargs)
     with pytest.raises(pv.InputError, match="max_cells"):
         pv.Adaptive(max_cells=0)
+    for window in (0, -1, 2.5, "4", None):
+        with pytest.raises(pv.InputError, match=r"Adaptive\(window=\.\.\.\) must be a positive integer"):
+            pv.Adaptive(window=window)
     with pytest.raises(pv.InputError, match="min_width"):
         pv.Bisection(min_width={"p": -1})
     with pytest.raises(pv.InputError, match="not states"):

@@ -67,6 +67,16 @@ class Campaign:
         if hasattr(splitter, "probe"):
             splitter.probe = functools.partial(spread, loop)
 
+    def run_on(self, workers: Optional[int]) -> None:
+        """Sets the window for ``workers`` threads (None: an executor's workers). Threads past the
+        splitter's window widen it to their number, so no thread waits for lack of cells drawn
+        ahead; an executor has none, since a window would leave a cluster's workers waiting for the
+        last batches' stragglers (outcomes are then applied as each one and all before it are in)."""
+        if workers is None:
+            self.window = None
+        elif self.window is not None:
+            self.window = max(self.window, workers)
+
     def remaining(self) -> int:
         """Cells known to be still to run (sub-cells of running cells may add more)."""
         with self.lock:
@@ -472,10 +482,7 @@ def run_local(jobs: list, workers: Optional[int], bar: Progress):
         raise InputError(f"workers must be a positive integer, got {workers!r}")
     count = workers or os.cpu_count() or 1
     for campaign, _, _ in jobs:
-        if campaign.window is not None:
-            # No thread waits for lack of cells drawn ahead: up to the splitter's window (4 for
-            # pv.Adaptive) the cells, and so the verdicts, do not depend on the number of threads.
-            campaign.window = max(campaign.window, count)
+        campaign.run_on(count)
     idle = threading.Condition()
     busy = [0]  # threads taking or running a cell: while any is, more cells may come
     stop = threading.Event()

@@ -241,9 +241,7 @@ class Runner:
                     submit(campaign, options, [cell for cell, _ in unsampled], None, 0, [c for _, c in unsampled])
 
         for campaign, _ in jobs:
-            # Outcomes are applied as each one and all drawn before it are in: a window of draws
-            # would leave a cluster's workers waiting for the last batches' stragglers.
-            campaign.window = None
+            campaign.run_on(None)
         try:
             while True:
                 fill()
