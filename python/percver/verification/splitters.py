@@ -189,8 +189,7 @@ class Adaptive(Bisection):
       shape around the cell about to be cut, ``GROW_PAIRS`` pairs of that width along a state
       ended alike and ``GROW_RATIO`` times as many as ended differently, or were lost there no
       wider than the grown shape in any state (a halving's verified halves do not grow back into
-      their lost parent; a cell that verified after redoing steps counts only against the state
-      the engine split there), the cell is cut twice as wide in that state (and again, while the
+      their lost parent), the cell is cut twice as wide in that state (and again, while the
       wider pairs agree). A size learnt where another state decided, such as a noise level
       halved on the way down to cells near the Mountain Car wall, where the runs' arrival
       depends on p0 alone, is outgrown that way; a grown cell that fails is halved and its
@@ -300,8 +299,7 @@ class Adaptive(Bisection):
     cuts: list = field(default_factory=list, repr=False)  # every cut's _Cut, in order
     ended: dict = field(default_factory=dict, repr=False)  # placed bounds (_place) of a settled cell -> how it ended, for growth
     pairs: "_Boxes" = field(default_factory=lambda: _Boxes(3), repr=False)  # neighbours' union -> (state, width, ended alike)
-    # cells lost or redoing steps -> their widths, and the state split in a verified one's redone steps (-1: lost)
-    lost: "_Boxes" = field(default_factory=lambda: _Boxes(None), repr=False)
+    lost: "_Boxes" = field(default_factory=lambda: _Boxes(None), repr=False)  # cells lost or redoing steps -> their widths
     made: int = field(default=0, repr=False)  # cells made so far (initial, halves, cut pieces), held to max_cells
 
     def __post_init__(self):
@@ -427,10 +425,7 @@ class Adaptive(Bisection):
         reboxed = bool(result.options.get("rebox"))
         outcome = (result.deepest_step, result.branches, reboxed) if result.verdict == "verified" and not _redid(result) else None
         if outcome is None:
-            # A cell that verified after redoing steps says its width in the state the engine
-            # split mattered, not in the others: -1 for a lost cell (every state).
-            split = cell.names.index(result.split) if result.verdict == "verified" and result.split in cell.names else -1
-            self.lost.add(cell, [*(hi - lo for lo, hi in cell.bounds), split])
+            self.lost.add(cell, [hi - lo for lo, hi in cell.bounds])
         self.ended[self._place(key, init)] = outcome
         for j, (lo, hi) in enumerate(key):
             if not hi > lo:
@@ -469,10 +464,7 @@ class Adaptive(Bisection):
         widths of the shape) ended alike: at least ``GROW_PAIRS`` of them, and ``GROW_RATIO`` times
         as many as ended differently or were lost there no wider than the grown shape in any
         state (that size failed there already: a halving's two verified halves, alike, do not grow
-        back into their lost parent); such a cell touching ``cell`` is enough to keep the width. A
-        cell that verified after redoing steps counts only against the state the engine split
-        (near the Mountain Car goal, cells that redid steps along p had kept dc at a quarter of the
-        hand's width over a column of cells whose pairs along dc ended alike)."""
+        back into their lost parent); such a cell touching ``cell`` is enough to keep the width."""
         # The pairs within a cut's reach (`grade` pieces of the shape on each side): those touching
         # a cell at the Mountain Car wall are two or three, its neighbourhood holds dozens.
         reach = Box(
@@ -484,17 +476,14 @@ class Adaptive(Bisection):
         pairs = self.pairs.touching(reach)
         if not len(pairs):
             return target
-        near = np.flatnonzero(self.lost.mask(reach)) if len(self.lost) else np.empty(0, dtype=int)
+        lost = np.flatnonzero(self.lost.mask(reach)) if len(self.lost) else np.empty(0, dtype=int)
         out = dict(target)
         for j, (n, (lo, hi)) in enumerate(zip(cell.names, cell.bounds)):
-            split = self.lost.values[near, -1] if len(near) else np.empty(0)
-            # Lost cells count against every state; cells that redid steps only against the one split.
-            lost = near[(split < 0) | (split == j)]
             while out.get(n, 0.0) > 0.0 and hi - lo > 1.5 * out[n]:
                 votes = pairs[(pairs[:, 0] == j) & np.isclose(pairs[:, 1], out[n], rtol=1e-6, atol=0.0), 2]
                 grown = {**out, n: 2 * out[n]}
                 shape = np.array([grown.get(m, np.inf) for m in cell.names]) * (1 + 1e-6)
-                failed = lost[np.all(self.lost.values[lost, :-1] <= shape, axis=1)] if len(lost) else lost
+                failed = lost[np.all(self.lost.values[lost] <= shape, axis=1)] if len(lost) else lost
                 alike = int(votes.sum())
                 if (
                     alike < GROW_PAIRS
@@ -816,7 +805,7 @@ class _Cut:
 
 class _Boxes:
     """Boxes with a row of values each, in arrays: which touch a cell is asked at every cut, over
-    thousands of them (``width=None``: the values start with the box's own widths, one per state)."""
+    thousands of them (``width=None``: the values are the box's own widths, one per state)."""
 
     def __init__(self, width: Optional[int]):
         self.width, self.n = width, 0
