@@ -68,17 +68,15 @@ def bisect(box: Box, init: Box, min_width: dict, hint: Optional[str] = None) -> 
     return _halves(box, j)
 
 
-def _halves(box: Box, j: int, times: int = 1) -> list:
-    """``box`` halved along state ``j``, and each half again, ``times`` times in all (the pieces
-    are those of that many halvings in a row, bounds and all)."""
+def _halves(box: Box, j: int) -> list:
+    """``box`` halved along state ``j``."""
     lo, hi = box.bounds[j]
     mid = 0.5 * (lo + hi)
     left = list(box.bounds)
     right = list(box.bounds)
     left[j] = (lo, mid)
     right[j] = (mid, hi)
-    halves = [Box(box.names, tuple(left)), Box(box.names, tuple(right))]
-    return halves if times <= 1 else [piece for half in halves for piece in _halves(half, j, times - 1)]
+    return [Box(box.names, tuple(left)), Box(box.names, tuple(right))]
 
 
 def above_min_width(cell: Box, init: Box, min_width: dict, default: float = 1 / 64) -> list:
@@ -204,9 +202,11 @@ class Adaptive(Bisection):
       measured elsewhere, at other sizes, say little about this one).
       ``learn_states=False``: that first choice, and after a halving that gained no step the
       widest other state relative to the initial set. A cell lost after in-cell splits that
-      computed steps again is cut along the state the engine split, into a halving per doubling
-      of the runs its steps made (at most ``grade`` pieces): its own splits were those halvings,
-      each at the cost of a run.
+      computed ``REDONE`` runs' steps again is halved along the state the engine split, once:
+      its own splits were halvings along it, each at the cost of a run. Once, not once per
+      doubling of those runs: the engine's last split state may not be the state the cell is too
+      wide in (a composite Mountain Car cell eight times too wide in dc, lost splitting p0, was
+      cut into quarters along p0, and that size spread to its neighbours).
     - Where halving stops paying: a lineage that gains no step ``patience`` times per state it
       can halve in a row stops (the loss is not the cell's width; its last cell runs with the
       call's in-cell splits, then reboxed, before it is given up), unless a cell it touches
@@ -548,24 +548,20 @@ class Adaptive(Bisection):
             return retry
         if halved is not None:
             path = (*path, (halved, gained))
-        times, j = 1, None if result.split is None else cell.names.index(result.split)
+        j = None if result.split is None else cell.names.index(result.split)
         heavy = REDONE_PAST in (result.reason or "") or result.steps_redone >= REDONE * max(1, result.deepest_step)
         if heavy and j is not None and above_min_width(cell, init, widths, 0)[j] and (gained or halved != result.split):
             # The engine's splits along it restarted, computing REDONE runs' steps again, and the
-            # cell was still lost: halved along it once per doubling of the runs its steps made (at
-            # most `grade` pieces), as a cell verified that way teaches (blur cells near p0 -0.55
-            # halved along the noise, each losing 16 splits that restarted from step 0, while the
-            # engine split p0). Splits where part of the cell arrived redo a few steps each: a
-            # big cell's 16 of them, a run's steps, say nothing of the state to halve.
-            state, (lo, hi) = result.split, cell.bounds[j]
-            times = min(_redone_runs(result), int(np.log2(self.grade)))
-            while times > 1 and (hi - lo) / 2**times < widths[state]:
-                times -= 1
+            # cell was still lost: halved along it (blur cells near p0 -0.55 halved along the
+            # noise, each losing 16 splits that restarted from step 0, while the engine split p0).
+            # Splits where part of the cell arrived redo a few steps each: a big cell's 16 of
+            # them, a run's steps, say nothing of the state to halve.
+            state = result.split
         else:
             state = self._state_to_halve(cell, result, init, widths, stalls, halved, gained)
         options.pop("max_splits", None)
         options.pop("max_redone", None)
-        halves = _halves(cell, cell.names.index(state), times)
+        halves = _halves(cell, cell.names.index(state))
         self.halvings += 1
         self.made += len(halves) - 1
         self.last[state] = self.halvings
