@@ -204,6 +204,21 @@ def combine(doc: dict, noise: str, networks: str) -> dict:
 
 
 COMPARED = RESULTS / "mountain_car_adaptive.json"
+# Each comparison's per-cell rows, one file per row key (the summaries alone passed 5 MB with them).
+COMPARED_CELLS = RESULTS / "mountain_car_adaptive"
+
+
+def _cells_apart(key: str, index: int, runs: dict) -> None:
+    """Moves the per-cell rows of ``runs`` (comparison ``index`` of ``key``) to ``COMPARED_CELLS``,
+    under its index and date (two runs can share a minute); the summary keeps everything else."""
+    rows = {label: entry.pop("cells") for label, entry in runs.items() if isinstance(entry, dict) and "cells" in entry}
+    if not rows:
+        return
+    path = COMPARED_CELLS / (key.replace("/", "_").replace(",", "_") + ".json")
+    COMPARED_CELLS.mkdir(exist_ok=True)
+    doc = json.loads(path.read_text()) if path.exists() else {}
+    doc[f"{index} {runs.get('date', 'undated')}"] = rows
+    path.write_text(_dumps(doc))
 
 
 def variant(spec: str) -> dict:
@@ -273,6 +288,7 @@ def compare(args) -> None:
             runs["commit"] = commit
             earlier = doc.get(key)  # a single comparison (written before --variants) becomes the first of the list
             doc[key] = {"runs": (earlier["runs"] if "runs" in earlier else [earlier]) if earlier else []}
+            _cells_apart(key, len(doc[key]["runs"]), runs)
             doc[key]["runs"].append(runs)
             COMPARED.write_text(_dumps(doc))
 
@@ -317,7 +333,7 @@ def main() -> None:
         "--compare",
         action="store_true",
         help="each row once per --variants entry, back to back from fresh journals (the hand layout, adaptive splitters "
-        "with no layout); all in bench/results/mountain_car_adaptive.json",
+        "with no layout); summaries in bench/results/mountain_car_adaptive.json, per-cell rows beside it",
     )
     parser.add_argument(
         "--variants", default="hand,adaptive", help="for --compare: hand, adaptive, adaptive:key=value:... (comma-separated)"
