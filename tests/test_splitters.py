@@ -40,6 +40,14 @@ def _cell(box: Box, verdict: str, **kwargs) -> Cell:
     return Cell(box.to_dict(), verdict, **kwargs)
 
 
+def _gained(a, box: Box, gains: dict) -> None:
+    """Primes ``a`` with halvings of cells of ``box`` that gained ``gains`` steps per state, in order."""
+    for name, steps in gains.items():
+        for gain in steps:
+            a.near_gains.add(box, [box.names.index(name), gain])
+            a.gains.setdefault(name, []).append(gain)
+
+
 def test_adaptive_cuts_a_cell_to_the_size_its_neighbours_needed():
     init = Box(("p", "v"), ((0.0, 1.0), (0.0, 0.0)))
     a = pv.Adaptive(grade=4, rebox=False)
@@ -432,6 +440,19 @@ def test_only_settled_unknown_cells_are_sampled(monkeypatch):
     assert len(result.cells) > 1  # cells were halved, and none of them sampled
 
 
+def test_the_state_to_halve_is_chosen_by_the_gains_of_halvings_near_the_cell():
+    """Halvings of d gained 31 steps and p's none: a cell among them halves d; a cell far from
+    them halves the engine's choice, p (there each state is tried first). Mountain Car's contrast
+    row had taught dc's gains far from the goal to the cells near it, where dc does not matter."""
+    init = Box(("p", "d"), ((0.0, 1.0), (0.0, 1.0)))
+    cell = Box(("p", "d"), ((0.0, 0.25), (0.0, 0.25)))
+    for where, expected in ((init, "d"), (Box(("p", "d"), ((0.9, 1.0), (0.9, 1.0))), "p")):
+        a = pv.Adaptive(rebox=False)
+        _gained(a, where, {"p": [0], "d": [31]})
+        (left, _), _ = a.again(cell, _cell(cell, "unknown", steps_done=40, deepest_step=40, split="p"), init, False)
+        assert next(n for n, x, y in zip(cell.names, left.bounds, cell.bounds) if x != y) == expected
+
+
 def test_a_halving_that_gained_no_step_switches_the_lineage_to_another_state_at_once():
     """Halving d gained 31 steps near the whole set, p none; in a lineage where halving d no
     longer gains (or gains a step of 60, less than MIN_GAIN of them), the next halving is p's,
@@ -439,7 +460,7 @@ def test_a_halving_that_gained_no_step_switches_the_lineage_to_another_state_at_
     init = Box(("p", "d"), ((0.0, 1.0), (0.0, 1.0)))
     for later, switched in ((60, True), (61, True), (60 + 60 // 4, False)):
         a = pv.Adaptive(rebox=False)
-        a.gains, a.last, a.halvings = {"p": [0], "d": [31]}, {"p": 1, "d": 2}, 2
+        _gained(a, init, {"p": [0], "d": [31]})
 
         def halve(cell, deepest):
             (left, _), _ = a.again(cell, _cell(cell, "unknown", steps_done=deepest, deepest_step=deepest, split="d"), init, False)
@@ -451,12 +472,37 @@ def test_a_halving_that_gained_no_step_switches_the_lineage_to_another_state_at_
         assert state == ("p" if switched else "d")
 
 
+def test_a_state_whose_halving_left_the_enclosure_as_wide_is_not_halved_again_in_its_lineage():
+    """d is a parameter (its reach box is the cell's) and p a state that moves. Halving d gained
+    no step; halving p gained none either, but narrowed p's enclosure at the step where the
+    cell was lost. If d's halving left that enclosure as wide, the lineage halves p again (the turn
+    to another state after a halving that gained nothing would pick d); if it narrowed it, d."""
+    init = Box(("p", "d"), ((0.0, 1.0), (0.0, 1.0)))
+    for d_halved_width, expected in ((6.0, "p"), (5.0, "d")):
+        a = pv.Adaptive(rebox=False)
+        _gained(a, init, {"p": [0], "d": [31]})
+
+        def halve(cell, p_width):
+            d = cell.bounds[1]
+            boxes = [[(-p_width / 2, p_width / 2), d]] * 61
+            run = _cell(cell, "unknown", steps_done=60, deepest_step=60, split="d", boxes=boxes, options={"max_splits": 0})
+            (left, _), _ = a.again(cell, run, init, False)
+            return left, next(n for n, x, y in zip(cell.names, left.bounds, cell.bounds) if x != y)
+
+        half, state = halve(init, 6.0)
+        assert state == "d"
+        half, state = halve(half, d_halved_width)
+        assert state == "p"
+        _, state = halve(half, 0.6 * d_halved_width)
+        assert state == expected
+
+
 def test_the_size_a_verified_half_needed_undoes_the_halvings_of_its_lineage_that_gained_no_step():
     """d halved twice (the second gained nothing), then p: the half verifies. Neighbours are cut
     to p's width and to d's width before the halving that gained nothing, not to the half's."""
     init = Box(("p", "d"), ((0.0, 1.0), (0.0, 1.0)))
     a = pv.Adaptive(rebox=False)
-    a.gains, a.last, a.halvings = {"p": [0], "d": [10]}, {"p": 1, "d": 2}, 2
+    _gained(a, init, {"p": [0], "d": [10]})
     cell = Box(("p", "d"), ((0.0, 0.5), (0.0, 1.0)))
     for state, deepest in (("d", 40), ("d", 60), ("p", 60)):
         a.learn(cell, _cell(cell, "unknown", steps_done=deepest, deepest_step=deepest), init)

@@ -192,14 +192,20 @@ class Adaptive(Bisection):
       halved on the way down to cells near the Mountain Car wall, where the runs' arrival
       depends on p0 alone, is outgrown that way; a grown cell that fails is halved and its
       verified half teaches the size again.
-    - Which state to halve: the one whose recent halvings pushed the loss of precision furthest
-      (the halves' ``deepest_step`` against their parent's), each state tried once first in
+    - Which state to halve: the one whose recent halvings of cells it touches (its lineage and
+      its neighbours') pushed the loss of precision furthest (the halves' ``deepest_step``
+      against their parent's; gains far away say little here: near the Mountain Car goal dc does
+      not matter, while it does further left), each state tried once first in
       the order of the one whose width moves the runs most up to the step where the cell was
       lost (``probe``: the campaign simulates the runs from the centres of the cell's opposite
       faces, :func:`percver.verification.falsify.spread`), else of the engine's choice. A
       halving gains if it moves the loss of precision later by ``MIN_GAIN`` of the steps its
       parent reached; after one that did not, its lineage halves another state at once (gains
-      measured elsewhere, at other sizes, say little about this one).
+      measured elsewhere, at other sizes, say little about this one), but none whose halving left
+      the enclosure as wide (``INERT``) at the last step its parent completed, until a halving
+      gains: that state adds nothing there at this size (near the Mountain Car goal, halvings of
+      dc left it as wide while p0's narrowed it without moving the arrival, and the turns between
+      them made cells a quarter of the hand's width in dc).
       ``learn_states=False``: that first choice, and after a halving that gained no step the
       widest other state relative to the initial set. A cell lost after in-cell splits that
       computed ``REDONE`` runs' steps again is halved along the state the engine split, once:
@@ -292,8 +298,6 @@ class Adaptive(Bisection):
     plain_gains: dict = field(default_factory=dict, repr=False)  # state -> (parent's size, gain) of plain halves of plain runs
     # half's key -> (parent's deepest step, state halved, parent's size, whether that run was reboxed), until it runs
     halved: dict = field(default_factory=dict, repr=False)
-    halvings: int = field(default=0, repr=False)  # halvings decided so far
-    last: dict = field(default_factory=dict, repr=False)  # state -> the halving that last cut it
     falsified: bool = field(default=False, repr=False)  # a counterexample decided the loop: no more halvings
     cut: dict = field(default_factory=dict, repr=False)  # key of a piece cut ahead of its run -> its cut's index in cuts
     cuts: list = field(default_factory=list, repr=False)  # every cut's _Cut, in order
@@ -301,6 +305,11 @@ class Adaptive(Bisection):
     pairs: "_Boxes" = field(default_factory=lambda: _Boxes(3), repr=False)  # neighbours' union -> (state, width, ended alike)
     lost: "_Boxes" = field(default_factory=lambda: _Boxes(None), repr=False)  # cells lost or redoing steps -> their widths
     made: int = field(default=0, repr=False)  # cells made so far (initial, halves, cut pieces), held to max_cells
+    near_gains: "_Boxes" = field(default_factory=lambda: _Boxes(2), repr=False)  # halves -> (state halved, steps gained)
+    # half's key -> states its lineage halved without narrowing the enclosure (INERT), since its last gain
+    inert: dict = field(default_factory=dict, repr=False)
+    # half's key -> its parent's run's (options, steps done, box at that step, states that moved), until it runs
+    enclosed: dict = field(default_factory=dict, repr=False)
 
     def __post_init__(self):
         super().__post_init__()
@@ -372,6 +381,7 @@ class Adaptive(Bisection):
         if key in self.halved:
             deepest, state, size, reboxed = self.halved.pop(key)
             self.gains.setdefault(state, []).append(result.deepest_step - deepest)
+            self.near_gains.add(cell, [cell.names.index(state), result.deepest_step - deepest])
             if not result.options.get("rebox") and not reboxed:
                 self.plain_gains.setdefault(state, []).append((size, result.deepest_step - deepest))
         if not result.options.get("rebox") and result.verdict in ("verified", "unknown"):
@@ -500,8 +510,14 @@ class Adaptive(Bisection):
         key = _key(cell)
         if result.verdict != "unknown" or self.runs >= self.max_cells or self.falsified:
             self.lineage.pop(key, None)
+            self.inert.pop(key, None)
+            self.enclosed.pop(key, None)
             return None
         size = _halvings(cell, init)
+        halved, before = self.lineage.get(key, (None,) * 4)[3], self.enclosed.get(key)
+        if halved is not None and before is not None and _as_wide(before, result):
+            # Whichever of the cell's runs has its parent's options (a retry runs with others).
+            self.inert[key] = self.inert.get(key, frozenset()) | {halved}
         if self._rebox_pays(cell, result, init):
             self.retried[key] = (result.steps_done, result.deepest_step, size)
             self.pending.add(key)
@@ -533,6 +549,8 @@ class Adaptive(Bisection):
         stalls = stalls + 1 if steps <= reached and deepest_step <= deepest else 0
         # Moved the loss of precision by a fair share of the steps reached (see MIN_GAIN).
         gained = steps - reached >= max(1, MIN_GAIN * reached) or deepest_step - deepest >= max(1, MIN_GAIN * deepest)
+        # A halving that gained steps starts afresh: at the new size another state may decide.
+        inert = frozenset() if gained else self.inert.get(key, frozenset())
         if explored and halved is not None and not gained and GOAL_PART in (result.reason or "") and self._late(cell, deepest_step, init):
             # Runs from parts of the cell arrive at different steps, and halving did not move
             # that: the engine's in-cell forks separate the arrivals for a few runs' cost.
@@ -558,14 +576,18 @@ class Adaptive(Bisection):
             # them, a run's steps, say nothing of the state to halve.
             state = result.split
         else:
-            state = self._state_to_halve(cell, result, init, widths, stalls, halved, gained)
+            state = self._state_to_halve(cell, result, init, widths, stalls, halved, gained, inert)
         options.pop("max_splits", None)
         options.pop("max_redone", None)
         halves = _halves(cell, cell.names.index(state))
-        self.halvings += 1
         self.made += len(halves) - 1
-        self.last[state] = self.halvings
+        enclosure = _enclosure(cell, result)
+        self.inert.pop(key, None)
+        self.enclosed.pop(key, None)
         for half in halves:
+            self.inert[_key(half)] = inert
+            if enclosure is not None:
+                self.enclosed[_key(half)] = enclosure
             if reboxed == rebox:
                 self.lineage[_key(half)] = (steps, deepest_step, stalls, state, path)
                 self.halved[_key(half)] = (deepest_step, state, size, reboxed)
@@ -614,14 +636,19 @@ class Adaptive(Bisection):
             return Retry({"rebox": True})
         return None
 
-    def _state_to_halve(self, cell: Box, result, init: Box, widths: dict, stalls: int, halved: Optional[str], gained: bool) -> str:
-        """The state whose halvings have gained the most steps lately (each state above its
-        min_width tried first, and again when not halved lately, in the order of the probe's,
+    def _state_to_halve(
+        self, cell: Box, result, init: Box, widths: dict, stalls: int, halved: Optional[str], gained: bool, inert: frozenset = frozenset()
+    ) -> str:
+        """The state whose halvings of cells touching ``cell`` have gained the most steps lately
+        (each state above its min_width tried first, and again when not halved lately, in the order of the probe's,
         else the engine's, choice), another one than ``halved`` when that halving did not gain
-        (``MIN_GAIN``); with ``learn_states=False`` that choice, and after a halving that gained no
-        step the widest other state relative to the initial set."""
+        (``MIN_GAIN``), none of the lineage's ``inert`` states while another is left; with
+        ``learn_states=False`` that choice, and after a halving that gained no step the widest
+        other state relative to the initial set."""
         above = above_min_width(cell, init, widths, 0)
         candidates = [n for ok, n in zip(above, cell.names) if ok]
+        if any(n not in inert for n in candidates):
+            candidates = [n for n in candidates if n not in inert]
         if halved is not None and not gained and self.learn_states and any(n != halved for n in candidates):
             # The halving that made this cell gained (almost) nothing: its state is not what
             # loses the cell at this size, whatever it gained elsewhere (at other sizes).
@@ -645,10 +672,13 @@ class Adaptive(Bisection):
             return hint
         # Untried, or not tried lately: a state whose halving gained nothing near the whole set
         # may be the one that decides once the others are narrow.
-        untried = [n for n in candidates if not self.gains.get(n) or self.halvings - self.last.get(n, 0) > RECENT * len(candidates)]
+        rows = self.near_gains.touching(cell)
+        gains = {n: [g for j, g in rows if cell.names[int(j)] == n] for n in candidates}
+        lately = {cell.names[int(j)] for j, _ in rows[-RECENT * len(candidates) :]}
+        untried = [n for n in candidates if not gains[n] or n not in lately]
         if untried:
             return hint if hint in untried else untried[0]
-        return max(candidates, key=lambda n: (np.mean(self.gains[n][-RECENT:]), n == hint))
+        return max(candidates, key=lambda n: (np.mean(gains[n][-RECENT:]), n == hint))
 
     def _late(self, cell: Box, step: int, init: Box) -> bool:
         """Whether a cell lost at ``step`` got within ``MIN_GAIN`` of the step where the runs of the
@@ -774,6 +804,12 @@ RECENT = 4  # halvings of a state whose gains choose the next state to halve
 MIN_GAIN = 1 / 8
 
 
+# The share of its parent's enclosure width (mean over the states that moved) at or above which a
+# half's run says the state halved did not matter at that size: its lineage halves the others
+# (a state adding a tenth of the width narrows it by a twentieth when halved).
+INERT = 0.95
+
+
 # Neighbour pairs along a state that must end alike (verified at the same step with as many
 # in-cell splits, or both with none) before cells twice as wide in it are tried there, and how many
 # times the pairs that ended differently: cells whose runs do not depend on a state's width end
@@ -831,6 +867,37 @@ class _Boxes:
             (self.lo[rows] <= hi + SLACK * np.spacing(np.abs(hi))) & (lo <= self.hi[rows] + SLACK * np.spacing(np.abs(self.hi[rows]))),
             axis=1,
         )
+
+
+def _enclosure(cell: Box, result) -> Optional[tuple]:
+    """A lost run's reach box at the last step every part of it completed, with its options and
+    the states that moved by then (not those that kept the cell's bounds, such as a noise level):
+    what its halves' runs compare with (:func:`_as_wide`)."""
+    t = result.steps_done
+    box = result.boxes[t] if 0 < t < len(result.boxes) else None
+    if not box:
+        return None
+    moved = [
+        j
+        for j, ((lo, hi), (clo, chi)) in enumerate(zip(box, cell.bounds))
+        if hi > lo and not (math.isclose(lo, clo, rel_tol=1e-9, abs_tol=1e-12) and math.isclose(hi, chi, rel_tol=1e-9, abs_tol=1e-12))
+    ]
+    return (dict(result.options), t, [tuple(b) for b in box], moved) if moved else None
+
+
+def _as_wide(before: tuple, result) -> bool:
+    """Whether a half's run (with the options of its parent's) enclosed the moved states at
+    the step its parent last completed as wide as the parent did, within ``INERT``: the state
+    halved adds almost nothing to the enclosure there (on Mountain Car's contrast row near the
+    goal, plain runs: halving dc 0.106 -> 0.053 left the enclosure 1.01 times as wide at step 80,
+    where the parent was lost, and halving p0 0.024 -> 0.012 made it 0.81 times as wide; in cells
+    16 times that size, halving dc made it 0.22 times as wide)."""
+    options, t, box, moved = before
+    if dict(result.options) != options or result.steps_done < t or t >= len(result.boxes) or not result.boxes[t]:
+        return False
+    now = result.boxes[t]
+    ratios = [(now[j][1] - now[j][0]) / (box[j][1] - box[j][0]) for j in moved]
+    return float(np.mean(ratios)) >= INERT
 
 
 def _redid(result) -> bool:
