@@ -627,6 +627,22 @@ def test_pieces_that_split_and_computed_steps_again_make_the_next_cells_smaller_
     assert cut_and_settle(60) == {(0.125, 0.0625)}
     assert cut_and_settle(0) == {(0.125, 0.25)}
     assert cut_and_settle(5) == {(0.125, 0.25)}  # a split where part arrived redoes a few steps
+    assert cut_and_settle(40) == {(0.125, 0.25)}  # less than half a run (REDID)
+
+
+def test_a_cell_that_redid_less_than_half_a_run_keeps_its_size():
+    """Cells verified after splits that restarted from step 0: one that computed 0.4 of a run's
+    steps again keeps its size (halving would add a run to every cell like it, such splits 1.4
+    runs to those that split), one that computed 0.6 of a run again halves it along the state
+    split (``REDID``)."""
+    init = Box(("p", "d"), ((0.0, 1.0), (0.0, 1.0)))
+    cell = Box(("p", "d"), ((0.0, 0.25), (0.0, 0.25)))
+    learnt = {}
+    for redone in (40, 60):
+        a = pv.Adaptive(rebox=False)
+        a.learn(cell, _cell(cell, "verified", deepest_step=100, branches=1, steps_redone=redone, split="d"), init)
+        learnt[redone] = a.needed[-1][1]
+    assert learnt == {40: {"p": 0.25, "d": 0.25}, 60: {"p": 0.25, "d": 0.125}}
 
 
 def test_a_cut_piece_that_redid_steps_makes_the_rest_of_its_cut_smaller():

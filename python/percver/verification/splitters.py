@@ -163,13 +163,15 @@ class Adaptive(Bisection):
       says that cells of its size are needed there, less the halvings of its lineage that
       gained nothing just before the one that verified it (those of other states: the cell
       verified through that halving, and its size with them is an accident of the path); a cell,
-      a cut piece too, that verified only after in-cell splits that computed ``MIN_GAIN`` of its
-      steps again (``steps_redone``: a split restarts where the enclosure was last precise, step
-      0 on Mountain Car, so it costs a run of its own) says that cells smaller by a halving per
-      doubling of the runs its steps made are (one halving for up to three runs' steps, three for
-      8-15), halved along the state the engine split most (on Mountain Car's contrast row, cut pieces that
-      verified after 1-7 such splits cost 3-17 times a clean one). Forks, and splits where a
-      piece was lost, go on from there and say nothing of the size. A cell verified after ``STALLED`` halvings in a row that
+      a cut piece too, that verified only after in-cell splits that computed ``REDID`` (half) of
+      its steps again (``steps_redone``: a split restarts where the enclosure was last precise,
+      step 0 on Mountain Car, so it costs a run of its own and the steps before it) says that
+      cells smaller by a halving per doubling of the runs its steps made are (one halving for up
+      to three runs' steps, three for 8-15), halved along the state the engine split most (on
+      Mountain Car's contrast row, cut pieces that verified after 1-7 such splits cost 3-17 times
+      a clean one). Less redone work keeps the size: halving adds a run to every cell, such
+      splits only to the cells that split. Forks, and splits where a piece was lost, go on from
+      there and say nothing of the size. A cell verified after ``STALLED`` halvings in a row that
       gained nothing says nothing of the size needed (its size is the path's accident: cut to
       it, its neighbours would spread it). A cell about to run is cut to one size needed where it is,
       the latest learnt (of the cells it touches; with ``tile=True`` also of the nearest one
@@ -824,6 +826,17 @@ GROW_RATIO = 4
 # after 16 such splits cost 15 runs (30 s) each.
 REDONE = 3
 
+# The share of a run's steps (its deepest step) a verified cell computed again in splits that
+# restart past which it says cells must be smaller there. Such a split costs the steps before it
+# and a run for its second piece (1 + r runs for r runs' steps redone), halving a run for every
+# cell, split or not: how many of the cells around split decides, and one cell does not tell.
+# Measured on three rows (bench/README.md, "A cell that redid less than half a run"): at 1/8 contrast
+# cells near the Mountain Car goal that redid 10-60 steps cut dc to a quarter of the cheapest
+# cells there; at 1 the composite slice's cells, three quarters of which redid 0.8 runs, kept
+# sizes that cost 1.7x; of 1/8, 1/2, 1 and a tally per shape, 1/2 alone cost no row more than
+# 1/8 did.
+REDID = 1 / 2
+
 
 @dataclass
 class _Cut:
@@ -902,10 +915,9 @@ def _as_wide(before: tuple, result) -> bool:
 
 def _redid(result) -> bool:
     """Whether the run computed steps again after splitting a lost piece at an earlier step, for
-    at least ``MIN_GAIN`` of the steps it reached: cut along the split state ahead of the run, the
-    cell's halves would have verified without that work (an in-cell split that restarts from step
-    0 costs a run of its own)."""
-    return result.steps_redone >= max(1, MIN_GAIN * result.deepest_step)
+    at least ``REDID`` of the steps it reached: its width mattered, and cut along the split state
+    ahead of the run, cells like it would cost less."""
+    return result.steps_redone >= max(1, REDID * result.deepest_step)
 
 
 def _redone_runs(result) -> int:
