@@ -630,21 +630,6 @@ def test_pieces_that_split_and_computed_steps_again_make_the_next_cells_smaller_
     assert cut_and_settle(40) == {(0.125, 0.25)}  # less than half a run (REDID)
 
 
-def test_a_cell_that_redid_less_than_half_a_run_keeps_its_size():
-    """Cells verified after splits that restarted from step 0: one that computed 0.4 of a run's
-    steps again keeps its size (halving would add a run to every cell like it, such splits 1.4
-    runs to those that split), one that computed 0.6 of a run again halves it along the state
-    split (``REDID``)."""
-    init = Box(("p", "d"), ((0.0, 1.0), (0.0, 1.0)))
-    cell = Box(("p", "d"), ((0.0, 0.25), (0.0, 0.25)))
-    learnt = {}
-    for redone in (40, 60):
-        a = pv.Adaptive(rebox=False)
-        a.learn(cell, _cell(cell, "verified", deepest_step=100, branches=1, steps_redone=redone, split="d"), init)
-        learnt[redone] = a.needed[-1][1]
-    assert learnt == {40: {"p": 0.25, "d": 0.25}, 60: {"p": 0.25, "d": 0.125}}
-
-
 def test_a_cut_piece_that_redid_steps_makes_the_rest_of_its_cut_smaller():
     """A 4 x 4 cut of a needed 1/8 x 1/8; its corner piece verifies only after a split along d
     that restarted from step 0. A piece of the same cut far from it is cut in two along d when
@@ -911,17 +896,24 @@ def test_a_plain_cell_given_up_at_its_max_redone_does_not_count_as_a_plain_loss_
 
 
 def test_a_cell_that_redid_many_runs_teaches_a_halving_per_doubling_of_them():
-    """A cell verified after splits that restarted from step 0: steps of under 4 runs teach one
-    halving along the state split most, of 8-15 runs three (it was as costly as 8-16 cells)."""
+    """A cell verified after splits that restarted from step 0: steps of under half a run teach
+    no halving (``REDID``: halving would add a run to every cell like it, such splits 1.4 runs to
+    those that split), of half a run to 4 runs one halving along the state split most, of 8-15
+    runs three (it was as costly as 8-16 cells)."""
     init = Box(("p", "d"), ((0.0, 1.0), (0.0, 1.0)))
     cell = Box(("p", "d"), ((0.0, 0.25), (0.0, 0.25)))
     learnt = {}
-    for redone in (150, 1300):
+    for redone in (40, 60, 150, 1300):
         a = pv.Adaptive(rebox=False)
         a.lineage[_key(cell)] = (-1, -1, 0, "p", ())
         a.learn(cell, _cell(cell, "verified", deepest_step=100, branches=3, steps_redone=redone, split="d"), init)
         learnt[redone] = a.needed[-1][1]
-    assert learnt == {150: {"p": 0.25, "d": 0.125}, 1300: {"p": 0.25, "d": 0.25 / 8}}
+    assert learnt == {
+        40: {"p": 0.25, "d": 0.25},
+        60: {"p": 0.25, "d": 0.125},
+        150: {"p": 0.25, "d": 0.125},
+        1300: {"p": 0.25, "d": 0.25 / 8},
+    }
 
 
 def test_the_adaptive_default_makes_the_same_cells_whichever_finishes_first(monkeypatch):
