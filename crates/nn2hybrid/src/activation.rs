@@ -24,11 +24,8 @@
 //! every neuron.
 use std::sync::OnceLock;
 use taylor::interval::{add_up, mul_up};
-use taylor::tm::{gamma, U};
+use taylor::tm::{etas, gamma, ETA, U};
 use taylor::Interval;
-
-/// Smallest subnormal: the absolute error a product may lose to underflow.
-const ETA: f64 = f64::from_bits(1);
 
 /// [m - r, m + r] with r an upper bound of the distance to the true value.
 #[derive(Clone, Copy, Debug)]
@@ -251,8 +248,7 @@ fn chebyshev_norm(p: &[Ball]) -> f64 {
         mags = add_up(mags, b.m.abs());
     }
     let sum = taylor::tm::abs_sum(&cheb[..p.len()]);
-    let products = (p.len() * p.len()) as f64;
-    add_up(add_up(sum, radii), add_up(mul_up(gamma(p.len() + 1), mags), ETA * products))
+    add_up(add_up(sum, radii), add_up(mul_up(gamma(p.len() + 1), mags), etas(p.len() * p.len())))
 }
 
 /// C2P[m] = power-basis coefficients of T_m (integers, exact in f64 for m <= K_MAX).
@@ -337,10 +333,12 @@ fn interpolate(f: Smooth, c: f64, s: f64, d: usize, budget: f64) -> (Vec<f64>, f
     (power, estimate, rise)
 }
 
-/// Coefficients of q(tau_p + w) in w (repeated synthetic division).
-fn shift(q: &[f64], tau_p: Ball) -> [Ball; K_MAX + 1] {
+/// Coefficients of q(tau_p + w) in w (repeated synthetic division; none for tau_p = 0, the
+/// one-piece case of almost every neuron).
+fn shift(q: &[f64], tau_p: Option<Ball>) -> [Ball; K_MAX + 1] {
     let mut b = [Ball::ZERO; K_MAX + 1];
     b.iter_mut().zip(q).for_each(|(b, &c)| *b = Ball::point(c));
+    let Some(tau_p) = tau_p else { return b };
     let d = q.len();
     for i in 0..d {
         for j in (i..d.saturating_sub(1)).rev() {
@@ -357,7 +355,9 @@ fn piece_bound(f: Smooth, q: &[f64], c: f64, s: f64, c_p: f64, h_p: f64, k: usiz
     // as the plan takes k >= the degree).
     let mut diff = f.taylor(c_p, h_p, k);
     let si = Ball::point(s);
-    let tau_p = si.mul(Ball::point(c_p).sub(Ball::point(c)));
+    // c_p - c is exactly 0 when the piece is the whole range. The ball of that difference would
+    // carry a subnormal radius, and multiplies with subnormals are ~60x slower (`taylor::tm::etas`).
+    let tau_p = (c_p != c).then(|| si.mul(Ball::point(c_p).sub(Ball::point(c))));
     let b = shift(q, tau_p);
     let shp = si.mul(Ball::point(h_p));
     let mut sh_pow = Ball::point(1.0);

@@ -23,11 +23,8 @@ use crate::network::{Activation, Layer};
 use crate::propagate::Models;
 use nalgebra::DMatrix;
 use taylor::interval::{add_up, mul_up};
-use taylor::tm::{gamma, U};
+use taylor::tm::{etas, gamma, ETA, U};
 use taylor::Interval;
-
-/// Smallest subnormal: the absolute error a product may lose to underflow.
-const ETA: f64 = f64::from_bits(1);
 
 /// The layers since the anchor, with the pre-activation bounds of their neurons.
 pub(crate) struct Crown<'a> {
@@ -343,5 +340,5 @@ fn dot_up(a: &[f64], b: &[f64]) -> f64 {
 
 /// An upper bound of a sum of n non-negative products (or terms) computed as `s` in floats.
 fn dot_bound(s: f64, n: usize) -> f64 {
-    add_up(mul_up(s, 1.0 + 2.0 * gamma(n + 1)), ETA * n as f64)
+    add_up(mul_up(s, 1.0 + 2.0 * gamma(n + 1)), etas(n))
 }

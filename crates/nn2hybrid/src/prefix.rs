@@ -19,11 +19,8 @@ use crate::network::{Activation, Layer, LayerArrays, Network};
 use crate::propagate::{propagate_from, propagate_with, Activate, Models, Settings};
 use nalgebra::DMatrix;
 use taylor::interval::{add_up, mul_up};
-use taylor::tm::{abs_sum, gamma, U};
+use taylor::tm::{abs_sum, etas, gamma, U};
 use taylor::{Interval, TaylorModel};
-
-/// Smallest subnormal: the absolute error a product may lose to underflow.
-const ETA: f64 = f64::from_bits(1);
 
 #[derive(Debug)]
 pub(crate) struct Prefix {
@@ -152,7 +149,7 @@ pub(crate) fn compose(one: &Models, c: f64, r: f64, input: &Models, col: usize, 
     let f = 1.0 / r;
     let mut t: Vec<f64> = y[..m].iter().map(|&p| p * f).collect();
     t[0] = (y[0] - c) * f;
-    let e_t = add_up(mul_up(4.0 * U, abs_sum(&t)), ETA * m as f64);
+    let e_t = add_up(mul_up(4.0 * U, abs_sum(&t)), etas(m));
     let base = TaylorModel { coef: t, rem: Interval::symmetric(e_t) };
     let mut powers = vec![TaylorModel::constant(1.0), base.clone()];
     while powers.len() < m1 {
@@ -197,7 +194,7 @@ pub(crate) fn compose(one: &Models, c: f64, r: f64, input: &Models, col: usize, 
             r_j = r_j + rest.rem[j];
         }
         dst[m + s_in..].copy_from_slice(&one.column(j)[m1..]);
-        let rounding = add_up(mul_up(g, size), ETA * ((m + s_in) * (m1 + 1)) as f64);
+        let rounding = add_up(mul_up(g, size), etas((m + s_in) * (m1 + 1)));
         rem.push(r_j.inflate(rounding));
     }
     Models { ctx: ctx.clone(), m, coef, own: None, rem, variables: input.variables.clone(), time_var: None, pinned: input.pinned }

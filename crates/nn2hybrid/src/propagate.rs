@@ -46,11 +46,9 @@ use rayon::prelude::*;
 use std::sync::Arc;
 use taylor::error_symbols::ErrorSymbols;
 use taylor::interval::{add_up, mul_up};
-use taylor::tm::{gamma, poly_bound_of, U};
+use taylor::tm::{etas, gamma, poly_bound_of, U};
 use taylor::{Ctx, Interval, Space, TaylorModel};
 
-/// Smallest subnormal: the absolute error a product may lose to underflow.
-const ETA: f64 = f64::from_bits(1);
 /// A smooth neuron's model is replaced by the interval image when it is this much wider.
 const WIDER_THAN_IMAGE: f64 = 2.0;
 /// Errors below this are rounding noise: they stay in remainders, never become symbols.
@@ -181,7 +179,7 @@ fn dot_up(a: &[f64], b: &[f64]) -> f64 {
 
 /// An upper bound of a sum of n non-negative products computed as `s` in floats.
 fn dot_bound(s: f64, n: usize) -> f64 {
-    add_up(mul_up(s, 1.0 + 2.0 * gamma(n + 1)), ETA * n as f64)
+    add_up(mul_up(s, 1.0 + 2.0 * gamma(n + 1)), etas(n))
 }
 
 /// Column i of a layer's W^T (the weights into neuron i), contiguous.
@@ -523,7 +521,7 @@ impl Models {
             if let Some(s) = scale {
                 let s = s[i];
                 column.iter_mut().for_each(|c| *c *= s);
-                let err = add_up(mul_up(2.0 * U, abs_sum(column.as_slice())), ETA * column.len() as f64);
+                let err = add_up(mul_up(2.0 * U, abs_sum(column.as_slice())), etas(column.len()));
                 out.rem[i] = (self.rem[i] * Interval::point(s)).inflate(err);
             }
             if let Some(o) = offset {
@@ -585,7 +583,7 @@ impl Models {
                     terms += 1;
                 }
             }
-            let err = add_up(mul_up(mul_up(magnitude, 1.0 + gamma(terms)), g), ETA * terms as f64);
+            let err = add_up(mul_up(mul_up(magnitude, 1.0 + gamma(terms)), g), etas(terms));
             out.coef.column_mut(i).as_mut_slice()[..self.m].copy_from_slice(&fresh);
             out.rem[i] = self.rem[i].inflate(err);
         }
@@ -635,7 +633,7 @@ fn assemble(models: &Models, outs: Vec<NeuronOut>, settings: &Settings) -> Model
             for (d, s) in dst[m..m + old].iter_mut().zip(src) {
                 *d = s * o.sym_factor;
             }
-            r = r.inflate(add_up(mul_up(2.0 * U, abs_sum(&dst[m..m + old])), ETA * old as f64));
+            r = r.inflate(add_up(mul_up(2.0 * U, abs_sum(&dst[m..m + old])), etas(old)));
         }
         if new_symbol[i] {
             let mid = o.error.mid();
@@ -765,7 +763,7 @@ fn compose(q: &[f64], centre: f64, scale: f64, p: &[f64], ctx: &Ctx) -> TaylorMo
     t[0] = shifted * scale;
     // Each coefficient of T is one rounded product (t_0 also a rounded difference): within
     // u |t_k| (+ the underflow eta), and t_0 within s u |p_0 - c| more.
-    let e_tau = add_up(add_up(mul_up(U, abs_sum(t)), mul_up(mul_up(U, scale), shifted.abs())), ETA * len as f64);
+    let e_tau = add_up(add_up(mul_up(U, abs_sum(t)), mul_up(mul_up(U, scale), shifted.abs())), etas(len));
     let bound = add_up(1.0, e_tau);
     // suffix[j] = sum_(k >= j) |t_k|: the part of T that a term of A times T drops beyond the order.
     for j in (0..len).rev() {
@@ -799,7 +797,7 @@ fn compose(q: &[f64], centre: f64, scale: f64, p: &[f64], ctx: &Ctx) -> TaylorMo
         // Float sums of non-negative terms are within a factor grow of the exact ones; each
         // coefficient is a sum of at most len products and q_k: rounding gamma_(len + 2).
         let rounding = mul_up(g, add_up(mul_up(mul_up(sa, suffix[0]), grow), q[k].abs()));
-        let e_k = add_up(add_up(mul_up(dropped, grow), rounding), ETA * (len * len) as f64);
+        let e_k = add_up(add_up(mul_up(dropped, grow), rounding), etas(len * len));
         steps = add_up(steps, e_k);
         a.copy_from_slice(next);
     }

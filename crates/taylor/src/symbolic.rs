@@ -12,10 +12,7 @@
 //! exploded. Instead each step bounds what the float product misses, (gamma_n |B| + rad Phi)
 //! |M_i| |J_i| summed over the terms, and adds that bound to the remainder entering next.
 use crate::interval::{add_up, mul_up, Interval};
-use crate::tm::gamma;
-
-/// Smallest subnormal: the absolute error a float product may lose to underflow.
-const ETA: f64 = 5e-324;
+use crate::tm::{etas, gamma};
 
 pub struct SymbolicRemainder {
     n: usize,
@@ -109,7 +106,7 @@ impl SymbolicRemainder {
             let v: Vec<f64> = (0..n).map(|r| (0..n).fold(0.0, |s, c| add_up(s, mul_up(m[r * n + c].abs(), j[c].mag())))).collect();
             let j_sum = j.iter().fold(0.0, |s, x| add_up(s, x.mag()));
             for r in 0..n {
-                let miss = (0..n).fold(mul_up(mul_up(n as f64, ETA), j_sum), |s, c| add_up(s, mul_up(weight[r * n + c], v[c])));
+                let miss = (0..n).fold(mul_up(etas(n), j_sum), |s, c| add_up(s, mul_up(weight[r * n + c], v[c])));
                 self.pending[r] = add_up(self.pending[r], miss);
             }
             let mut out = vec![0.0; n * n];
