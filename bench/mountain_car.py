@@ -204,17 +204,20 @@ def combine(doc: dict, noise: str, networks: str) -> dict:
 
 
 COMPARED = RESULTS / "mountain_car_adaptive.json"
-# Each comparison's per-cell rows, one file per row key (the summaries alone passed 5 MB with them).
+# Each comparison's per-cell rows, one file per row key and day (the summaries passed 5 MB with
+# them, and so did one file per row key after a week of whole-row comparisons).
 COMPARED_CELLS = RESULTS / "mountain_car_adaptive"
 
 
 def _cells_apart(key: str, index: int, runs: dict) -> None:
     """Moves the per-cell rows of ``runs`` (comparison ``index`` of ``key``) to ``COMPARED_CELLS``,
-    under its index and date (two runs can share a minute); the summary keeps everything else."""
+    in the file of its day, under its index and date (two runs can share a minute); the summary
+    keeps everything else."""
     rows = {label: entry.pop("cells") for label, entry in runs.items() if isinstance(entry, dict) and "cells" in entry}
     if not rows:
         return
-    path = COMPARED_CELLS / (key.replace("/", "_").replace(",", "_") + ".json")
+    day = str(runs.get("date", "undated"))[:10]
+    path = COMPARED_CELLS / (key.replace("/", "_").replace(",", "_") + f"_{day}.json")
     COMPARED_CELLS.mkdir(exist_ok=True)
     doc = json.loads(path.read_text()) if path.exists() else {}
     doc[f"{index} {runs.get('date', 'undated')}"] = rows
