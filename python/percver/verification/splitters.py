@@ -639,7 +639,7 @@ class Adaptive(Bisection):
         return None
 
     def _state_to_halve(
-        self, cell: Box, result, init: Box, widths: dict, stalls: int, halved: Optional[str], gained: bool, inert: frozenset = frozenset()
+        self, cell: Box, result, init: Box, widths: dict, stalls: int, halved: Optional[str], gained: bool, inert: frozenset
     ) -> str:
         """The state whose halvings of cells touching ``cell`` have gained the most steps lately
         (each state above its min_width tried first, and again when not halved lately, in the order of the probe's,
