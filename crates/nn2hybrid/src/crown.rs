@@ -20,10 +20,10 @@
 //! the same way by each anchor neuron's sum of |coefficients|, and the interval remainders enter
 //! in interval arithmetic.
 use crate::network::{Activation, Layer};
-use crate::propagate::Models;
+use crate::propagate::{dot_bound, dot_up, Models};
 use nalgebra::DMatrix;
 use taylor::interval::{add_up, mul_up};
-use taylor::tm::{etas, gamma, ETA, U};
+use taylor::tm::{gamma, ETA, U};
 use taylor::Interval;
 
 /// The layers since the anchor, with the pre-activation bounds of their neurons.
@@ -330,15 +330,4 @@ impl Adam {
             }
         }
     }
-}
-
-/// An upper bound of sum_j |a_j| b_j for non-negative b.
-fn dot_up(a: &[f64], b: &[f64]) -> f64 {
-    let s: f64 = a.iter().zip(b).map(|(x, y)| x.abs() * y).sum();
-    dot_bound(s, a.len())
-}
-
-/// An upper bound of a sum of n non-negative products (or terms) computed as `s` in floats.
-fn dot_bound(s: f64, n: usize) -> f64 {
-    add_up(mul_up(s, 1.0 + 2.0 * gamma(n + 1)), etas(n))
 }

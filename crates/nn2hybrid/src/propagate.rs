@@ -172,13 +172,13 @@ fn iv(lo: f64, hi: f64) -> Interval {
 }
 
 /// An upper bound of sum_j |a_j| b_j for non-negative b.
-fn dot_up(a: &[f64], b: &[f64]) -> f64 {
+pub(crate) fn dot_up(a: &[f64], b: &[f64]) -> f64 {
     let s: f64 = a.iter().zip(b).map(|(x, y)| x.abs() * y).sum();
     dot_bound(s, a.len())
 }
 
-/// An upper bound of a sum of n non-negative products computed as `s` in floats.
-fn dot_bound(s: f64, n: usize) -> f64 {
+/// An upper bound of a sum of n non-negative products (or terms) computed as `s` in floats.
+pub(crate) fn dot_bound(s: f64, n: usize) -> f64 {
     add_up(mul_up(s, 1.0 + 2.0 * gamma(n + 1)), etas(n))
 }
 
