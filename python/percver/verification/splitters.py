@@ -830,11 +830,8 @@ REDONE = 3
 # restart past which it says cells must be smaller there. Such a split costs the steps before it
 # and a run for its second piece (1 + r runs for r runs' steps redone), halving a run for every
 # cell, split or not: how many of the cells around split decides, and one cell does not tell.
-# Measured on three rows (bench/README.md, "A cell that redid less than half a run"): at 1/8 contrast
-# cells near the Mountain Car goal that redid 10-60 steps cut dc to a quarter of the cheapest
-# cells there; at 1 the composite slice's cells, three quarters of which redid 0.8 runs, kept
-# sizes that cost 1.7x; of 1/8, 1/2, 1 and a tally per shape, 1/2 alone cost no row more than
-# 1/8 did.
+# Of the shares measured (bench/README.md, "A cell that redid less than half a run"), 1/2 alone
+# cost no row more than the earlier 1/8.
 REDID = 1 / 2
 
 
