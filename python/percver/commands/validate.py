@@ -165,7 +165,7 @@ def verify_diagnosed(diagnosis, args) -> int:
     result = verify(loop, progress=not args.no_progress, **config.verify_kwargs())
     out = Path(args.out) / "verify.json"
     result.to_json(str(out))
-    print(report(result))
+    print(report(result, loop))
     print(result.validity)
     print(f"result: {out.resolve()}")
     return EXIT[result.verdict]

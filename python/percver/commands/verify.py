@@ -181,18 +181,20 @@ def run(args) -> int:
     with warnings.catch_warnings():
         warnings.showwarning = lambda message, *_a, **_k: print(f"percver verify: warning: {message}", file=sys.stderr)
         kwargs["progress"] = kwargs.get("progress", True) and not args.no_progress and not args.json
-        result = verify(config.checked(config.target(), kwargs), **kwargs)
+        loop = config.checked(config.target(), kwargs)
+        result = verify(loop, **kwargs)
     result.to_json(str(out))
     if args.json:
         print(result.to_json())
     else:
-        print(report(result))
+        print(report(result, loop))
         print(f"result: {out}")
     return EXIT[result.verdict]
 
 
-def report(result) -> str:
-    """The summary table, then what decided the verdict (counterexample, or where precision ran out)."""
+def report(result, loop=None) -> str:
+    """The summary table, then what decided the verdict (counterexample, or where precision ran
+    out and what to try: :func:`percver.verification.advice.hints`, with float runs of ``loop``)."""
     lines = [
         result.summary(),
         f"verdict: {result.verdict} ({100 * result.coverage:.2f}% of the initial set verified, {result.seconds:.2f} s)",
@@ -207,6 +209,7 @@ def report(result) -> str:
         lines.append(f"unknown: {box}: {c.reason}")
     if len(unknown) > 5:
         lines.append(f"... and {len(unknown) - 5} more unknown cells (see the JSON)")
+    lines += [f"try: {hint}" for hint in result.hints(loop)]
     return "\n".join(lines)
 
 

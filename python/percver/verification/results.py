@@ -109,6 +109,12 @@ class Result:
     def counterexample(self) -> Optional[Counterexample]:
         return next((c.counterexample for c in self.cells if c.counterexample), None)
 
+    def hints(self, loop: Optional[ClosedLoop] = None) -> list:
+        """What to try when the verdict is unknown (:func:`percver.verification.advice.hints`)."""
+        from percver.verification.advice import hints
+
+        return hints(self, loop)
+
     def summary(self) -> str:
         """A row like the paper's Table 1: intervals, average time, NN time, branches, coverage."""
         n = len(self.cells)

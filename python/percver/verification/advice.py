@@ -1,0 +1,131 @@
+"""What to try when cells stay unknown: changes of ``pv.verify``'s keywords read from the evidence
+the unknown cells carry (the engine's reason, the options each ran with, its reach boxes and,
+given the loop, float runs from the cell), each with the numbers behind it. A hint is not a
+verdict: following one costs a run, and the cells may still end unknown."""
+
+from __future__ import annotations
+
+import re
+from dataclasses import dataclass
+from typing import Optional
+
+import numpy as np
+
+from percver.sets import Box
+from percver.systems import ClosedLoop
+from percver.verification.splitters import GOAL_PART, PRECISION_LOST
+
+# An enclosure this many times the spread of the float runs from its cell is loose ...
+LOOSE = 10.0
+# ... and one that grew at least this factor a step over the last RECENT steps is growing from
+# errors that feed back through the loop (the float runs of a stable loop do not).
+GROWTH = 1.25
+RECENT = 5
+# Float runs per unknown cell (its corners, then uniform points).
+SAMPLES = 64
+SPLITS = re.compile(r"\(after (\d+) splits\)")
+
+
+@dataclass(frozen=True)
+class Hint:
+    """``keywords`` to pass to ``pv.verify`` (e.g. ``{"state_symbols": True}``), why, and on how
+    many unknown cells that evidence was found."""
+
+    keywords: dict
+    why: str
+    cells: int
+
+    def __str__(self) -> str:
+        given = ", ".join(f"{k}={v!r}" for k, v in self.keywords.items())
+        return f"{given}: {self.why} ({self.cells} unknown cell{'s' if self.cells != 1 else ''})"
+
+
+def hints(result, loop: Optional[ClosedLoop] = None) -> list:
+    """The :class:`Hint` list for ``result``'s unknown cells (none for a verified or falsified
+    result). Without ``loop`` the reach boxes are not compared with float runs, so loose
+    enclosures are not looked for."""
+    if result.verdict != "unknown":
+        return []
+    loop = getattr(loop, "loop", loop)  # a loaded Verisig or Flow* problem carries its loop
+    unknown = [c for c in result.cells if c.verdict == "unknown"]
+    settings = result.settings
+    out = []
+    timed = [c for c in unknown if (c.reason or "").startswith("timeout after")]
+    if timed and settings.get("timeout_per_cell"):
+        limit = settings["timeout_per_cell"]
+        out.append(Hint({"timeout_per_cell": 4 * limit}, f"cells stopped at the {limit:g} s limit ({timed[0].reason})", len(timed)))
+    lost = [c for c in unknown if any(words in (c.reason or "") for words in PRECISION_LOST)]
+    plain = [c for c in lost if not (c.options.get("rebox") or settings.get("rebox"))]
+    if plain:
+        out.append(
+            Hint(
+                {"rebox": True},
+                f"an operation left its domain or an enclosure blew up, never restarted from boxes (first: '{plain[0].reason}'); "
+                "reboxed, a part restarts from its box whenever remainders are most of a state's enclosure, so they stop feeding back",
+                len(plain),
+            )
+        )
+    used_up = [c for c in unknown if _splits_used_up(c, settings)]
+    if used_up:
+        most = max(int(SPLITS.search(c.reason).group(1)) for c in used_up)
+        arrivals = sum(GOAL_PART in c.reason for c in used_up)
+        why = f"cells gave up after all of their {most} in-cell splits and forks (first: '{used_up[0].reason}')"
+        if arrivals:
+            why += f"; in {arrivals} of them parts of the cell reach the goal at different steps, one fork each"
+        out.append(Hint({"max_splits": 4 * most}, why, len(used_up)))
+    if isinstance(loop, ClosedLoop):
+        out += _loose(unknown, loop, settings)
+    return out
+
+
+def _splits_used_up(cell, settings: dict) -> bool:
+    found = SPLITS.search(cell.reason or "")
+    budget = cell.options.get("max_splits", settings.get("max_splits"))
+    return found is not None and budget is not None and int(found.group(1)) >= budget > 0
+
+
+def _loose(unknown: list, loop: ClosedLoop, settings: dict) -> list:
+    """Cells whose enclosure ended ``LOOSE`` times wider than their float runs and grew ``GROWTH``
+    times a step before that: the errors of a step were fed back into the next (the wrapping
+    effect), which symbols for the states' errors (or boxes to restart from) stop."""
+    found = []
+    for cell in unknown:
+        evidence = _wrapping(cell, loop)
+        if evidence is not None:
+            found.append(evidence)
+    if not found:
+        return []
+    state, ratio, growth, step, runs = max(found, key=lambda e: e[1])
+    why = (
+        f"the enclosure of {state} was {ratio:.0f} times the spread of {runs} float runs from its cell at step {step}, "
+        f"after growing {growth:.2f} times a step: errors fed back through the loop (wrapping)"
+    )
+    out = []
+    if settings.get("method", "taylor") == "taylor" and not settings.get("state_symbols"):
+        out.append(
+            Hint({"state_symbols": True}, why + "; kept as symbols from step to step, the controller's corrections cancel them", len(found))
+        )
+    if not settings.get("rebox"):
+        out.append(Hint({"rebox": True}, why + "; reboxed, a part restarts from its box whenever remainders dominate", len(found)))
+    return out
+
+
+def _wrapping(cell, loop: ClosedLoop) -> Optional[tuple]:
+    """(state, enclosure over float spread, growth a step, step, runs), or None."""
+    boxes = np.asarray(cell.boxes or [], dtype=float)
+    if boxes.ndim != 3 or len(boxes) <= RECENT or boxes.shape[1] != len(loop.states):
+        return None
+    last = len(boxes) - 1
+    box = Box.coerce(cell.box, loop.states)
+    corners = np.array(np.meshgrid(*[(lo, hi) for lo, hi in box.bounds])).reshape(len(box.names), -1).T
+    x0 = np.vstack([corners[:SAMPLES], box.sample(max(0, SAMPLES - len(corners)))])
+    runs = loop.simulate(x0, last)
+    spread = np.ptp(runs[:, last], axis=0)
+    width = boxes[last, :, 1] - boxes[last, :, 0]
+    before = boxes[last - RECENT, :, 1] - boxes[last - RECENT, :, 0]
+    ratio = np.where(spread > 0, width / np.where(spread > 0, spread, 1.0), 0.0)
+    j = int(np.argmax(ratio))
+    if not (ratio[j] >= LOOSE and before[j] > 0):
+        return None
+    growth = (width[j] / before[j]) ** (1 / RECENT)
+    return (loop.states[j], float(ratio[j]), float(growth), last, len(x0)) if growth >= GROWTH else None
