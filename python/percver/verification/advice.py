@@ -21,8 +21,9 @@ LOOSE = 10.0
 # errors that feed back through the loop (the float runs of a stable loop do not).
 GROWTH = 1.25
 RECENT = 5
-# Float runs per unknown cell (its corners, then uniform points).
+# Float runs per unknown cell (its corners, then uniform points), on at most EXAMINED cells.
 SAMPLES = 64
+EXAMINED = 16
 SPLITS = re.compile(r"\(after (\d+) splits\)")
 
 
@@ -85,11 +86,12 @@ def _splits_used_up(cell, settings: dict) -> bool:
 
 
 def _loose(unknown: list, loop: ClosedLoop, settings: dict) -> list:
-    """Cells whose enclosure ended ``LOOSE`` times wider than their float runs and grew ``GROWTH``
-    times a step before that: the errors of a step were fed back into the next (the wrapping
-    effect), which symbols for the states' errors (or boxes to restart from) stop."""
+    """Cells (of the first ``EXAMINED``) whose enclosure ended ``LOOSE`` times wider than their
+    float runs and grew ``GROWTH`` times a step before that: the errors of a step were fed back
+    into the next (the wrapping effect), which symbols for the states' errors (or boxes to restart
+    from) stop."""
     found = []
-    for cell in unknown:
+    for cell in unknown[:EXAMINED]:
         evidence = _wrapping(cell, loop)
         if evidence is not None:
             found.append(evidence)
