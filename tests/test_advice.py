@@ -28,6 +28,8 @@ def test_a_loose_growing_enclosure_hints_symbols_and_rebox_and_each_verifies():
         assert pv.verify(loop, init, **{**kwargs, **hint.keywords}).verdict == "verified", hint
     # Without the loop there are no float runs to compare with: nothing is claimed about looseness.
     assert plain.hints() == []
+    with pytest.raises(pv.InputError, match=r"hints\(loop=\.\.\.\) takes the pv.ClosedLoop .*, got str"):
+        plain.hints("loop.py")
     # The command line prints them under the unknown cells.
     assert "try: state_symbols=True: the enclosure of " in report(plain, loop)
 

@@ -11,6 +11,7 @@ from typing import Optional
 
 import numpy as np
 
+from percver.errors import InputError
 from percver.sets import Box
 from percver.systems import ClosedLoop
 from percver.verification.splitters import GOAL_PART, PRECISION_LOST
@@ -48,6 +49,8 @@ def hints(result, loop: Optional[ClosedLoop] = None) -> list:
     if result.verdict != "unknown":
         return []
     loop = getattr(loop, "loop", loop)  # a loaded Verisig or Flow* problem carries its loop
+    if loop is not None and not isinstance(loop, ClosedLoop):
+        raise InputError(f"hints(loop=...) takes the pv.ClosedLoop (or loaded problem) that was verified, got {type(loop).__name__}")
     unknown = [c for c in result.cells if c.verdict == "unknown"]
     settings = result.settings
     out = []
