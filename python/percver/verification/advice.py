@@ -5,6 +5,7 @@ verdict: following one costs a run, and the cells may still end unknown."""
 
 from __future__ import annotations
 
+import itertools
 import re
 from dataclasses import dataclass
 from typing import Optional
@@ -122,8 +123,9 @@ def _wrapping(cell, loop: ClosedLoop) -> Optional[tuple]:
         return None
     last = len(boxes) - 1
     box = Box.coerce(cell.box, loop.states)
-    corners = np.array(np.meshgrid(*[(lo, hi) for lo, hi in box.bounds])).reshape(len(box.names), -1).T
-    x0 = np.vstack([corners[:SAMPLES], box.sample(max(0, SAMPLES - len(corners)))])
+    # The first SAMPLES corners only: a loop of 30 states has 2^30 of them.
+    corners = np.array(list(itertools.islice(itertools.product(*box.bounds), SAMPLES)), dtype=float)
+    x0 = np.vstack([corners, box.sample(SAMPLES - len(corners))])
     runs = loop.simulate(x0, last)
     spread = np.ptp(runs[:, last], axis=0)
     width = boxes[last, :, 1] - boxes[last, :, 0]
