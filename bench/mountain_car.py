@@ -27,6 +27,14 @@ from percver.verification import Cell
 from percver.verification.journal import journal_cells
 
 ROOT = Path(__file__).resolve().parent
+# The hand-made bands the library had for the authors' chain before the adaptive default was
+# measured faster on these rows (bench/README.md); kept here as the baseline ``--variants hand``
+# passes as data (``layout=``).
+_Band, _WALL = verification.Band, verification.WALL
+OLD_LAYOUT = {
+    "canonical": [_Band({"p": (-float("inf"), _WALL)}, {"p": 0.005}, 16), _Band({"p": (_WALL, float("inf"))}, {"p": 0.001}, 64)],
+    "blur": verification.LAYOUT["ours+paper"]["blur"],  # the same bands: our perception keeps them
+}
 SURVEY_SPLITS = 4  # in-cell splits per cell of a --survey: enough for the easy cells, cheap on the hard ones
 RESULTS = ROOT / "results"
 
@@ -225,10 +233,10 @@ def _cells_apart(key: str, index: int, runs: dict) -> None:
 
 
 def variant(spec: str) -> dict:
-    """``verify`` keywords of a --variants entry: ``hand`` (the layout), ``adaptive`` (the default
-    splitter) or ``adaptive:key=value:...`` (``pv.Adaptive`` with those settings, e.g.
-    ``adaptive:reach=0:rebox=False``; a key that is not one of its fields, such as ``order``, goes
-    to ``verify``)."""
+    """``verify`` keywords of a --variants entry: ``hand`` (the layout; see :func:`hand`),
+    ``adaptive`` (the default splitter) or ``adaptive:key=value:...`` (``pv.Adaptive`` with those
+    settings, e.g. ``adaptive:reach=0:rebox=False``; a key that is not one of its fields, such as
+    ``order``, goes to ``verify``)."""
     import ast
 
     import percver as pv
@@ -244,6 +252,12 @@ def variant(spec: str) -> dict:
         "splitter": pv.Adaptive(**{k: v for k, v in given.items() if k in fields}),
         **{k: v for k, v in given.items() if k not in fields},
     }
+
+
+def hand(noise: str, networks: str, controller) -> dict:
+    """``verify`` keywords of the hand layout of a row: the library's bands where it still has
+    them, else the authors' old bands above."""
+    return {} if verification._layout(networks, controller, noise) is not None else {"layout": OLD_LAYOUT[noise]}
 
 
 def compare(args) -> None:
@@ -266,7 +280,7 @@ def compare(args) -> None:
                     args.p0,
                     args.workers,
                     journal_dir,
-                    {**options, **extras[label]},
+                    {**options, **extras[label], **(hand(noise, networks, args.controller) if label == "hand" else {})},
                     controller=args.controller,
                     label=label.replace(":", "_").replace("=", ""),
                 )

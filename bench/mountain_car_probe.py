@@ -1,7 +1,8 @@
 """Benchmark (run by hand): the engine's cost per cell on a fixed sample of a Mountain Car row's cells.
 
-Takes ``--cells`` cells spread evenly over the row's layout (``verification.LAYOUT``, all bands'
-cells in order, so the sample crosses the bands: edges, valley, wall, low and high contrast) and
+Takes ``--cells`` cells spread evenly over the row's layout (``verification.LAYOUT``, or
+``OLD_LAYOUT`` of ``bench/mountain_car.py`` for blur; all bands' cells in order, so the sample
+crosses the bands: edges, valley, wall, low and high contrast) and
 runs each alone, one after another on one thread, with its band's order and in-cell splits, no
 refinement and no falsification: the per-cell CPU seconds (``time.process_time``, the whole
 process), engine seconds, verdict and branches of the same cells from run to run. Two builds are
@@ -28,7 +29,10 @@ def sample(row: str, count: int) -> list:
     from percver.cases.mountain_car import verification
     from percver.sets import Box
 
-    bands = verification._grid(verification.initial_set(row), verification._layout("paper", None, row), {})
+    from mountain_car import OLD_LAYOUT  # the bands the library no longer has (blur)
+
+    layout = verification._layout("paper", None, row) or OLD_LAYOUT[row]
+    bands = verification._grid(verification.initial_set(row), layout, {})
     cells = []
     for box, band in bands:
         names = list(box)

@@ -111,6 +111,36 @@ def test_row_defaults_and_bad_input():
         mc.verify("contrast", steps=10)
 
 
+def test_rows_without_bands_run_the_adaptive_default_and_a_layout_is_data(paper):
+    """Blur has no bands in the library: its slice goes whole to the adaptive splitter (no per-cell
+    timeout, no bands recorded). The same slice with the old bands given as ``layout=`` runs them,
+    refined with the case's timeout; ``split=`` alone makes one band of the engine's in-cell splits."""
+    assert verification._layout("paper", None, "blur") is None and verification._layout("paper", None, "composite")
+    assert verification._layout("ours", "paper", "blur") == verification.LAYOUT["ours+paper"]["blur"]
+    row = {"p0": (-0.5, -0.4995), "networks": paper, "delta_b": (0.0, 0.05), "progress": False}
+    adaptive = mc.verify("blur", **row)
+    assert adaptive.verdict == "verified" and adaptive.settings["case"]["bands"] == []
+    assert adaptive.settings["timeout_per_cell"] is None
+    old = [verification.Band({"p": (-math.inf, verification.WALL)}, {"p": 0.00025, "db": 0.05}, 16, 4)]
+    given = mc.verify("blur", layout=old, **row)
+    assert given.verdict == "verified" and len(given.cells) == 2 and given.settings["timeout_per_cell"] == 60.0
+    assert [(b["split"], b["max_splits"], b["order"]) for b in given.settings["case"]["bands"]] == [({"p": 0.00025, "db": 0.05}, 16, 4)]
+    grid = mc.verify("blur", split={"db": 0.025}, max_splits=2, **row)
+    assert grid.verdict == "verified" and len(grid.cells) == 2
+    assert [(b["split"], b["max_splits"]) for b in grid.settings["case"]["bands"]] == [({"db": 0.025}, 2)]
+    for bad, match in (
+        ({"p": 0.001}, "non-empty list"),
+        ([], "non-empty list"),
+        ([{"p": 0.001}], r"layout\[0\] is"),
+        ([verification.Band({"dc": (0, 1)}, {"p": 0.001}, 16)], r"layout\[0\]\.region names \['dc'\]: the blur row's states"),
+        ([old[0], verification.Band({}, {"x": 0.1}, 16)], r"layout\[1\]\.cells names \['x'\]"),
+    ):
+        with pytest.raises(InputError, match=match):
+            mc.verify("blur", layout=bad, **row)
+    with pytest.raises(InputError, match="layout= or splitter="):
+        mc.verify("blur", layout=old, splitter=pv.Adaptive(), **row)
+
+
 def test_split_options_replace_only_what_they_name():
     init = verification.initial_set("contrast")
     layout = verification.LAYOUT["paper"]["contrast"]

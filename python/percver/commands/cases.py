@@ -185,10 +185,16 @@ def _register_mc_verify(stages) -> None:
         "(e.g. --networks ours --controller paper: our perception, the authors' verified controller)",
     )
     verify.add_argument("--shared", help=SHARED)
-    verify.add_argument("--split", metavar="NAME=W,...", help="initial cell widths, e.g. p=0.005,dc=0.2 (default: per row)")
+    verify.add_argument(
+        "--split",
+        metavar="NAME=W,...",
+        help="initial cell widths, e.g. p=0.005,dc=0.2 (default: the row's bands, or the adaptive splitter where it has none)",
+    )
     verify.add_argument("--min-width", metavar="NAME=W,...", help="refinement stops at these widths, e.g. p=0.0003,dc=0.02")
-    verify.add_argument("--no-refine", action="store_true", help="report unknown cells instead of bisecting them")
-    verify.add_argument("--max-splits", type=int, help="in-cell splits per cell (default: the row's cells' own, 16 or 64)")
+    verify.add_argument("--no-refine", action="store_true", help="report a grid's unknown cells instead of bisecting them")
+    verify.add_argument(
+        "--max-splits", type=int, help="in-cell splits per cell (default: the row's bands' own, 16 or 64, or the adaptive splitter's)"
+    )
     verify.add_argument("--timeout-per-cell", type=float, help="seconds before a cell is stopped and bisected")
     verify.add_argument("--workers", type=int, help="threads (default: all cores)")
     verify.add_argument("--journal", help="JSONL journal: finished cells are kept, a rerun resumes")
@@ -226,8 +232,8 @@ def _mc_verify(args) -> int:
         delta_b=args.delta_b,
         controller=args.controller,
         shared=args.shared,
-        refine=not args.no_refine,
         progress=not args.no_progress and not args.json,
+        **({"refine": False} if args.no_refine else {}),
         **options,
     )
     record = verification.save(result, args.out, shared=args.shared)

@@ -13,21 +13,25 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, replace
 from pathlib import Path
+from typing import Optional
 
 import numpy as np
 
 from percver.cases.mountain_car import dynamics
 from percver.cases.mountain_car.networks import Networks, load
 from percver.errors import InputError, MissingFileError
+from percver.verification import DEFAULTS
 
 # The noise states of each row and the keyword that overrides each one's range.
 NOISE_STATES = {"canonical": (), "contrast": ("dc",), "blur": ("db",), "composite": ("dc", "db")}
 KEYWORDS = {"dc": "delta_c", "db": "delta_b"}
-# The cells each row starts from, as bands (a region of the initial set, cell widths, in-cell
-# splits, Taylor order), for the authors' chain ("paper") and for ours (any other set): narrow in
-# p0 where runs reach the left wall (p = -1.2) at different steps, and finer in the noise
-# dimensions where the estimate depends nonlinearly on them. The measurements behind each band are
-# in bench/README.md ("Mountain Car: the measurements behind the layout").
+# The cells a row starts from where the adaptive default (`pv.Adaptive`) is still slower than a
+# layout measured by hand, as bands (a region of the initial set, cell widths, in-cell splits,
+# Taylor order), for the authors' chain ("paper") and for ours (any other set): narrow in p0 where
+# runs reach the left wall (p = -1.2) at different steps, and finer in the noise dimensions where
+# the estimate depends nonlinearly on them. A row with no bands here runs the adaptive default
+# (bench/README.md: "Mountain Car: the measurements behind the layout", and the canonical and blur
+# rows' adaptive against their old bands).
 WALL = -0.415
 LOW_CONTRAST = 0.8
 
@@ -56,12 +60,10 @@ _NEXT_HARD, _MOST_BLURRED = (0.9, 1.0), (0.1, math.inf)
 _STRONG, _COMPOSITE_STRONG = (1.4, math.inf), {**_COMPOSITE_HIGH, "dc": 0.2}
 LAYOUT = {
     "paper": {
-        "canonical": [Band({"p": (-math.inf, WALL)}, {"p": 0.005}, 16), Band({"p": (WALL, math.inf)}, {"p": 0.001}, 64)],
         "contrast": [
             Band({"p": (-math.inf, WALL)}, {"p": 0.005, "dc": 0.1}, 16),
             Band({"p": (WALL, math.inf)}, {"p": 0.001, "dc": 0.2}, 64),
         ],
-        "blur": [Band({"p": (-math.inf, WALL)}, {"p": 0.005, "db": 0.05}, 16), Band({"p": (WALL, math.inf)}, {"p": 0.001, "db": 0.1}, 64)],
         "composite": [
             Band({"p": (-math.inf, -0.545), "dc": _LOW}, _COMPOSITE_LOW, 16, 6),
             Band({"p": (-0.545, -0.53), "dc": _LOW}, _COMPOSITE_LOW, 16, 5),
@@ -89,9 +91,11 @@ LAYOUT = {
     # left of the valley, where our contrast model's estimates spread the runs' arrival over more
     # steps than a cell of p0 0.005 x dc 0.1 can follow (p0 [-0.59, -0.585] x dc [0.3, 0.4]: 10
     # cells of p0 0.001 x dc 0.05 verified in 16.9 engine s; 4 cells of p0 0.005 x dc 0.025, 5 of
-    # p0 0.001 x dc 0.1, all unknown after 16 splits, 47.5 and 60.7 s). Blur and composite take
-    # the authors' bands (whole rows verified with them: blur in 324 s, composite in 51 min with 64
-    # attempts refined, most at high contrast in p0 [-0.415, -0.41]; bench/README.md).
+    # p0 0.001 x dc 0.1, all unknown after 16 splits, 47.5 and 60.7 s). Blur keeps the bands the
+    # authors' chain had (the adaptive default took 1.35x their CPU seconds here, where it took
+    # 0.67x on the authors' chain), composite takes the authors' bands (the whole row verified
+    # with them in 51 min, 64 attempts refined, most at high contrast in p0 [-0.415, -0.41]),
+    # canonical the adaptive default as theirs (bench/README.md).
     "ours+paper": {
         "contrast": [
             Band({"p": (-math.inf, -0.53), "dc": (-math.inf, 0.9)}, {"p": 0.001, "dc": 0.05}, 16),
@@ -99,6 +103,7 @@ LAYOUT = {
             Band({"p": (-0.53, WALL)}, {"p": 0.005, "dc": 0.1}, 16),
             Band({"p": (WALL, math.inf)}, {"p": 0.001, "dc": 0.2}, 64),
         ],
+        "blur": [Band({"p": (-math.inf, WALL)}, {"p": 0.005, "db": 0.05}, 16), Band({"p": (WALL, math.inf)}, {"p": 0.001, "db": 0.1}, 64)],
     },
     "ours": {
         "canonical": [Band({}, {"p": 0.001}, 16)],
@@ -199,20 +204,33 @@ def _pair(value, what: str) -> tuple:
 
 
 def verify(
-    noise: str = "contrast", p0=None, networks="paper", *, delta_c=None, delta_b=None, controller=None, shared=None, **verify_kwargs
+    noise: str = "contrast",
+    p0=None,
+    networks="paper",
+    *,
+    delta_c=None,
+    delta_b=None,
+    controller=None,
+    layout=None,
+    shared=None,
+    **verify_kwargs,
 ):
     """Verify one row of Table 1 (or a slice of it) and return the ``pv.Result``.
 
     ``p0``, ``delta_c``, ``delta_b`` default to the row's ranges (:data:`dynamics.ROWS`);
     ``controller`` swaps in another set's controller (see :func:`closed_loop`). The
-    remaining keywords go to ``pv.verify``. By default each :class:`Band` of :data:`LAYOUT` (a
-    region of p0, and of dc in the composite row; the layout of the controller's set) is split into its cells with its in-cell splits
-    and order (``split=`` gives one grid instead; ``max_splits=`` or ``order=`` alone override
-    only the bands' own), all bands' cells in one pool (``pv.verify_parts``), and unknown cells (or ones still running after 60 s) are bisected down
-    to :data:`MIN_WIDTH` (``refine=True``): a hard cell costs less as two halves than split many
-    times inside. ``splitter=`` (e.g. ``pv.Adaptive()``) replaces the layout: the row's whole
-    initial set goes to that splitter alone. The result's ``settings["case"]`` records the row,
-    the networks, the initial set and the bands (none with a splitter).
+    remaining keywords go to ``pv.verify``. A row with bands in :data:`LAYOUT` (the layout of the
+    controller's set), or given its own as ``layout=`` (a list of :class:`Band`, data), has each
+    band split into its cells with its in-cell splits and order (``split=`` gives one grid
+    instead; ``max_splits=`` or ``order=`` alone override only the bands' own), all bands' cells
+    in one pool (``pv.verify_parts``), and unknown cells (or ones still running after 60 s) are
+    bisected down to :data:`MIN_WIDTH` (``refine=True``): a hard cell costs less as two halves
+    than split many times inside. A row without bands (canonical, and blur on the authors' chain: the
+    adaptive default was measured faster there), or ``splitter=`` (e.g. ``pv.Adaptive()``), gives the row's whole
+    initial set to ``pv.verify``'s splitter: the adaptive default unless ``splitter=`` or
+    ``refine=True`` name another (``split=`` or ``min_width=`` on such a row make one band with
+    the engine's default in-cell splits, refined as above). The result's ``settings["case"]``
+    records the row, the networks, the initial set and the bands (none without a layout).
     """
     import percver as pv
 
@@ -222,13 +240,18 @@ def verify(
     if overlap:
         raise InputError(f"{sorted(overlap)} are fixed by the Mountain Car property; use pv.verify(closed_loop(...)) to change them")
     name = networks.name if isinstance(networks, Networks) else str(networks)
-    if "splitter" in verify_kwargs:
+    if layout is not None and "splitter" in verify_kwargs:
+        raise InputError("give layout= or splitter=, not both (a layout is the bands' cells, a splitter makes its own)")
+    bands = _layout(name, controller, noise) if layout is None else _checked(layout, init, noise)
+    if bands is None and {"split", "min_width"} & set(verify_kwargs) and "splitter" not in verify_kwargs:
+        bands = [Band({}, {}, DEFAULTS.max_splits)]  # a grid asked for: refined as a layout's cells are
+    if bands is None or "splitter" in verify_kwargs:
         result = pv.verify(loop, init, **specification(), **verify_kwargs)
         case = {"case": "mountain_car", "noise": noise, "networks": name, "init": init, "bands": []}
         result.settings["case"] = {**case, **({} if controller is None else {"controller": str(controller)})}
         return result
     options = {"refine": True, "min_width": MIN_WIDTH, "timeout_per_cell": 60.0, **verify_kwargs}
-    bands = _grid(init, _layout(name, controller, noise), options)
+    bands = _grid(init, bands, options)
     journal = options.pop("journal", None)
     parts = [
         pv.Part(box, band.cells, band.order, band.max_splits, _band_journal(journal, k, len(bands))) for k, (box, band) in enumerate(bands)
@@ -265,10 +288,25 @@ def layout_of(networks: str, controller=None) -> str:
     return "paper" if networks == "paper" else "ours+paper"
 
 
-def _layout(networks: str, controller, noise: str) -> list:
-    """The bands of ``noise``'s row in :func:`layout_of`'s layout, the authors' where it has none."""
+def _layout(networks: str, controller, noise: str) -> Optional[list]:
+    """The bands of ``noise``'s row in :func:`layout_of`'s layout, the authors' where it has none;
+    None where neither has the row (it runs the adaptive default)."""
     key = layout_of(networks, controller)
-    return LAYOUT[key].get(noise, LAYOUT["paper"][noise])
+    return LAYOUT[key].get(noise, LAYOUT["paper"].get(noise))
+
+
+def _checked(layout, init: dict, noise: str) -> list:
+    """``layout`` as a list of bands, or an :class:`InputError` naming the band and field at fault."""
+    if not isinstance(layout, (list, tuple)) or not layout:
+        raise InputError(f"layout= takes a non-empty list of verification.Band, got {layout!r}")
+    for k, band in enumerate(layout):
+        if not isinstance(band, Band):
+            raise InputError(f"layout[{k}] is {band!r}, not a verification.Band(region, cells, max_splits, order)")
+        for field in ("region", "cells"):
+            unknown = sorted(set(getattr(band, field)) - set(init))
+            if unknown:
+                raise InputError(f"layout[{k}].{field} names {unknown}: the {noise} row's states are {sorted(init)}")
+    return list(layout)
 
 
 def _band_journal(journal, k: int, count: int):
