@@ -200,6 +200,20 @@ def test_initial_set_outside_a_declared_range_is_a_one_line_warning(tmp_path, ca
     assert err.startswith("percver verify: warning: initial v in [0, 0.1] leaves [-0.07, 0.07]") and err.count("\n") == 1
 
 
+def test_time_limit_reports_what_did_not_run_and_the_rerun_resumes(tmp_path):
+    """--time-limit: past it cells are unknown with the limit as their reason (exit 3), the try:
+    line names a longer limit, and the rerun without it runs them from the same journal."""
+    python_config(tmp_path)
+    r = percver("verify", "mc.toml", "--no-progress", "--time-limit", "1e-6", "--out", "limited.json", cwd=tmp_path)
+    assert r.returncode == 3, r.stderr
+    assert "time_limit=4e-06" in r.stdout and "try:" in r.stdout
+    doc = json.loads((tmp_path / "limited.json").read_text())
+    assert [c["reason"] for c in doc["cells"]] == ["not run within time_limit=1e-06 s"] * 4
+    r = percver("verify", "mc.toml", "--no-progress", cwd=tmp_path)
+    assert r.returncode == 0, r.stderr
+    assert len((tmp_path / "run.jsonl").read_text().splitlines()) == 1 + 4
+
+
 def test_every_verify_keyword_is_a_config_key_and_reaches_verify(tmp_path, monkeypatch):
     """The config's [property] and [verify] keys are pv.verify's keywords (but the loop, init and
     split, which have tables of their own); the example that --help prints parses, and each of its

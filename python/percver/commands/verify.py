@@ -76,6 +76,12 @@ OPTIONS = {
     "rebox": ("verify", bool, "false", "restart a part from its box when a remainder is most of a state's enclosure"),
     "state_symbols": ("verify", bool, "false", "keep feedback remainders as error symbols (Taylor method)"),
     "timeout_per_cell": ("verify", NUMBER, "600", "seconds after which a cell stops at the next step and is bisected"),
+    "time_limit": (
+        "verify",
+        NUMBER,
+        "3600",
+        "wall seconds for the whole run: then cells stop or are not run, reported unknown (--time-limit overrides)",
+    ),
     "falsify": ("verify", int, "32", "random simulated runs per cell left unknown and not split further"),
     "seed": ("verify", int, "0", "seed of those runs"),
     "workers": ("verify", int, "2", "local threads (default: all cores; --workers overrides)"),
@@ -155,6 +161,9 @@ def register(sub) -> None:
     parser.add_argument("--scheduler", metavar="ADDRESS", help="run the cells on a Dask scheduler, e.g. tcp://host:8786")
     parser.add_argument("--journal", metavar="PATH", help="append finished cells here and skip them on a rerun")
     parser.add_argument("--workers", type=int, metavar="N", help="local threads for the cells (default: all cores)")
+    parser.add_argument(
+        "--time-limit", type=float, metavar="SECONDS", help="wall seconds for the whole run; cells stopped or not run by then are unknown"
+    )
     parser.add_argument("--out", metavar="PATH", help="result JSON (default: [output] json, else CONFIG.result.json)")
     parser.add_argument("--no-progress", action="store_true", help="hide the progress bar")
     parser.add_argument("--json", action="store_true", help="print the result as JSON instead of the summary")
@@ -175,6 +184,8 @@ def run(args) -> int:
         kwargs["journal"] = args.journal
     if args.workers is not None:
         kwargs["workers"] = args.workers
+    if args.time_limit is not None:
+        kwargs["time_limit"] = args.time_limit
     if args.scheduler:
         kwargs["executor"] = args.scheduler
     out = Path(args.out) if args.out else config.written("[output] json", config.section("output").get("json"))

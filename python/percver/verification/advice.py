@@ -15,6 +15,7 @@ import numpy as np
 from percver.errors import InputError
 from percver.sets import Box
 from percver.systems import ClosedLoop
+from percver.verification.campaign import LIMIT
 from percver.verification.splitters import GOAL_PART, PRECISION_LOST
 
 # An enclosure this many times the spread of the float runs from its cell is loose ...
@@ -55,6 +56,17 @@ def hints(result, loop: Optional[ClosedLoop] = None) -> list:
     unknown = [c for c in result.cells if c.verdict == "unknown"]
     settings = result.settings
     out = []
+    limited = [c for c in unknown if LIMIT in (c.reason or "")]
+    if limited and settings.get("time_limit"):
+        limit = settings["time_limit"]
+        out.append(
+            Hint(
+                {"time_limit": 4 * limit},
+                f"cells stopped or not run at the call's {limit:g} s limit (first: '{limited[0].reason}'); "
+                "with the same journal= a rerun resumes from the cells that finished",
+                len(limited),
+            )
+        )
     timed = [c for c in unknown if (c.reason or "").startswith("timeout after")]
     if timed and settings.get("timeout_per_cell"):
         limit = settings["timeout_per_cell"]

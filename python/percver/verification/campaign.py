@@ -7,6 +7,7 @@ import functools
 import os
 import sys
 import threading
+import time
 from collections import deque
 from dataclasses import replace
 from typing import Optional
@@ -43,10 +44,27 @@ class Campaign:
 
     chunk = 128  # cells falsified together at most: one simulation batch, bounded trajectories
 
-    def __init__(self, loop, prop, init: Box, splitter, cells, journal, bar, *, timeout, falsify: int, seed: int, lock: threading.RLock):
+    def __init__(
+        self,
+        loop,
+        prop,
+        init: Box,
+        splitter,
+        cells,
+        journal,
+        bar,
+        *,
+        timeout,
+        falsify: int,
+        seed: int,
+        lock: threading.RLock,
+        deadline: Optional[tuple] = None,
+    ):
         self.loop, self.prop, self.init, self.splitter, self.journal, self.bar = loop, prop, init, splitter, journal, bar
         self.grid, self.left = cells  # the splitter's initial cells (a lazy iterator) and their count
         self.timeout, self.falsify, self.seed = timeout, falsify, seed
+        # (time_limit, its time.monotonic() deadline) of the whole call, or None: see expire().
+        self.deadline = deadline
         self.queue: list = []  # sub-cells as (box, options), last in first out: depth-first keeps the queue short
         self.chosen: dict = {}  # cell key -> engine settings the splitter chose for it, while it is out
         self.ready: deque = deque()  # falsification found nothing: to be run
@@ -78,9 +96,55 @@ class Campaign:
             self.window = max(self.window, workers)
 
     def remaining(self) -> int:
-        """Cells known to be still to run (sub-cells of running cells may add more)."""
+        """Cells known to be still to run (sub-cells of running cells may add more); past the
+        time limit only those out."""
         with self.lock:
+            if self.over():  # only cells running: outcomes still to apply are applied by flush()
+                return len(self.turn_of)
             return self.left + len(self.queue) + len(self.ready) + self.drawn - self.applied + (self.awaiting is not None)
+
+    def over(self) -> bool:
+        """Whether the call's time limit has passed: no cell starts any more."""
+        return self.deadline is not None and time.monotonic() >= self.deadline[1]
+
+    def engine_options(self, options: dict) -> dict:
+        """``options`` for a cell starting now: under a time limit its engine stops at the next
+        step past the deadline (or its own timeout, if sooner)."""
+        if self.deadline is None:
+            return options
+        return until(options, self.deadline[1] - time.monotonic())
+
+    def batch_options(self, options: dict) -> dict:
+        """``options`` for a batch sent to an executor: under a time limit, the deadline as the
+        clock's time, so that each cell gets the time left when it starts on the worker."""
+        if self.deadline is None:
+            return options
+        return {**options, "deadline": time.time() + self.deadline[1] - time.monotonic()}
+
+    def _drop_ready(self):
+        """Past the time limit, cells drawn but not started are settled in their turns, not run."""
+        with self.lock:
+            while self.ready:
+                cell = self.ready.popleft()
+                self._done(cell, functools.partial(self._unrun, cell))
+
+    def _unrun(self, cell: Box):
+        options = self.chosen.pop(cell_key(cell.to_dict()), {})
+        self._place(cell, Cell(cell.to_dict(), "unknown", reason=f"not run within {LIMIT}{self.deadline[0]:g} s", options=options), None)
+
+    def expire(self):
+        """Past the time limit, the cells that did not run (not yet drawn, queued, ready) become
+        unknown results with the limit as their reason, so that the result still covers the
+        initial set; like the cells the limit stopped, they are not journaled (a rerun runs them)."""
+        if not self.over():
+            return
+        reason = f"not run within {LIMIT}{self.deadline[0]:g} s"
+        with self.lock:
+            left = self.queue + [_with_options(next(self.grid)) for _ in range(self.left)]
+            self.queue, self.left = [], 0
+            for cell, options in left:
+                self.cells.append(Cell(cell.to_dict(), "unknown", reason=reason, options=options))
+                self.bar.settled("unknown")
 
     def take(self, n: int, stock: int = 0) -> list:
         """Up to n cells to run (falsifying up to max(n, stock) first), all with the same
@@ -88,6 +152,9 @@ class Campaign:
         cells are drawn under the lock, each by one thread. A splitter with a ``lookahead`` draws at
         most that many ahead (one that learns from each outcome wants its next cells cut after it)."""
         self._sample_awaiting()
+        if self.over():
+            self._drop_ready()
+            return []
         self.stock(max(n, min(stock, getattr(self.splitter, "lookahead", stock))))
         with self.lock:
             out = []
@@ -195,7 +262,7 @@ class Campaign:
         the way, following its recorded decisions, in their turn like the cells that run); fewer
         while an outcome the next draw must see is not in."""
         fresh = []
-        while len(fresh) < want:
+        while len(fresh) < want and not self.over():
             if not self._apply(self._due()) and self.window is not None:
                 break
             if not (self.queue or self.left):
@@ -259,11 +326,21 @@ class Campaign:
         unknown still to be sampled, which a resumed run runs again), so no finished cell's work
         is lost."""
         with self.lock:
+            self._sample_when_over()
             self.awaiting = None
             for turn in sorted(self.outcomes):
                 self.applied = turn
                 self._apply(turn + 1)
+                self._sample_when_over()
                 self.awaiting = None
+
+    def _sample_when_over(self):
+        """A time-limited call returns its results: a cell settled unknown gets its random runs now
+        (sampling may settle the next outcomes, and another cell with them), not in a rerun."""
+        while self.awaiting is not None and self.over():
+            cell, c, _ = self.awaiting
+            self.awaiting = None
+            self.sampled(cell, c, self.sample(cell))
 
     def record(self, cell: Box, outcome: _core.CellOutcome, peak_rss_mb: Optional[float]):
         """A cell's outcome from the engine (``run_cells``) on the local pool. Random runs go
@@ -312,6 +389,11 @@ class Campaign:
         )
         self.cell_seconds[0] += c.seconds
         self.cell_seconds[1] += 1
+        if c.verdict == "unknown" and reason.startswith("timeout after") and self.over() and not self._timed_out(c):
+            # Stopped by the call's time limit, not by anything about the cell: nothing to learn or
+            # journal (a rerun runs it again).
+            self._place(cell, replace(c, reason=f"stopped at step {c.steps_done} by {LIMIT}{self.deadline[0]:g} s"), None)
+            return None
         self.splitter.learn(cell, c, self.init)
         pieces = self._again(cell, c)
         if not pieces and c.verdict == "unknown" and not violated and self.falsify > 0:
@@ -357,6 +439,13 @@ class Campaign:
         else:
             self.cells.append(c)
             self.bar.settled(c.verdict)
+
+
+def until(options: dict, left: float) -> dict:
+    """Engine ``options`` with the timeout cut to ``left`` seconds (at least a millisecond)."""
+    left = max(left, 1e-3)
+    own = options.get("timeout")
+    return {**options, "timeout": left if own is None else min(own, left)}
 
 
 def _falsified_reason(cex: Counterexample, engine: str) -> str:
@@ -520,7 +609,7 @@ def run_local(jobs: list, workers: Optional[int], bar: Progress):
                         problem,
                         [cell.bounds],
                         lambda i, o, rss: campaign.record(cell, o, rss),
-                        {**options, **campaign.options_of(cell)},
+                        campaign.engine_options({**options, **campaign.options_of(cell)}),
                         1,
                         counter,
                     )
@@ -547,3 +636,4 @@ def run_local(jobs: list, workers: Optional[int], bar: Progress):
 
 
 STOCK = 16  # cells falsified together when a thread finds none ready (one numpy batch)
+LIMIT = "time_limit="  # in the reason of a cell the call's time limit stopped or left out

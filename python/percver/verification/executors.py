@@ -27,12 +27,13 @@ import hashlib
 import io
 import os
 import pickle
+import time
 from collections import OrderedDict
 from typing import Optional
 
 from percver.errors import InputError, MissingDependencyError, PercverError
 from percver.networks import Network
-from percver.verification.campaign import run_cells
+from percver.verification.campaign import run_cells, until
 from percver.verification.falsify import falsify
 
 MISSING = "percver: the problem is not on this worker yet"
@@ -94,12 +95,17 @@ def run_batch(key: str, payload: Optional[bytes], cells: list, options: dict, sa
     problem, loop, prop = held
     out = [{"probe": cex} if cex is not None else None for cex in falsify(loop, prop, cells, prop.steps, 0, sampling[1])]
     engine = [k for k, o in enumerate(out) if o is None]
-    if engine:
+    options = dict(options)
+    deadline = options.pop("deadline", None)
+    # Under a time limit each cell gets the time left when it starts (the worker's clock against
+    # the driver's, which NTP keeps close), not the batch's when it was sent.
+    for group in [engine] if deadline is None else [[k] for k in engine]:
 
-        def done(i, outcome, rss):
-            out[engine[i]] = {"outcome": outcome, "rss": rss, "counterexample": None}
+        def done(i, outcome, rss, group=group):
+            out[group[i]] = {"outcome": outcome, "rss": rss, "counterexample": None}
 
-        run_cells(problem, [cells[k].bounds for k in engine], done, options, workers=1)
+        given = options if deadline is None else until(options, deadline - time.time())
+        run_cells(problem, [cells[k].bounds for k in group], done, given, workers=1)
     violated = [k for k in engine if out[k]["outcome"].verdict == "violated"]
     for k, cex in zip(violated, _sample(loop, prop, [cells[k] for k in violated], sampling)):
         out[k]["counterexample"] = cex
@@ -228,7 +234,7 @@ class Runner:
                     for cell, chosen in drawn:
                         groups.setdefault(tuple(sorted(chosen.items())), []).append(cell)
                     for chosen, cells in groups.items():
-                        submit(campaign, {**options, **dict(chosen)}, cells, None, 0)
+                        submit(campaign, campaign.batch_options({**options, **dict(chosen)}), cells, None, 0)
                     if drawn:
                         break
                 else:

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import copy
 import inspect
+import math
 import threading
 import time
 from contextlib import ExitStack
@@ -73,6 +74,7 @@ def verify(
     batch: Optional[int] = None,
     journal: Optional[str] = None,
     timeout_per_cell: Optional[float] = None,
+    time_limit: Optional[float] = None,
     falsify: int = 32,
     progress: bool = True,
     seed: int = 0,
@@ -98,6 +100,9 @@ def verify(
     fixes the cells per task, else tasks are sized to about a quarter second). A cell still running
     after ``timeout_per_cell`` seconds stops at the next step and is bisected down to
     ``min_width`` (default 1/64 of the initial set per dimension), then reported unknown.
+    ``time_limit`` bounds the whole call's wall seconds: past it no cell starts, running ones
+    stop at their next step, and both are reported unknown with the limit as their reason (not
+    journaled: with ``journal=``, a rerun with a larger limit resumes from the finished cells).
 
     Each cell's centre and corners are simulated before the engine runs it (a violation there
     saves the engine run); a cell the engine leaves unknown is simulated from ``falsify`` random
@@ -179,6 +184,10 @@ def _verify_parts(loop, parts: Sequence[Part], keywords: dict) -> list:
         raise InputError("verify() needs init={state: (lo, hi), ...}")
     if not (isinstance(o.steps, int) and o.steps >= 0):
         raise InputError(f"steps must be a non-negative integer, got {o.steps!r}")
+    limit = o.time_limit
+    if limit is not None and (isinstance(limit, bool) or not isinstance(limit, (int, float)) or not 0 < limit < math.inf):
+        raise InputError(f"time_limit must be a positive number of seconds, got {limit!r}")
+    deadline = None if limit is None else time.monotonic() + limit
     if o.method not in ("taylor", "verisig"):
         raise InputError(f"unknown method '{o.method}'; use 'taylor' or 'verisig'")
     for p in parts:
@@ -235,8 +244,15 @@ def _verify_parts(loop, parts: Sequence[Part], keywords: dict) -> list:
                 journal = Journal(p.journal, fingerprint_of(loop, prop, settings))
                 journals.callback(journal.close)
                 campaign = Campaign(
-                    loop, prop, box, splitter, cells, journal, bar, timeout=o.timeout_per_cell, falsify=o.falsify, seed=o.seed, lock=lock
+                    *(loop, prop, box, splitter, cells, journal, bar),
+                    timeout=o.timeout_per_cell,
+                    falsify=o.falsify,
+                    seed=o.seed,
+                    lock=lock,
+                    deadline=None if deadline is None else (limit, deadline),
                 )
+                if limit is not None:  # after the fingerprint: a rerun with another limit resumes the journal
+                    settings["time_limit"] = limit
                 jobs.append((campaign, settings, options))
             if o.progress:
                 bar.start(sum(campaign.left for campaign, *_ in jobs))
@@ -248,6 +264,7 @@ def _verify_parts(loop, parts: Sequence[Part], keywords: dict) -> list:
             finally:
                 for campaign, _, _ in jobs:
                     campaign.flush()
+                    campaign.expire()
     finally:
         if runner is not None:
             runner.close()
