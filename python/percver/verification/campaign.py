@@ -128,23 +128,22 @@ class Campaign:
                 cell = self.ready.popleft()
                 self._done(cell, functools.partial(self._unrun, cell))
 
-    def _unrun(self, cell: Box):
-        options = self.chosen.pop(cell_key(cell.to_dict()), {})
+    def _unrun(self, cell: Box, options: Optional[dict] = None):
+        """``cell`` settled unknown without a run: the time limit came first. Not journaled."""
+        options = self.chosen.pop(cell_key(cell.to_dict()), {}) if options is None else options
         self._place(cell, Cell(cell.to_dict(), "unknown", reason=f"not run within {LIMIT}{self.deadline[0]:g} s", options=options), None)
 
     def expire(self):
-        """Past the time limit, the cells that did not run (not yet drawn, queued, ready) become
+        """Past the time limit, the cells not drawn yet (queued, or in the initial grid) become
         unknown results with the limit as their reason, so that the result still covers the
         initial set; like the cells the limit stopped, they are not journaled (a rerun runs them)."""
         if not self.over():
             return
-        reason = f"not run within {LIMIT}{self.deadline[0]:g} s"
         with self.lock:
             left = self.queue + [_with_options(next(self.grid)) for _ in range(self.left)]
             self.queue, self.left = [], 0
             for cell, options in left:
-                self.cells.append(Cell(cell.to_dict(), "unknown", reason=reason, options=options))
-                self.bar.settled("unknown")
+                self._unrun(cell, options)
 
     def take(self, n: int, stock: int = 0) -> list:
         """Up to n cells to run (falsifying up to max(n, stock) first), all with the same
