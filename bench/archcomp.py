@@ -108,7 +108,7 @@ def main():
         "--defaults",
         type=float,
         metavar="SECONDS",
-        help="pv.verify's defaults instead of the example's settings, with this time_limit (results: archcomp_defaults.json)",
+        help="pv.verify's defaults instead of the example's settings, with this time_limit (results: archcomp_defaults_<SECONDS>s.json)",
     )
     parser.add_argument("--one", help=argparse.SUPPRESS)
     args = parser.parse_args()
@@ -116,7 +116,7 @@ def main():
         name, _, variant = args.one.partition(":")
         print(json.dumps(one(name, variant, args.journal, args.defaults)))
         return
-    results = RESULTS if args.defaults is None else RESULTS.with_name("archcomp_defaults.json")
+    results = RESULTS if args.defaults is None else RESULTS.with_name(f"archcomp_defaults_{args.defaults:g}s.json")
     chosen = [b for b in benchmarks() if not args.select or b[0] in args.select or label(b[0], b[1]) in args.select]
     if args.list:
         for name, variant, expected in chosen:

@@ -32,6 +32,10 @@ def test_a_loose_growing_enclosure_hints_symbols_and_rebox_and_each_verifies():
         plain.hints("loop.py")
     # The command line prints them under the unknown cells.
     assert "try: state_symbols=True: the enclosure of " in report(plain, loop)
+    # Cells a time limit left out carry no boxes: the evidence is looked for past them.
+    unrun = [Cell(plain.cells[0].box, "unknown", reason="not run within time_limit=1 s") for _ in range(20)]
+    limited = Result(plain.states, plain.init, unrun + plain.cells, plain.seconds, {**plain.settings, "time_limit": 1.0})
+    assert [h.keywords for h in limited.hints(loop)] == [{"time_limit": 4.0}, {"state_symbols": True}, {"rebox": True}]
 
 
 def test_splits_used_up_hint_more_of_them_and_that_verifies():

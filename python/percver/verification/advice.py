@@ -102,12 +102,13 @@ def _splits_used_up(cell, settings: dict) -> bool:
 
 
 def _loose(unknown: list, loop: ClosedLoop, settings: dict) -> list:
-    """Cells (of the first ``EXAMINED``) whose enclosure ended ``LOOSE`` times wider than their
+    """Cells (of the first ``EXAMINED`` that ran) whose enclosure ended ``LOOSE`` times wider than their
     float runs and grew ``GROWTH`` times a step before that: the errors of a step were fed back
     into the next (the wrapping effect), which symbols for the states' errors (or boxes to restart
     from) stop."""
     found = []
-    for cell in unknown[:EXAMINED]:
+    ran = [c for c in unknown if c.boxes]  # cells not run (a time limit) carry no evidence
+    for cell in ran[:EXAMINED]:
         evidence = _wrapping(cell, loop)
         if evidence is not None:
             found.append(evidence)
