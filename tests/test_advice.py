@@ -38,6 +38,26 @@ def test_a_loose_growing_enclosure_hints_symbols_and_rebox_and_each_verifies():
     assert [h.keywords for h in limited.hints(loop)] == [{"time_limit": 4.0}, {"state_symbols": True}, {"rebox": True}]
 
 
+def test_cells_the_splitter_replaced_are_evidence_when_those_left_carry_none():
+    """Under a time limit the adaptive splitter's cells left are mostly not run, while the cells it
+    halved (kept in ``Result.lost``, the first 16) show the wrapping; they survive the JSON."""
+    loop = oscillator()
+    kwargs = dict(steps=40, safe=pv.Box({"x": (-2, 2)}), order=3, max_splits=0, progress=False, workers=2)
+    init = {"x": (0.6, 0.65), "v": (-0.3, -0.25)}
+    limited = pv.verify(loop, init, splitter=pv.Adaptive(rebox=False), time_limit=1.0, **kwargs)
+    assert limited.verdict == "unknown" and 0 < len(limited.lost) <= 16
+    assert all(c.verdict == "unknown" and len(c.boxes) > 1 for c in limited.lost)
+    # Only the replaced cells carry boxes here: the hints must come from them.
+    unrun = [Cell(c.box, "unknown", reason="not run within time_limit=1 s") for c in limited.cells]
+    bare = Result(limited.states, limited.init, unrun, limited.seconds, limited.settings, lost=limited.lost)
+    hints = bare.hints(loop)
+    assert [h.keywords for h in hints] == [{"time_limit": 4.0}, {"state_symbols": True}, {"rebox": True}], hints
+    assert "a cell the splitter then replaced" in hints[1].why
+    again = Result.from_json(bare.to_json())
+    assert [c.box for c in again.lost] == [c.box for c in limited.lost] and [h.why for h in again.hints(loop)] == [h.why for h in hints]
+    assert pv.verify(loop, init, state_symbols=True, **kwargs).verdict == "verified"
+
+
 def test_splits_used_up_hint_more_of_them_and_that_verifies():
     """A Mountain Car cell whose runs reach the goal over several steps near the wall: 16 in-cell
     splits and forks are not enough, 64 are."""

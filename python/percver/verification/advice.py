@@ -91,7 +91,7 @@ def hints(result, loop: Optional[ClosedLoop] = None) -> list:
             why += f"; in {arrivals} of them parts of the cell reach the goal at different steps, one fork each"
         out.append(Hint({"max_splits": 4 * most}, why, len(used_up)))
     if isinstance(loop, ClosedLoop):
-        out += _loose(unknown, loop, settings)
+        out += _loose(unknown, loop, settings) or _loose(result.lost, loop, settings, replaced=True)
     return out
 
 
@@ -101,7 +101,7 @@ def _splits_used_up(cell, settings: dict) -> bool:
     return found is not None and budget is not None and int(found.group(1)) >= budget > 0
 
 
-def _loose(unknown: list, loop: ClosedLoop, settings: dict) -> list:
+def _loose(unknown: list, loop: ClosedLoop, settings: dict, replaced: bool = False) -> list:
     """Cells (of the first ``EXAMINED`` that ran) whose enclosure ended ``LOOSE`` times wider than their
     float runs and grew ``GROWTH`` times a step before that: the errors of a step were fed back
     into the next (the wrapping effect), which symbols for the states' errors (or boxes to restart
@@ -115,8 +115,10 @@ def _loose(unknown: list, loop: ClosedLoop, settings: dict) -> list:
     if not found:
         return []
     state, ratio, growth, step, runs = max(found, key=lambda e: e[1])
+    # With ``replaced``, none of the cells left carried evidence, and those the splitter halved or retried did.
+    where = "a cell the splitter then replaced" if replaced else "its cell"
     why = (
-        f"the enclosure of {state} was {ratio:.0f} times the spread of {runs} float runs from its cell at step {step}, "
+        f"the enclosure of {state} was {ratio:.0f} times the spread of {runs} float runs from {where} at step {step}, "
         f"after growing {growth:.2f} times a step: errors fed back through the loop (wrapping)"
     )
     out = []

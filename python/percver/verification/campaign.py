@@ -69,6 +69,7 @@ class Campaign:
         self.chosen: dict = {}  # cell key -> engine settings the splitter chose for it, while it is out
         self.ready: deque = deque()  # falsification found nothing: to be run
         self.cells: list = []
+        self.lost: list = []  # the first LOST_KEPT cells left unknown and replaced: see Result.lost
         self.cell_seconds = [0.0, 0]  # engine seconds and cells so far, to size executor batches
         self.lock = lock  # the parts of one call share it, with their progress bar
         # Outcomes are applied (learnt, split, journaled) in the order their cells were drawn, and
@@ -395,6 +396,8 @@ class Campaign:
             return None
         self.splitter.learn(cell, c, self.init)
         pieces = self._again(cell, c)
+        if pieces and c.verdict == "unknown" and len(self.lost) < LOST_KEPT:
+            self.lost.append(c)
         if not pieces and c.verdict == "unknown" and not violated and self.falsify > 0:
             return cell, c
         self._finish(cell, c, pieces)
@@ -636,3 +639,4 @@ def run_local(jobs: list, workers: Optional[int], bar: Progress):
 
 STOCK = 16  # cells falsified together when a thread finds none ready (one numpy batch)
 LIMIT = "time_limit="  # in the reason of a cell the call's time limit stopped or left out
+LOST_KEPT = 16  # replaced unknown cells a campaign keeps as evidence (their boxes: steps x states)

@@ -85,6 +85,9 @@ class Result:
     domain_exits: list = field(default_factory=list)
     # Whether the reach sets stay where the model was validated (percver.validate.verifiable.validity).
     validity: Optional[str] = None
+    # Cells the engine left unknown that the splitter then replaced (halves, retries), the first
+    # few of each part: evidence for hints() when the cells that remain carry none (a time limit).
+    lost: list = field(default_factory=list)
 
     @property
     def verdict(self) -> str:
@@ -138,6 +141,7 @@ class Result:
             "coverage": self.coverage,
             "cells": [c.to_dict() for c in self.cells],
             "domain_exits": self.domain_exits,
+            "lost": [c.to_dict() for c in self.lost],
         }
         text = json.dumps(doc)
         if path:
@@ -155,6 +159,7 @@ class Result:
             d["seconds"],
             d["settings"],
             d.get("domain_exits", []),
+            lost=[Cell.from_dict(c) for c in d.get("lost", [])],
         )
 
     def plot(self, x: str, path: Optional[str] = None, loop: Optional[ClosedLoop] = None, samples: int = 20, seed: int = 0):

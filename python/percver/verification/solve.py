@@ -271,7 +271,15 @@ def _verify_parts(loop, parts: Sequence[Part], keywords: dict) -> list:
         bar.close()
     seconds = time.time() - started
     results = [
-        Result(loop.states, box.to_dict(), campaign.cells, seconds, settings, domain_exits(checks, runs(campaign.cells, loop.states)))
+        Result(
+            loop.states,
+            box.to_dict(),
+            campaign.cells,
+            seconds,
+            settings,
+            domain_exits(checks, runs(campaign.cells, loop.states)),
+            lost=campaign.lost,
+        )
         for box, (campaign, settings, _) in zip(boxes, jobs)
     ]
     for result in results:
