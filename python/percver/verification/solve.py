@@ -244,7 +244,13 @@ def _verify_parts(loop, parts: Sequence[Part], keywords: dict) -> list:
                 journal = Journal(p.journal, fingerprint_of(loop, prop, settings))
                 journals.callback(journal.close)
                 campaign = Campaign(
-                    *(loop, prop, box, splitter, cells, journal, bar),
+                    loop,
+                    prop,
+                    box,
+                    splitter,
+                    cells,
+                    journal,
+                    bar,
                     timeout=o.timeout_per_cell,
                     falsify=o.falsify,
                     seed=o.seed,
