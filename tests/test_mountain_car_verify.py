@@ -202,6 +202,8 @@ def test_unknown_cells_are_grouped_by_cause():
         "step 150: goal 'p >= 0.45' could not be decided (reach box p [0.1, 0.5])": "goal undecided",
         "step 12: 'v <= 0.07' could not be decided (reach box v [0, 0.08])": "a safe condition undecided",
         "timeout after 60 s at step 40": "timeout",
+        "stopped at step 31 by time_limit=300 s": "the call's time limit",
+        "not run within time_limit=300 s": "the call's time limit",
     }
     assert {r: verification.cause(r) for r in reasons} == reasons
     from percver.verification import Cell
@@ -209,7 +211,7 @@ def test_unknown_cells_are_grouped_by_cause():
     box = {"p": (-0.5, -0.49), "v": (0.0, 0.0)}
     cells = [Cell(box, "unknown", reason=r) for r in reasons] + [Cell(box, "unknown", reason="step 80: the enclosure of 'v' blew up")]
     grouped = verification.reasons(pv.Result(["p", "v"], box, cells, 1.0))
-    assert grouped[0] == ("'v' blew up", 73, 80, 2) and len(grouped) == 5
+    assert grouped[0] == ("'v' blew up", 73, 80, 2) and len(grouped) == 6
 
 
 def test_cli_writes_row_result_and_plots(tmp_path):

@@ -196,6 +196,7 @@ def _register_mc_verify(stages) -> None:
         "--max-splits", type=int, help="in-cell splits per cell (default: the row's bands' own, 16 or 64, or the adaptive splitter's)"
     )
     verify.add_argument("--timeout-per-cell", type=float, help="seconds before a cell is stopped and bisected")
+    verify.add_argument("--time-limit", type=float, metavar="SECONDS", help="wall seconds for the row; what did not finish is unknown")
     verify.add_argument("--workers", type=int, help="threads (default: all cores)")
     verify.add_argument("--journal", help="JSONL journal: finished cells are kept, a rerun resumes")
     verify.add_argument("--out", default="mountain_car_verification", help="directory for the JSON and PNGs (default: %(default)s)")
@@ -222,7 +223,8 @@ def _mc_verify(args) -> int:
     from percver.commands import EXIT, unknown_lines
 
     options = {k: v for k, v in (("split", _widths(args.split, "--split")), ("min_width", _widths(args.min_width, "--min-width")),
-                                 ("timeout_per_cell", args.timeout_per_cell), ("workers", args.workers), ("max_splits", args.max_splits),
+                                 ("timeout_per_cell", args.timeout_per_cell), ("time_limit", args.time_limit),
+                                 ("workers", args.workers), ("max_splits", args.max_splits),
                                  ("journal", args.journal)) if v is not None}  # fmt: skip
     result = verification.verify(
         args.noise,

@@ -359,6 +359,7 @@ def cause(reason: str) -> str:
         ("goal '", "goal undecided"),
         ("could not be decided", "a safe condition undecided"),
         ("timeout", "timeout"),
+        ("time_limit=", "the call's time limit"),
     ):
         if words in reason:
             return name
