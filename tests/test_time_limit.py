@@ -3,7 +3,6 @@ step, reported unknown with the limit as their reason; the result still tiles th
 hints name a longer limit, and a rerun with the same journal resumes from the cells that finished."""
 
 import json
-from concurrent.futures import ThreadPoolExecutor
 
 import pytest
 
@@ -64,9 +63,14 @@ def test_a_running_cell_stops_at_the_limit_and_is_not_halved(loop, tmp_path):
     assert _journaled(journal) == []
 
 
-def test_an_executor_stops_its_cells_at_the_limit(loop):
-    with ThreadPoolExecutor(2) as executor:
-        result = pv.verify(loop, INIT, split={"p": 40}, executor=executor, time_limit=1.0, **_property())
+def test_dask_workers_stop_their_cells_at_the_limit(loop):
+    """On a real LocalCluster each cell of a batch gets the time left when it starts there."""
+    distributed = pytest.importorskip("distributed")
+    with (
+        distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None) as cluster,
+        distributed.Client(cluster) as client,
+    ):
+        result = pv.verify(loop, INIT, split={"p": 40}, executor=client, time_limit=1.0, **_property())
     assert result.verdict == "unknown" and len(result.cells) == 40 and _tiles(result)
     assert any("time_limit=1 s" in (c.reason or "") for c in result.cells)
 
