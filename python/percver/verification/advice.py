@@ -15,8 +15,7 @@ import numpy as np
 from percver.errors import InputError
 from percver.sets import Box
 from percver.systems import ClosedLoop
-from percver.verification.campaign import LIMIT
-from percver.verification.splitters import GOAL_PART, PRECISION_LOST
+from percver.verification.splitters import GOAL_PART, PRECISION_LOST, TIME_LIMIT
 
 # An enclosure this many times the spread of the float runs from its cell is loose ...
 LOOSE = 10.0
@@ -56,7 +55,7 @@ def hints(result, loop: Optional[ClosedLoop] = None) -> list:
     unknown = [c for c in result.cells if c.verdict == "unknown"]
     settings = result.settings
     out = []
-    limited = [c for c in unknown if LIMIT in (c.reason or "")]
+    limited = [c for c in unknown if TIME_LIMIT in (c.reason or "")]
     if limited and settings.get("time_limit"):
         limit = settings["time_limit"]
         out.append(

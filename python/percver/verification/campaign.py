@@ -18,7 +18,7 @@ from percver.sets import Box
 from percver.verification.falsify import falsify, spread
 from percver.verification.journal import cell_key
 from percver.verification.results import Cell, Counterexample
-from percver.verification.splitters import Retry
+from percver.verification.splitters import TIME_LIMIT, Retry
 
 
 class Campaign:
@@ -132,7 +132,9 @@ class Campaign:
     def _unrun(self, cell: Box, options: Optional[dict] = None):
         """``cell`` settled unknown without a run: the time limit came first. Not journaled."""
         options = self.chosen.pop(cell_key(cell.to_dict()), {}) if options is None else options
-        self._place(cell, Cell(cell.to_dict(), "unknown", reason=f"not run within {LIMIT}{self.deadline[0]:g} s", options=options), None)
+        self._place(
+            cell, Cell(cell.to_dict(), "unknown", reason=f"not run within {TIME_LIMIT}{self.deadline[0]:g} s", options=options), None
+        )
 
     def expire(self):
         """Past the time limit, the cells not drawn yet (queued, or in the initial grid) become
@@ -392,7 +394,7 @@ class Campaign:
         if c.verdict == "unknown" and reason.startswith("timeout after") and self.over() and not self._timed_out(c):
             # Stopped by the call's time limit, not by anything about the cell: nothing to learn or
             # journal (a rerun runs it again).
-            self._place(cell, replace(c, reason=f"stopped at step {c.steps_done} by {LIMIT}{self.deadline[0]:g} s"), None)
+            self._place(cell, replace(c, reason=f"stopped at step {c.steps_done} by {TIME_LIMIT}{self.deadline[0]:g} s"), None)
             return None
         self.splitter.learn(cell, c, self.init)
         pieces = self._again(cell, c)
@@ -638,5 +640,4 @@ def run_local(jobs: list, workers: Optional[int], bar: Progress):
 
 
 STOCK = 16  # cells falsified together when a thread finds none ready (one numpy batch)
-LIMIT = "time_limit="  # in the reason of a cell the call's time limit stopped or left out
 LOST_KEPT = 16  # replaced unknown cells a campaign keeps as evidence (their boxes: steps x states)

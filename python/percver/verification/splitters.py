@@ -778,6 +778,8 @@ class Adaptive(Bisection):
 PRECISION_LOST = (" is undefined on ", " blew up ")
 # The engine's reason when runs from parts of a cell arrive at the goal at different steps.
 GOAL_PART = " holds on part of the set only since step "
+# In the reason of a cell the call's time limit stopped or left out (the campaign's words).
+TIME_LIMIT = "time_limit="
 # The engine's words when a cell gives up before a split that would pass its max_redone.
 REDONE_PAST = "past max_redone"
 # Halvings in a row that gained nothing before a cell verified, after which its size is an
