@@ -132,9 +132,11 @@ class Campaign:
     def _unrun(self, cell: Box, options: Optional[dict] = None):
         """``cell`` settled unknown without a run: the time limit came first. Not journaled."""
         options = self.chosen.pop(cell_key(cell.to_dict()), {}) if options is None else options
-        self._place(
-            cell, Cell(cell.to_dict(), "unknown", reason=f"not run within {TIME_LIMIT}{self.deadline[0]:g} s", options=options), None
-        )
+        self._place(cell, Cell(cell.to_dict(), "unknown", reason=f"not run within {self._limit()}", options=options), None)
+
+    def _limit(self) -> str:
+        """The time limit as the reasons of the cells it stopped or left out name it."""
+        return f"{TIME_LIMIT}{self.deadline[0]:g} s"
 
     def expire(self):
         """Past the time limit, the cells not drawn yet (queued, or in the initial grid) become
@@ -394,7 +396,7 @@ class Campaign:
         if c.verdict == "unknown" and reason.startswith("timeout after") and self.over() and not self._timed_out(c):
             # Stopped by the call's time limit, not by anything about the cell: nothing to learn or
             # journal (a rerun runs it again).
-            self._place(cell, replace(c, reason=f"stopped at step {c.steps_done} by {TIME_LIMIT}{self.deadline[0]:g} s"), None)
+            self._place(cell, replace(c, reason=f"stopped at step {c.steps_done} by {self._limit()}"), None)
             return None
         self.splitter.learn(cell, c, self.init)
         pieces = self._again(cell, c)

@@ -265,6 +265,7 @@ def verify(
             [c for r in results for c in r.cells],
             result.seconds,
             result.settings,
+            lost=[c for r in results for c in r.lost],
         )
     result.settings["case"] = {
         "case": "mountain_car",
