@@ -123,6 +123,25 @@ def test_reach_sets_leaving_the_domain_warn_and_are_recorded():
     assert again.domain_exits[0]["step"] == exit_["step"] and tuple(again.domain_exits[0]["domain"]) == (0.0, 0.5)
 
 
+def test_exits_of_parts_merge_into_the_whole_sets():
+    # A case that verifies its bands as parts reports one result: its exits must be those of the
+    # same cells verified as one set (earliest step, hull of the boxes there, runs summed).
+    from percver.verification.domains import merged_exits
+
+    loop, x = _loop([(0.0, 0.5)]), pv.variables("x")
+    spec = dict(steps=8, safe=x <= 10, progress=False)
+    with pytest.warns(pv.DomainWarning):
+        whole = pv.verify(loop, {"x": (0.0, 0.2)}, split={"x": 4}, **spec)
+        parts = pv.verify_parts(loop, [pv.Part({"x": (0.0, 0.1)}, {"x": 2}), pv.Part({"x": (0.1, 0.2)}, {"x": 2})], **spec)
+    ((one,), (two,)) = (p.domain_exits for p in parts)
+    assert one["step"] > two["step"]  # the upper part leaves first: the merge must take its step and box
+    (merged,) = merged_exits([one, two])
+    (expected,) = whole.domain_exits
+    assert merged["step"] == expected["step"] and merged["cells"] == expected["cells"]
+    assert merged["box"] == pytest.approx(expected["box"], abs=0) and tuple(merged["domain"]) == (0.0, 0.5)
+    assert merged_exits([two, one]) == [merged]  # order does not matter
+
+
 def test_strict_makes_leaving_an_error_and_staying_inside_is_silent():
     with pytest.raises(NetworkDomainError, match=r"x in \[.*\] at step [1-9] leaves \[0, 0.5\]") as caught:
         _verify(_loop([(0.0, 0.5)]), (0.0, 0.2), strict=True)

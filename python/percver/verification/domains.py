@@ -60,6 +60,21 @@ def domain_exits(checks: list, boxes: list) -> list:
     return exits
 
 
+def merged_exits(exits: list) -> list:
+    """The exits of several results over parts of one initial set (a case's bands) as one result's:
+    per checked input, the earliest step, the hull of the boxes at that step, and the runs summed."""
+    merged = {}
+    for e in exits:
+        key = (e["stage"], e["network"], e["input"], tuple(e["domain"]))
+        have = merged.get(key)
+        if have is None or e["step"] < have["step"]:
+            merged[key] = {**e, "cells": e["cells"] + (have["cells"] if have else 0)}
+        else:
+            box = (min(have["box"][0], e["box"][0]), max(have["box"][1], e["box"][1])) if e["step"] == have["step"] else have["box"]
+            merged[key] = {**have, "box": box, "cells": have["cells"] + e["cells"]}
+    return list(merged.values())
+
+
 def flag_exits(exits: list, strict: bool, results: Optional[list] = None) -> None:
     """Warn of the exits (:class:`DomainWarning`), or raise them with ``strict``; ``results`` (None
     before the run) go with the error."""

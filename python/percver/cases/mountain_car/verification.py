@@ -21,6 +21,7 @@ from percver.cases.mountain_car import dynamics
 from percver.cases.mountain_car.networks import Networks, load
 from percver.errors import InputError, MissingFileError
 from percver.verification import DEFAULTS
+from percver.verification.domains import merged_exits
 
 # The noise states of each row and the keyword that overrides each one's range.
 NOISE_STATES = {"canonical": (), "contrast": ("dc",), "blur": ("db",), "composite": ("dc", "db")}
@@ -265,6 +266,7 @@ def verify(
             [c for r in results for c in r.cells],
             result.seconds,
             result.settings,
+            domain_exits=merged_exits([e for r in results for e in r.domain_exits]),
             lost=[c for r in results for c in r.lost],
         )
     result.settings["case"] = {
