@@ -168,6 +168,9 @@ def test_bad_splitters_are_clear_errors():
         pv.Bisection(min_width={"p": -1})
     with pytest.raises(pv.InputError, match="not states"):
         pv.verify(loop, splitter=pv.Grid({"q": 2}), **kwargs)
+    for option, keyword in (("rebox", "rebox"), ("symbols", "state_symbols")):
+        with pytest.raises(pv.InputError, match=rf"Adaptive\({option}=True\) is pv.verify\({keyword}=True\)"):
+            pv.verify(loop, splitter=pv.Adaptive(**{option: True}), **kwargs)
 
 
 def test_adaptive_retries_with_rebox_where_precision_was_lost_and_stops_when_it_does_not_help():
@@ -214,6 +217,65 @@ def test_adaptive_retries_with_rebox_where_precision_was_lost_and_stops_when_it_
         b.learn(cell, _cell(cell, "unknown", steps_done=8, reason=reason, options={"rebox": True}), init)
         halves = b.again(cell, _cell(cell, "unknown", steps_done=8, reason=reason, split="x", options={"rebox": True}), init, False)
         assert not any("rebox" in options for _, options in halves)  # rebox did not help: the halves run plain
+
+
+def test_adaptive_retries_a_wrapped_cell_with_state_symbols_and_keeps_them_once_they_pay():
+    """A cell whose enclosure wrapped (the campaign's float runs, here a stand-in) runs again with
+    state symbols; once more retries paid than not, new cells run with them; retries that do not
+    pay stop after ``patience`` and their halves run without."""
+    init = Box(("x", "y"), ((0.0, 1.0), (0.0, 1.0)))
+    lost = dict(steps_done=10, deepest_step=10, split="x", reason="step 10: goal undecided", boxes=[[[0, 1], [0, 1]]] * 11)
+    seen = []
+    a = pv.Adaptive(patience=2)
+    a.wrapping = lambda cell: seen.append(cell) or ("x", 40.0, 1.6, 10, 64)
+    assert a.again(init, _cell(init, "unknown", **lost), init, False) == Retry({"state_symbols": True}) and len(seen) == 1
+    assert "state_symbols" not in a._options(init, init)  # undecided while the retry is out
+    a.learn(init, _cell(init, "verified", steps_done=30, deepest_step=30, options={"state_symbols": True}), init)
+    assert a.symbols_paid == [True] and a._options(init, init)["state_symbols"] is True
+    # Decided: a cell drawn before that, lost without symbols, is retried with them, no float runs needed.
+    half = Box(("x", "y"), ((0.0, 0.5), (0.0, 1.0)))
+    assert a.again(half, _cell(half, "unknown", **lost), init, False) == Retry({"state_symbols": True}) and len(seen) == 1
+    # Retries that gain nothing stop after `patience` of them, and the halves run without symbols.
+    b = pv.Adaptive(patience=2, rebox=False)
+    b.wrapping = a.wrapping
+    for k in range(3):
+        cell = Box(("x", "y"), ((0.0, 1.0), (k / 3, (k + 1) / 3)))
+        out = b.again(cell, _cell(cell, "unknown", **lost), init, False)
+        if k == 2:
+            assert isinstance(out, list) and not any("state_symbols" in o for _, o in out)
+            break
+        assert out == Retry({"state_symbols": True})
+        retried = _cell(cell, "unknown", **{**lost, "options": {"state_symbols": True}})
+        b.learn(cell, retried, init)
+        halves = b.again(cell, retried, init, False)
+        assert isinstance(halves, list) and not any("state_symbols" in o for _, o in halves)
+    assert b.symbols_paid == [False, False]
+    # No evidence of wrapping, a timed-out cell, or symbols=False: no retry with them.
+    c = pv.Adaptive(rebox=False)
+    c.wrapping = lambda cell: None
+    assert isinstance(c.again(init, _cell(init, "unknown", **lost), init, False), list)
+    for d, timed_out in ((pv.Adaptive(rebox=False, symbols=False), False), (pv.Adaptive(rebox=False), True)):
+        d.wrapping = a.wrapping
+        assert isinstance(d.again(init, _cell(init, "unknown", **lost), init, timed_out), list)
+
+
+def test_the_adaptive_default_finds_state_symbols_where_the_enclosure_wraps():
+    """The ReLU oscillator at order 3 without in-cell splits: its one cell's enclosure grows from its
+    own fed-back errors. The default retries it with state symbols and verifies it, sound against
+    float runs; told not to (``symbols=False``), or with symbols everywhere already, it never
+    retries with them."""
+    from test_state_symbols_continuous import loop as oscillator
+
+    loop = oscillator()
+    kwargs = dict(init={"x": (0.6, 0.65), "v": (-0.3, -0.25)}, steps=40, safe=pv.Box({"x": (-2, 2)}), order=3, max_splits=0, progress=False)
+    found = pv.verify(loop, **kwargs)
+    assert found.verdict == "verified" and [c.options.get("state_symbols") for c in found.cells] == [True]
+    runs = loop.simulate(Box.coerce(kwargs["init"], loop.states).sample(2000), 40)
+    boxes = np.asarray(found.cells[0].boxes)
+    assert np.all((boxes[None, :, :, 0] <= runs) & (runs <= boxes[None, :, :, 1]))
+    for options in (dict(splitter=pv.Adaptive(symbols=False)), dict(state_symbols=True)):
+        result = pv.verify(loop, **kwargs, **options)
+        assert not any(c.options.get("state_symbols") for c in result.cells), options
 
 
 def test_adaptive_halves_another_state_when_the_engine_s_choice_gains_no_step():

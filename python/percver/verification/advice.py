@@ -5,27 +5,16 @@ verdict: following one costs a run, and the cells may still end unknown."""
 
 from __future__ import annotations
 
-import itertools
 import re
 from dataclasses import dataclass
 from typing import Optional
 
-import numpy as np
 
 from percver.errors import InputError
-from percver.sets import Box
 from percver.systems import ClosedLoop
 from percver.verification.splitters import GOAL_PART, PRECISION_LOST, TIME_LIMIT
+from percver.verification.wrapping import EXAMINED, wrapping
 
-# An enclosure this many times the spread of the float runs from its cell is loose ...
-LOOSE = 10.0
-# ... and one that grew at least this factor a step over the last RECENT steps is growing from
-# errors that feed back through the loop (the float runs of a stable loop do not).
-GROWTH = 1.25
-RECENT = 5
-# Float runs per unknown cell (its corners, then uniform points), on at most EXAMINED cells.
-SAMPLES = 64
-EXAMINED = 16
 SPLITS = re.compile(r"\(after (\d+) splits\)")
 
 
@@ -108,7 +97,7 @@ def _loose(unknown: list, loop: ClosedLoop, settings: dict, replaced: bool = Fal
     found = []
     ran = [c for c in unknown if c.boxes]  # cells not run (a time limit) carry no evidence
     for cell in ran[:EXAMINED]:
-        evidence = _wrapping(cell, loop)
+        evidence = wrapping(loop, cell)
         if evidence is not None:
             found.append(evidence)
     if not found:
@@ -128,25 +117,3 @@ def _loose(unknown: list, loop: ClosedLoop, settings: dict, replaced: bool = Fal
     if not settings.get("rebox"):
         out.append(Hint({"rebox": True}, why + "; reboxed, a part restarts from its box whenever remainders dominate", len(found)))
     return out
-
-
-def _wrapping(cell, loop: ClosedLoop) -> Optional[tuple]:
-    """(state, enclosure over float spread, growth a step, step, runs), or None."""
-    boxes = np.asarray(cell.boxes or [], dtype=float)
-    if boxes.ndim != 3 or len(boxes) <= RECENT or boxes.shape[1] != len(loop.states):
-        return None
-    last = len(boxes) - 1
-    box = Box.coerce(cell.box, loop.states)
-    # The first SAMPLES corners only: a loop of 30 states has 2^30 of them.
-    corners = np.array(list(itertools.islice(itertools.product(*box.bounds), SAMPLES)), dtype=float)
-    x0 = np.vstack([corners, box.sample(SAMPLES - len(corners))])
-    runs = loop.simulate(x0, last)
-    spread = np.ptp(runs[:, last], axis=0)
-    width = boxes[last, :, 1] - boxes[last, :, 0]
-    before = boxes[last - RECENT, :, 1] - boxes[last - RECENT, :, 0]
-    ratio = np.where(spread > 0, width / np.where(spread > 0, spread, 1.0), 0.0)
-    j = int(np.argmax(ratio))
-    if not (ratio[j] >= LOOSE and before[j] > 0):
-        return None
-    growth = (width[j] / before[j]) ** (1 / RECENT)
-    return (loop.states[j], float(ratio[j]), float(growth), last, len(x0)) if growth >= GROWTH else None

@@ -19,6 +19,7 @@ from percver.verification.falsify import falsify, spread
 from percver.verification.journal import cell_key
 from percver.verification.results import Cell, Counterexample
 from percver.verification.splitters import TIME_LIMIT, Retry
+from percver.verification.wrapping import QUICK, wrapping
 
 
 class Campaign:
@@ -85,6 +86,8 @@ class Campaign:
         self.awaiting: Optional[tuple] = None
         if hasattr(splitter, "probe"):
             splitter.probe = functools.partial(spread, loop)
+        if hasattr(splitter, "wrapping"):
+            splitter.wrapping = functools.partial(wrapping, loop, samples=QUICK)
 
     def run_on(self, workers: Optional[int]) -> None:
         """Sets the window for ``workers`` threads (None: an executor's workers). Threads past the

@@ -129,7 +129,8 @@ def verify(
     plant's flowpipe carries them as variables), so that an error the controller corrects cancels
     instead of adding its magnitude again (the wrapping effect of a stiff feedback: ARCH-COMP's
     TORA with its ReLU controller); it pays where the loop's Jacobian varies little over a cell,
-    and is off by default because on Mountain Car's cells it does not (bench/README.md).
+    and is off by default because on Mountain Car's cells it does not (bench/README.md); the
+    adaptive default retries cells whose enclosure wrapped with it, and keeps it where that pays.
 
     A network that records its input domain (:attr:`percver.Network.domain`, the range it was
     trained on) is checked against the initial set before the run and against every cell's reach
@@ -202,7 +203,7 @@ def _verify_parts(loop, parts: Sequence[Part], keywords: dict) -> list:
     boxes = [loop.initial_box(p.init) for p in parts]
     splitters = []  # each part's splitter and its initial cells, checked before any journal is opened
     for p, box in zip(parts, boxes):
-        part_splitter = _splitter_of(p, o.splitter, o.refine, o.min_width, bool(o.rebox))
+        part_splitter = _splitter_of(p, o.splitter, o.refine, o.min_width, bool(o.rebox), bool(o.state_symbols), o.method)
         splitters.append((part_splitter, part_splitter.initial(box)))
     checks = domain_checks(loop)
     initial_exits = domain_exits(checks, [np.array([box.bounds]) for box in boxes])
@@ -317,7 +318,7 @@ def _record_held(loop: ClosedLoop, result) -> None:
         cex.trajectory = [[row[i] for i in keep] for row in cex.trajectory]
 
 
-def _splitter_of(part: Part, splitter, refine: bool, min_width: Optional[dict], rebox: bool):
+def _splitter_of(part: Part, splitter, refine: bool, min_width: Optional[dict], rebox: bool, symbols: bool, method: str):
     """The part's own splitter (a fresh copy of ``splitter``: an adaptive one learns per part);
     without one, ``split``/``refine``/``min_width`` name a grid or a bisection, and with none of
     them the adaptive default applies. With ``rebox`` every cell is reboxed already: an adaptive
@@ -336,4 +337,6 @@ def _splitter_of(part: Part, splitter, refine: bool, min_width: Optional[dict], 
         chosen = Adaptive()
     if rebox and isinstance(chosen, Adaptive):
         chosen.rebox = False
+    if (rebox or symbols or method != "taylor") and isinstance(chosen, Adaptive):
+        chosen.symbols = False  # every cell runs so already, or the engine ignores them
     return chosen

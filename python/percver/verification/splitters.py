@@ -7,8 +7,8 @@ cut again. A splitter is a parameter of :func:`percver.verify` (``splitter=``), 
 - :class:`Adaptive` (the default): no layout to give. It starts from the whole set with few
   in-cell splits, halves what stays unknown along the state whose halvings pushed the loss of
   precision furthest, cuts cells ahead of their run to the size needed nearby, gives cells near
-  that size the call's in-cell splits, and retries a cell with ``rebox`` where that pays at its
-  size (see its doc).
+  that size the call's in-cell splits, retries a cell with ``rebox`` where that pays at its
+  size, and with state symbols where its enclosure wrapped (see its doc).
 
 A splitter has four methods: ``initial(init)`` (the first cells, lazily, and their count),
 ``prepare(cell, init)`` (the cell cut before it runs), ``learn(cell, result, init)`` (every cell
@@ -35,6 +35,7 @@ import numpy as np
 
 from percver.errors import InputError
 from percver.sets import Box
+from percver.verification.wrapping import EXAMINED
 
 
 @dataclass(frozen=True)
@@ -250,6 +251,18 @@ class Adaptive(Bisection):
       paid; retries still running, or not yet comparable with a halving, count as lost.
       ``rebox=False`` never retries (``True`` is ``pv.verify(rebox=True)``: every cell reboxed
       from the start).
+    - Whether state symbols pay (``state_symbols``, see :func:`percver.verify`), for the whole
+      call: a cell lost without them whose enclosure wrapped (the campaign's float runs from it,
+      :func:`~percver.verification.wrapping.wrapping`, on the first ``EXAMINED`` cells lost: the
+      wrapping shows there or not at all) runs again with them, before a rebox retry; the retry
+      pays if it verifies or moves the loss of precision ``MIN_GAIN`` of the plain run's steps
+      later. Once more retries paid than not (those out count as not), new cells run with them
+      and a cell drawn before and lost is retried with them; the retries stop after ``patience``
+      more losses than wins, and their halves run without. Whether they pay does not depend on
+      the cell's size as rebox's does: the wrapping is the loop's gain, which symbols cancel at
+      any size (ARCH-COMP's TORA with its ReLU controller at the defaults: every cell is lost
+      near period 10 without them). ``symbols=False`` never retries (so does ``pv.verify`` with
+      ``state_symbols=True``, ``rebox=True`` or another method than Taylor models).
 
     Decisions are journaled with the cells (:class:`~percver.verification.journal.Journal`): a
     resumed run replays them (the same pieces, with their engine options, for every cell the
@@ -281,6 +294,12 @@ class Adaptive(Bisection):
     grade: int = 4
     needed: list = field(default_factory=list, repr=False)  # (cell, widths needed there)
     probe: Optional[Callable] = field(default=None, repr=False)  # (cell, steps) -> {state: spread}, set by the campaign
+    symbols: Optional[bool] = None
+    # (Cell) -> evidence that its enclosure wrapped, or None: set by the campaign (Taylor method only)
+    wrapping: Optional[Callable] = field(default=None, repr=False)
+    examined: int = field(default=0, repr=False)  # lost plain cells whose float runs were compared with their enclosure
+    symbol_runs: dict = field(default_factory=dict, repr=False)  # cell key -> deepest step of its plain run, while its retry is out
+    symbols_paid: list = field(default_factory=list, repr=False)  # per retry with state symbols, in order: whether it paid
     runs: int = field(default=0, repr=False)
     # half's key -> (parent's steps, deepest step, stalls, state halved, the lineage's earlier halvings as (state, gained))
     lineage: dict = field(default_factory=dict, repr=False)
@@ -333,6 +352,8 @@ class Adaptive(Bisection):
     def initial(self, init: Box):
         if self.rebox:
             raise InputError("Adaptive(rebox=True) is pv.verify(rebox=True): give that instead")
+        if self.symbols:
+            raise InputError("Adaptive(symbols=True) is pv.verify(state_symbols=True): give that instead")
         widest = [n for n, (lo, hi) in zip(init.names, init.bounds) if hi > lo][:6]
         cells, count = grid(init, {n: self.start for n in widest})
         self.made = count
@@ -398,6 +419,9 @@ class Adaptive(Bisection):
         if result.verdict == "verified":
             self.verified.append((cell, _halvings(cell, init)))
             self.arrivals.append((cell, result.deepest_step))
+        if key in self.symbol_runs and result.options.get("state_symbols"):
+            plain = self.symbol_runs.pop(key)
+            self.symbols_paid.append(result.verdict == "verified" or result.deepest_step - plain >= max(1, MIN_GAIN * plain))
         if key in self.retried and result.options.get("rebox") and key in self.pending:
             self.pending.discard(key)
             # A retry that verified went as deep as its runs needed: that counts, not the verdict
@@ -520,6 +544,9 @@ class Adaptive(Bisection):
         if halved is not None and before is not None and _as_wide(before, result):
             # Whichever of the cell's runs has its parent's options (a retry runs with others).
             self.inert[key] = self.inert.get(key, frozenset()) | {halved}
+        if not timed_out and self._symbols_pay(key, result):
+            self.symbol_runs[key] = result.deepest_step
+            return Retry({"state_symbols": True})
         if self._rebox_pays(cell, result, init):
             self.retried[key] = (result.steps_done, result.deepest_step, size)
             self.pending.add(key)
@@ -579,8 +606,8 @@ class Adaptive(Bisection):
             state = result.split
         else:
             state = self._state_to_halve(cell, result, init, widths, stalls, halved, gained, inert)
-        options.pop("max_splits", None)
-        options.pop("max_redone", None)
+        for decided in ("max_splits", "max_redone", "state_symbols"):  # the halves' are their own (_options)
+            options.pop(decided, None)
         halves = _halves(cell, cell.names.index(state))
         self.made += len(halves) - 1
         enclosure = _enclosure(cell, result)
@@ -709,7 +736,29 @@ class Adaptive(Bisection):
     def _options(self, cell: Box, init: Box) -> dict:
         """A new cell's engine options: its in-cell budget, and rebox once retries of cells near its
         size have paid more often than not (a plain run first would only be lost)."""
-        return {**self._budget(cell, init), **({"rebox": True} if self._reboxing(_halvings(cell, init), init) else {})}
+        rebox = {"rebox": True} if self._reboxing(_halvings(cell, init), init) else {}
+        return {**self._budget(cell, init), **rebox, **({"state_symbols": True} if self._symbolic() else {})}
+
+    def _symbolic(self) -> bool:
+        """Whether new cells run with state symbols: more retries with them paid than not (those
+        still out count as not)."""
+        wins = sum(self.symbols_paid)
+        return self.symbols is not False and wins > len(self.symbols_paid) - wins + len(self.symbol_runs)
+
+    def _symbols_pay(self, key: tuple, result) -> bool:
+        """Whether the unknown cell runs again with state symbols: once they pay, every cell that
+        ran without (drawn before they did); until then a cell whose enclosure wrapped (the
+        campaign's float runs, of the first ``EXAMINED`` cells lost), while the retries have not
+        lost ``patience`` times more often than paid."""
+        if self.symbols is False or self.wrapping is None or result.options.get("state_symbols") or result.options.get("rebox"):
+            return False
+        if self._symbolic():
+            return True
+        wins = sum(self.symbols_paid)
+        if len(self.symbols_paid) - 2 * wins >= self.patience or self.examined >= EXAMINED or not result.boxes:
+            return False
+        self.examined += 1
+        return self.wrapping(result) is not None
 
     def _budget(self, cell: Box, init: Box) -> dict:
         """The in-cell splits of a cell about to run: the call's when a verified cell near it (one
