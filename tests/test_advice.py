@@ -2,6 +2,7 @@
 and the run with its keywords decides what the run without them left unknown."""
 
 import warnings
+from dataclasses import replace
 
 import pytest
 
@@ -36,6 +37,10 @@ def test_a_loose_growing_enclosure_hints_symbols_and_rebox_and_each_verifies():
     unrun = [Cell(plain.cells[0].box, "unknown", reason="not run within time_limit=1 s") for _ in range(20)]
     limited = Result(plain.states, plain.init, unrun + plain.cells, plain.seconds, {**plain.settings, "time_limit": 1.0})
     assert [h.keywords for h in limited.hints(loop)] == [{"time_limit": 4.0}, {"state_symbols": True}, {"rebox": True}]
+    # A cell that ran with state symbols already (the adaptive splitter's choice) does not ask for them.
+    (cell,) = plain.cells
+    symbolic = Result(plain.states, plain.init, [replace(cell, options={**cell.options, "state_symbols": True})], 0.0, plain.settings)
+    assert [h.keywords for h in symbolic.hints(loop)] == [{"rebox": True}]
 
 
 def test_cells_the_splitter_replaced_are_evidence_when_those_left_carry_none():

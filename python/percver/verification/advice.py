@@ -93,27 +93,31 @@ def _loose(unknown: list, loop: ClosedLoop, settings: dict, replaced: bool = Fal
     """Cells (of the first ``EXAMINED`` that ran) whose enclosure ended ``LOOSE`` times wider than their
     float runs and grew ``GROWTH`` times a step before that: the errors of a step were fed back
     into the next (the wrapping effect), which symbols for the states' errors (or boxes to restart
-    from) stop."""
+    from) stop. Each is named from the cells that ran without it (the adaptive splitter may have
+    given a cell either)."""
     found = []
     ran = [c for c in unknown if c.boxes]  # cells not run (a time limit) carry no evidence
     for cell in ran[:EXAMINED]:
         evidence = wrapping(loop, cell)
         if evidence is not None:
-            found.append(evidence)
-    if not found:
-        return []
-    state, ratio, growth, step, runs = max(found, key=lambda e: e[1])
+            found.append((cell, evidence))
     # With ``replaced``, none of the cells left carried evidence, and those the splitter halved or retried did.
     where = "a cell the splitter then replaced" if replaced else "its cell"
-    why = (
-        f"the enclosure of {state} was {ratio:.0f} times the spread of {runs} float runs from {where} at step {step}, "
-        f"after growing {growth:.2f} times a step: errors fed back through the loop (wrapping)"
-    )
     out = []
-    if settings.get("method", "taylor") == "taylor" and not settings.get("state_symbols"):
-        out.append(
-            Hint({"state_symbols": True}, why + "; kept as symbols from step to step, the controller's corrections cancel them", len(found))
+    remedies = (
+        ("state_symbols", "kept as symbols from step to step, the controller's corrections cancel them"),
+        ("rebox", "reboxed, a part restarts from its box whenever remainders dominate"),
+    )
+    for option, remedy in remedies:
+        if settings.get(option) or (option == "state_symbols" and settings.get("method", "taylor") != "taylor"):
+            continue
+        without = [e for cell, e in found if not cell.options.get(option)]
+        if not without:
+            continue
+        state, ratio, growth, step, runs = max(without, key=lambda e: e[1])
+        why = (
+            f"the enclosure of {state} was {ratio:.0f} times the spread of {runs} float runs from {where} at step {step}, "
+            f"after growing {growth:.2f} times a step: errors fed back through the loop (wrapping); {remedy}"
         )
-    if not settings.get("rebox"):
-        out.append(Hint({"rebox": True}, why + "; reboxed, a part restarts from its box whenever remainders dominate", len(found)))
+        out.append(Hint({option: True}, why, len(without)))
     return out
