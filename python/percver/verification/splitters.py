@@ -260,8 +260,8 @@ class Adaptive(Bisection):
       and a cell drawn before and lost is retried with them; the retries stop after ``patience``
       more losses than wins, and their halves run without. Whether they pay does not depend on
       the cell's size as rebox's does: the wrapping is the loop's gain, which symbols cancel at
-      any size (ARCH-COMP's TORA with its ReLU controller at the defaults: every cell is lost
-      near period 10 without them). ``symbols=False`` never retries (so does ``pv.verify`` with
+      any size (ARCH-COMP's TORA with its ReLU controller: at order 5 its cells are lost at
+      step 3 or 4 without them, and verify with them, as many as when they are given). ``symbols=False`` never retries (so does ``pv.verify`` with
       ``state_symbols=True``, ``rebox=True`` or another method than Taylor models).
 
     Decisions are journaled with the cells (:class:`~percver.verification.journal.Journal`): a
