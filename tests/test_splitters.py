@@ -250,6 +250,12 @@ def test_adaptive_retries_a_wrapped_cell_with_state_symbols_and_keeps_them_once_
         halves = b.again(cell, retried, init, False)
         assert isinstance(halves, list) and not any("state_symbols" in o for _, o in halves)
     assert b.symbols_paid == [False, False]
+    # Retries still out count as lost: side by side, no more than `patience` of them before one returns.
+    e = pv.Adaptive(patience=2, rebox=False)
+    e.wrapping = a.wrapping
+    cells = [Box(("x", "y"), ((0.0, 1.0), (k / 3, (k + 1) / 3))) for k in range(3)]
+    outs = [e.again(cell, _cell(cell, "unknown", **lost), init, False) for cell in cells]
+    assert outs[:2] == [Retry({"state_symbols": True})] * 2 and isinstance(outs[2], list)
     # No evidence of wrapping, a timed-out cell, or symbols=False: no retry with them.
     c = pv.Adaptive(rebox=False)
     c.wrapping = lambda cell: None

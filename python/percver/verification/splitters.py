@@ -748,14 +748,16 @@ class Adaptive(Bisection):
     def _symbols_pay(self, key: tuple, result) -> bool:
         """Whether the unknown cell runs again with state symbols: once they pay, every cell that
         ran without (drawn before they did); until then a cell whose enclosure wrapped (the
-        campaign's float runs, of the first ``EXAMINED`` cells lost), while the retries have not
-        lost ``patience`` times more often than paid."""
+        campaign's float runs, of the first ``EXAMINED`` cells lost), while the retries (those out
+        counted as lost) have not lost ``patience`` times more often than paid."""
         if self.symbols is False or self.wrapping is None or result.options.get("state_symbols") or result.options.get("rebox"):
             return False
         if self._symbolic():
             return True
+        # Retries still out count as lost: cells run side by side must not all be retried before
+        # the first retry has shown whether they pay (F1/10's row made 7 retries, none paid).
         wins = sum(self.symbols_paid)
-        if len(self.symbols_paid) - 2 * wins >= self.patience or self.examined >= EXAMINED or not result.boxes:
+        if len(self.symbols_paid) - 2 * wins + len(self.symbol_runs) >= self.patience or self.examined >= EXAMINED or not result.boxes:
             return False
         self.examined += 1
         return self.wrapping(result) is not None
