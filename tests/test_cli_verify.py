@@ -47,7 +47,8 @@ def test_import_verisig_then_verify(tmp_path):
 
 def test_f1tenth_benchmark_imported_and_verified_at_the_defaults(tmp_path):
     """Verisig 2.0's F1/10 benchmark as a new user runs it: import, then verify with no option.
-    The whole set is lost at step 31 as it is; the adaptive default retries it with rebox."""
+    The whole set is lost at step 31 as it is; the adaptive default retries it with state symbols
+    (its enclosure wrapped)."""
     f1tenth = SUITE / "f1tenth"
     r = percver(
         "import-verisig", f1tenth / "f1tenth_tanh_verisig.model", "--networks", f1tenth / "tanh64x64.yml", "-o", "f1.toml", cwd=tmp_path
@@ -58,7 +59,7 @@ def test_f1tenth_benchmark_imported_and_verified_at_the_defaults(tmp_path):
     assert "verdict: verified (100.00%" in r.stdout
     doc = json.loads((tmp_path / "f1.result.json").read_text())
     assert doc["verdict"] == "verified" and doc["coverage"] == 1.0
-    assert [c["options"].get("rebox") for c in doc["cells"]] == [True]
+    assert [c["options"].get("state_symbols") for c in doc["cells"]] == [True]
 
 
 def test_known_unsafe_start_exits_4_with_a_counterexample_that_replays(tmp_path):
