@@ -322,7 +322,8 @@ def _splitter_of(part: Part, splitter, refine: bool, min_width: Optional[dict], 
     """The part's own splitter (a fresh copy of ``splitter``: an adaptive one learns per part);
     without one, ``split``/``refine``/``min_width`` name a grid or a bisection, and with none of
     them the adaptive default applies. With ``rebox`` every cell is reboxed already: an adaptive
-    splitter does not retry cells with it."""
+    splitter does not retry cells with it, nor with state symbols (given already, ignored by a
+    reboxed cell, or by another method than Taylor models)."""
     if splitter is not None:
         if part.split or refine or min_width:
             raise InputError("give splitter= or split=/refine=/min_width=, not both (a splitter carries its own grid and widths)")

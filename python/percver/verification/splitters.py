@@ -258,11 +258,13 @@ class Adaptive(Bisection):
       pays if it verifies or moves the loss of precision ``MIN_GAIN`` of the plain run's steps
       later. Once more retries paid than not (those out count as not), new cells run with them
       and a cell drawn before and lost is retried with them; the retries stop after ``patience``
-      more losses than wins, and their halves run without. Whether they pay does not depend on
-      the cell's size as rebox's does: the wrapping is the loop's gain, which symbols cancel at
-      any size (ARCH-COMP's TORA with its ReLU controller: at order 5 its cells are lost at
-      step 3 or 4 without them, and verify with them, as many as when they are given). ``symbols=False`` never retries (so does ``pv.verify`` with
-      ``state_symbols=True``, ``rebox=True`` or another method than Taylor models).
+      more losses than wins (those out count as losses), and their halves run without. Whether
+      they pay does not depend on the cell's size as rebox's does: the wrapping is the loop's
+      gain, which symbols cancel at any size (ARCH-COMP's TORA with its ReLU controller: at order
+      5 its cells are lost at step 3 or 4 without them, and with them it verifies in as many
+      cells as when they are given). ``symbols=False`` never retries (nor does the splitter of
+      ``pv.verify`` with ``state_symbols=True``, ``rebox=True`` or another method than Taylor
+      models).
 
     Decisions are journaled with the cells (:class:`~percver.verification.journal.Journal`): a
     resumed run replays them (the same pieces, with their engine options, for every cell the
@@ -734,8 +736,9 @@ class Adaptive(Bisection):
         return max(self.gains, key=lambda n: np.mean(self.gains[n][-RECENT:]), default=None)
 
     def _options(self, cell: Box, init: Box) -> dict:
-        """A new cell's engine options: its in-cell budget, and rebox once retries of cells near its
-        size have paid more often than not (a plain run first would only be lost)."""
+        """A new cell's engine options: its in-cell budget, rebox once retries of cells near its
+        size have paid more often than not (a plain run first would only be lost), and state
+        symbols once their retries have."""
         rebox = {"rebox": True} if self._reboxing(_halvings(cell, init), init) else {}
         return {**self._budget(cell, init), **rebox, **({"state_symbols": True} if self._symbolic() else {})}
 
