@@ -284,6 +284,22 @@ def test_the_adaptive_default_finds_state_symbols_where_the_enclosure_wraps():
         assert not any(c.options.get("state_symbols") for c in result.cells), options
 
 
+def test_a_resumed_run_replays_the_retry_with_state_symbols(tmp_path):
+    """The journal holds the plain run and its retry with symbols: a rerun with it runs nothing again
+    and ends with the same cell, options and boxes."""
+    from test_state_symbols_continuous import loop as oscillator
+
+    loop, journal = oscillator(), tmp_path / "osc.jsonl"
+    kwargs = dict(init={"x": (0.6, 0.65), "v": (-0.3, -0.25)}, steps=40, safe=pv.Box({"x": (-2, 2)}), order=3, max_splits=0, progress=False)
+    first = pv.verify(loop, journal=str(journal), **kwargs)
+    lines = journal.read_text()
+    assert first.verdict == "verified" and len(list(journal_cells(journal))) == 2  # the plain run, then the retry
+    again = pv.verify(loop, journal=str(journal), **kwargs)
+    assert journal.read_text() == lines  # no cell ran again
+    assert [(c.verdict, c.options) for c in again.cells] == [(c.verdict, c.options) for c in first.cells]
+    np.testing.assert_array_equal(np.asarray(again.cells[0].boxes), np.asarray(first.cells[0].boxes))
+
+
 def test_adaptive_halves_another_state_when_the_engine_s_choice_gains_no_step():
     init = Box(("p", "d"), ((0.0, 1.0), (0.0, 1.0)))
     a = pv.Adaptive(rebox=False)
