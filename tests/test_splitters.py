@@ -1,6 +1,7 @@
 """Splitters (``pv.verify(splitter=...)``): the grid, bisection and the adaptive default."""
 
 import json
+import re
 import threading
 import time
 from dataclasses import replace
@@ -168,6 +169,13 @@ def test_bad_splitters_are_clear_errors():
         pv.Bisection(min_width={"p": -1})
     with pytest.raises(pv.InputError, match="not states"):
         pv.verify(loop, splitter=pv.Grid({"q": 2}), **kwargs)
+    with pytest.raises(pv.InputError, match=r"split= takes a dict of state names .* e\.g\. \{'p': 4\}; got 1"):
+        pv.verify(loop, split=1, **kwargs)
+    for spec in ("4", True, [2], None):
+        with pytest.raises(
+            pv.InputError, match=rf"split of 'p' must be a cell count \(int\) or a cell width \(float\), got {re.escape(repr(spec))}"
+        ):
+            pv.verify(loop, split={"p": spec}, **kwargs)
     for option, keyword in (("rebox", "rebox"), ("symbols", "state_symbols")):
         with pytest.raises(pv.InputError, match=rf"Adaptive\({option}=True\) is pv.verify\({keyword}=True\)"):
             pv.verify(loop, splitter=pv.Adaptive(**{option: True}), **kwargs)
@@ -444,6 +452,51 @@ def test_a_reboxed_retry_pays_by_steps_gained_against_halving_not_by_seconds():
                 half, _cell(half, "unknown", seconds=1.0, steps_done=33 + half_gain, deepest_step=33 + half_gain, options=options), init
             )
             assert a.rebox_score(init) == ((1, 0) if paid else (0, 1)), (verdict, half_gain)
+
+
+def test_a_verified_reboxed_retry_is_judged_by_the_states_halved_near_its_size():
+    """A splitter that learns which state to halve leaves others unhalved for many sizes
+    (docking's four states): a retry that verified is judged against the states that were, and
+    must also gain an eighth of the plain run's steps (a state whose halving gains nothing must
+    not make a retry that gains as little win). One that did not verify waits for every state."""
+    init = Box(("x", "y"), ((0.0, 1.0), (0.0, 1.0)))
+    for verdict, retry_gain, half_gain, paid in (
+        ("verified", 15, 2, True),
+        ("verified", 2, 0, False),
+        ("verified", 15, 8, False),
+        ("unknown", 15, 2, False),
+    ):
+        a = pv.Adaptive(patience=2)
+        assert a.again(init, _cell(init, "unknown", steps_done=20, deepest_step=20), init, False) == Retry({"rebox": True})
+        a.learn(init, _cell(init, verdict, steps_done=20 + retry_gain, deepest_step=20 + retry_gain, options={"rebox": True}), init)
+        assert a.rebox_score(init) == (0, 1)  # undecided: no state halved plain near its size
+        (half, options), _ = a.again(init, _cell(init, "unknown", steps_done=20, deepest_step=20, split="x"), init, False)
+        a.learn(half, _cell(half, "unknown", steps_done=20 + half_gain, deepest_step=20 + half_gain, options=options), init)
+        assert not a.plain_gains.get("y")
+        assert a.rebox_score(init) == ((1, 0) if paid else (0, 1)), (verdict, retry_gain, half_gain)
+
+
+def test_a_cell_that_verified_only_reboxed_teaches_no_size():
+    """Lost plain and verified reboxed, a cell says reboxed runs verify at its size, not that
+    cells must be that small: docking's plain cells are lost at every size where reboxed ones
+    2^8 times as large verify, and cut to such sizes its cells would be ten thousand times too
+    many. A half that verified plain after its plain parent was lost does teach its size."""
+    init = Box(("x",), ((0.0, 1.0),))
+    for reboxed in (True, False):
+        a = pv.Adaptive(patience=2)
+        lost = _cell(init, "unknown", steps_done=5, deepest_step=5, split="x")
+        assert a.again(init, lost, init, False) == Retry({"rebox": True})
+        a.learn(init, replace(lost, options={"rebox": True}), init)
+        (half, options), _ = a.again(init, replace(lost, options={"rebox": True}), init, False)
+        assert "rebox" not in options
+        if reboxed:
+            a.learn(half, _cell(half, "unknown", steps_done=6, deepest_step=6, split="x", options=options), init)
+            assert a.again(half, _cell(half, "unknown", steps_done=6, deepest_step=6, split="x", options=options), init, False) == Retry(
+                {"rebox": True}
+            )
+            options = {"rebox": True}
+        a.learn(half, _cell(half, "verified", steps_done=40, deepest_step=40, options=options), init)
+        assert bool(a.needed) is not reboxed
 
 
 def test_cells_run_side_by_side_are_not_all_retried_before_a_retry_shows_whether_it_pays():

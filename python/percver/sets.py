@@ -98,7 +98,9 @@ class Box:
         axes = []
         for name, (lo, hi) in zip(self.names, self.bounds):
             spec = parts.get(name, 1)
-            if isinstance(spec, float):
+            if isinstance(spec, bool) or not isinstance(spec, (int, float, np.integer, np.floating)):
+                raise InputError(f"split of '{name}' must be a cell count (int) or a cell width (float), got {spec!r}")
+            if isinstance(spec, (float, np.floating)):
                 if not spec > 0:
                     raise InputError(f"split width for '{name}' must be positive, got {spec}")
                 count = max(1, math.ceil((hi - lo) / spec - 1e-9))

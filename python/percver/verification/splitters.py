@@ -29,7 +29,7 @@ from __future__ import annotations
 import itertools
 import math
 from dataclasses import dataclass, field
-from typing import Callable, Optional
+from typing import Callable, Mapping, Optional
 
 import numpy as np
 
@@ -49,6 +49,10 @@ class Retry:
 def grid(box: Box, split: dict):
     """The cells of ``box.split(split)`` as a lazy iterator, and their count: a campaign of 10^4
     cells never holds them all at once."""
+    if not isinstance(split, Mapping):
+        raise InputError(
+            f"split= takes a dict of state names to a cell count (int) or width (float), e.g. {{{box.names[0]!r}: 4}}; got {split!r}"
+        )
     unknown = set(split) - set(box.names)
     if unknown:
         raise InputError(f"split names {sorted(unknown)}, which are not states ({', '.join(box.names)})")
@@ -231,7 +235,9 @@ class Adaptive(Bisection):
       feed back and grow make both), run again with ``rebox=True`` before they are halved. A
       retry pays if it gets more steps deeper than the plain run than ``REBOX_COST`` times what a
       plain halving of a cell of its size gains (the mean of the latest, for the state where
-      halving gains most, once every state has been halved plain at that size), whether it
+      halving gains most, once every state has been halved plain at that size; for a retry that
+      verified, once one has, and then it must also gain ``MIN_GAIN`` of the plain run's steps:
+      docking's splitter halves two of its four states for many sizes), whether it
       verified or not: a reboxed step carries a Taylor-model variable per state and costs about
       two plain ones, while halving moves the loss of precision later at no such cost (near the
       Mountain Car wall, retries that verified a few steps deeper than plain runs made every cell
@@ -246,7 +252,9 @@ class Adaptive(Bisection):
       the cells that verify there verify plain in half a reboxed run's work); else plain; halves
       compare with the cell's run made as they run. A cell at ``min_width`` that cannot be halved
       is retried with rebox, then (if it split inside) with ``DEEPEN`` times the in-cell splits it
-      used up, before it is given up. Retries go on while they pay more often than
+      used up, before it is given up. A cell that verified only reboxed (its own plain run, or its
+      parent's, lost) teaches no size: docking's plain cells are lost at every size where reboxed
+      ones 2^8 times as large verify. Retries go on while they pay more often than
       not, and for the two reasons above until they have lost ``patience`` times more often than
       paid; retries still running, or not yet comparable with a halving, count as lost.
       ``rebox=False`` never retries (``True`` is ``pv.verify(rebox=True)``: every cell reboxed
@@ -310,6 +318,7 @@ class Adaptive(Bisection):
     paid: dict = field(default_factory=dict, repr=False)  # cell key -> whether that retry paid, once decided
     plain: dict = field(default_factory=dict, repr=False)  # size -> [verified, runs, given up at max_redone] of plain runs
     pending: set = field(default_factory=set, repr=False)  # keys of reboxed retries not yet run
+    verified_retries: set = field(default_factory=set, repr=False)  # keys of reboxed retries that verified
     deepened: set = field(default_factory=set, repr=False)  # keys of cells at min_width retried with DEEPEN times the in-cell splits
     stopped: dict = field(
         default_factory=dict, repr=False
@@ -403,8 +412,10 @@ class Adaptive(Bisection):
         self.runs += 1
         self.falsified |= result.verdict == "falsified"
         key = _key(cell)
+        parent_reboxed = None
         if key in self.halved:
             deepest, state, size, reboxed = self.halved.pop(key)
+            parent_reboxed = reboxed
             self.gains.setdefault(state, []).append(result.deepest_step - deepest)
             self.near_gains.add(cell, [cell.names.index(state), result.deepest_step - deepest])
             if not result.options.get("rebox") and not reboxed:
@@ -429,6 +440,8 @@ class Adaptive(Bisection):
             # A retry that verified went as deep as its runs needed: that counts, not the verdict
             # (a plain halving might have verified too, for as little).
             self.tried[key] = result.deepest_step - self.retried[key][1]
+            if result.verdict == "verified":
+                self.verified_retries.add(key)
         if result.verdict in ("verified", "unknown"):
             self._compare(cell, result, init)
         if result.verdict == "verified" and (result.branches or key in self.lineage) and not self._stalled(key):
@@ -444,6 +457,8 @@ class Adaptive(Bisection):
             if key in self.cut and not halve:
                 widths = dict(self.cuts[self.cut[key]].widths)
             if key in self.lineage and not halve:
+                if result.options.get("rebox") and (key in self.retried or parent_reboxed is False):
+                    return  # verified only reboxed: no size (class doc)
                 _, _, _, state, path = self.lineage[key]
                 widths = _undo_stalled(widths, (*path, (state, True)))
             self.needed.append((cell, widths))
@@ -787,16 +802,26 @@ class Adaptive(Bisection):
 
     def _rebox_won(self, key: tuple, init: Box) -> bool:
         """Whether the reboxed retry of cell ``key`` paid against halving plain cells of its size
-        (within ``REBOX_SIZES`` halvings). Decided once every state the initial set is wide in has
+        (within ``REBOX_SIZES`` halvings): more steps deeper than ``REBOX_COST`` times what plain
+        halvings of such a size gained. Decided once every state the initial set is wide in has
         been halved plain at such a size (until then: lost), and then kept: halvings of smaller
-        cells gain fewer steps, which says nothing about the retry's size."""
+        cells gain fewer steps, which says nothing about the retry's size. A retry that verified
+        is decided once one state has been (a splitter that learns which state to halve leaves
+        the others unhalved for many sizes: docking's four states), and must also have gained
+        ``MIN_GAIN`` of the plain run's steps (a halving that gains nothing must not make a retry
+        that gains as little win). Unverified retries wait for every state: on Mountain Car's
+        blur row, retries that went deeper but never verified won on one state's halvings and
+        made 1.7x the cells."""
         if key not in self.paid:
-            gain, size = self.tried[key], self.retried[key][2]
+            gain, (_, deepest, size) = self.tried[key], self.retried[key]
             states = [n for ok, n in zip(above_min_width(init, init, self._min(init), 0), init.names) if ok]
-            near = {n: [g for s, g in self.plain_gains.get(n, []) if _near_size(s, size)] for n in states}
-            if not (states and all(near.values())):
+            near = [gains for n in states if (gains := [g for s, g in self.plain_gains.get(n, []) if _near_size(s, size)])]
+            if len(near) == len(states) > 0:
+                self.paid[key] = gain > REBOX_COST * max(np.mean(g[-RECENT:]) for g in near)
+            elif near and key in self.verified_retries:
+                self.paid[key] = gain > REBOX_COST * max(np.mean(g[-RECENT:]) for g in near) and gain >= max(1, MIN_GAIN * deepest)
+            else:
                 return False
-            self.paid[key] = gain > REBOX_COST * max(np.mean(near[n][-RECENT:]) for n in states)
         return self.paid[key]
 
     def _reboxing(self, size: float, init: Box) -> bool:
