@@ -499,6 +499,23 @@ def test_a_cell_that_verified_only_reboxed_teaches_no_size():
         assert bool(a.needed) is not reboxed
 
 
+def test_cells_run_reboxed_at_rebox_order_and_their_plain_halves_at_the_call_s():
+    """A reboxed run's models restart from a box, a variable per state: it runs at
+    ``rebox_order`` (3) where the call's order is higher; halves that run plain take the call's."""
+    init = Box(("x",), ((0.0, 1.0),))
+    lost = _cell(init, "unknown", steps_done=5, deepest_step=5, split="x")
+    for call_order, rebox_order, expected in ((5, 3, {"rebox": True, "order": 3}), (2, 3, {"rebox": True}), (5, None, {"rebox": True})):
+        a = pv.Adaptive(patience=2, rebox_order=rebox_order)
+        a.call_order = call_order
+        retry = a.again(init, lost, init, False)
+        assert retry == Retry(expected)
+        a.learn(init, replace(lost, options=retry.options), init)
+        halves = a.again(init, replace(lost, options=retry.options), init, False)
+        assert all(options == {"max_splits": 0} for _, options in halves), halves
+    with pytest.raises(pv.InputError, match=r"Adaptive\(rebox_order=\.\.\.\) must be a positive integer or None, got 0"):
+        pv.Adaptive(rebox_order=0)
+
+
 def test_cells_run_side_by_side_are_not_all_retried_before_a_retry_shows_whether_it_pays():
     init = Box(("x",), ((0.0, 1.0),))
     a = pv.Adaptive()
@@ -700,7 +717,7 @@ def test_a_cell_lost_to_a_partly_reached_goal_that_halving_did_not_move_runs_wit
         return a, half, _halve(a, half, init, later, reason, options)
 
     a, half, out = second(ARRIVED, 96)
-    assert out == Retry({"max_splits": None, "rebox": None})
+    assert out == Retry({"max_splits": None, "rebox": None, "order": None})
     # The retry is lost too: halved, and the halves (small budget again) compare with the run before it.
     deeper = _cell(half, "unknown", steps_done=99, deepest_step=99, split="d", reason=ARRIVED)
     a.learn(half, deeper, init)
@@ -711,7 +728,7 @@ def test_a_cell_lost_to_a_partly_reached_goal_that_halving_did_not_move_runs_wit
     assert isinstance(second(blew, 96)[2], list)
     assert isinstance(second(ARRIVED, 95 + 95 // 4)[2], list)  # the halving gained a fair share
     assert isinstance(second(ARRIVED, 96, arrived=140)[2], list)  # far from where the verified cells' runs arrived
-    assert second(ARRIVED, 96, arrived=100)[2] == Retry({"max_splits": None, "rebox": None})
+    assert second(ARRIVED, 96, arrived=100)[2] == Retry({"max_splits": None, "rebox": None, "order": None})
 
 
 def test_a_state_whose_width_does_not_change_how_the_pieces_of_a_cut_end_is_grown_back():

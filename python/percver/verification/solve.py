@@ -336,6 +336,8 @@ def _splitter_of(part: Part, splitter, refine: bool, min_width: Optional[dict], 
         return Grid(part.split or {}, min_width or {})
     else:
         chosen = Adaptive()
+    if isinstance(chosen, Adaptive):
+        chosen.call_order = part.order
     if rebox and isinstance(chosen, Adaptive):
         chosen.rebox = False
     if (rebox or symbols or method != "taylor") and isinstance(chosen, Adaptive):
