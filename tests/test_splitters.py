@@ -500,8 +500,10 @@ def test_a_cell_that_verified_only_reboxed_teaches_no_size():
 
 
 def test_cells_run_reboxed_at_rebox_order_and_their_plain_halves_at_the_call_s():
-    """A reboxed run's models restart from a box, a variable per state: it runs at
-    ``rebox_order`` (3) where the call's order is higher; halves that run plain take the call's."""
+    """A reboxed run's models restart from a box, a variable per state: with ``rebox_order`` it
+    runs at that order where the call's is higher (by default at the call's); halves that run
+    plain take the call's."""
+    assert pv.Adaptive().rebox_order is None
     init = Box(("x",), ((0.0, 1.0),))
     lost = _cell(init, "unknown", steps_done=5, deepest_step=5, split="x")
     for call_order, rebox_order, expected in ((5, 3, {"rebox": True, "order": 3}), (2, 3, {"rebox": True}), (5, None, {"rebox": True})):

@@ -184,15 +184,14 @@ def test_f1tenth_verifies_at_the_defaults():
     """Lost at step 31 as it is (a division by a range containing zero, after its enclosure
     wrapped), the whole set is retried with state symbols by the adaptive default and verified,
     still as one cell (whatever in-cell budget the splitter gave it: the options say how the cell
-    ran); told not to try symbols, it retries with rebox (at the splitter's rebox_order, 3), which
-    verifies too."""
+    ran); told not to try symbols, it retries with rebox, which verifies too."""
     problem = load("f1tenth")
     result = problem.verify(progress=False)
     assert result.verdict == "verified" and result.coverage == pytest.approx(1.0)
     assert [c.options.get("state_symbols") for c in result.cells] == [True]
     assert "division is undefined" in result.lost[0].reason and not result.lost[0].options.get("state_symbols")
     reboxed = problem.verify(progress=False, splitter=pv.Adaptive(symbols=False))
-    assert reboxed.verdict == "verified" and [(c.options.get("rebox"), c.options.get("order")) for c in reboxed.cells] == [(True, 3)]
+    assert reboxed.verdict == "verified" and [c.options.get("rebox") for c in reboxed.cells] == [True]
 
 
 def test_f1tenth_lidar_matches_ray_casting():

@@ -254,11 +254,13 @@ class Adaptive(Bisection):
       is retried with rebox, then (if it split inside) with ``DEEPEN`` times the in-cell splits it
       used up, before it is given up. A cell that verified only reboxed (its own plain run, or its
       parent's, lost) teaches no size: docking's plain cells are lost at every size where reboxed
-      ones 2^8 times as large verify. Reboxed cells run at Taylor order ``rebox_order`` (3; None:
-      the call's) where the call's is higher: their models restart from a box whenever a
-      remainder dominates, a variable per state, so they carry few steps of the cell's
-      dependence, while order 5 in four variables has 3.6 times the monomials of order 3
-      (docking's reboxed cells verify as often at order 3, at a fifth to a tenth of the seconds). Retries go on while they pay more often than
+      ones 2^8 times as large verify. ``rebox_order`` (None: the call's order) runs reboxed cells
+      at that Taylor order where the call's is higher: their models restart from a box whenever
+      a remainder dominates, a variable per state, and order 5 in four variables has 3.6 times
+      the monomials of order 3 (docking's reboxed cells verify as often at order 3, at a fifth to
+      a tenth of the seconds). It is not the default: the camera loop of
+      ``tests/test_validate_camera_verify.py``, which verifies reboxed at order 5 in 44 cells,
+      was still unknown at order 3 after 4,763. Retries go on while they pay more often than
       not, and for the two reasons above until they have lost ``patience`` times more often than
       paid; retries still running, or not yet comparable with a halving, count as lost.
       ``rebox=False`` never retries (``True`` is ``pv.verify(rebox=True)``: every cell reboxed
@@ -309,8 +311,8 @@ class Adaptive(Bisection):
     needed: list = field(default_factory=list, repr=False)  # (cell, widths needed there)
     probe: Optional[Callable] = field(default=None, repr=False)  # (cell, steps) -> {state: spread}, set by the campaign
     symbols: Optional[bool] = None
-    # The Taylor order of the cells it runs reboxed, at most (None: the call's; see the class doc).
-    rebox_order: Optional[int] = 3
+    # The Taylor order of the cells it runs reboxed where the call's is higher (None: the call's; class doc).
+    rebox_order: Optional[int] = None
     # (Cell) -> evidence that its enclosure wrapped, or None: set by the campaign (Taylor method only)
     wrapping: Optional[Callable] = field(default=None, repr=False)
     examined: int = field(default=0, repr=False)  # lost plain cells whose float runs were compared with their enclosure
