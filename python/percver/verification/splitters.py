@@ -835,12 +835,11 @@ class Adaptive(Bisection):
             gain, (_, deepest, size) = self.tried[key], self.retried[key]
             states = [n for ok, n in zip(above_min_width(init, init, self._min(init), 0), init.names) if ok]
             near = [gains for n in states if (gains := [g for s, g in self.plain_gains.get(n, []) if _near_size(s, size)])]
-            if len(near) == len(states) > 0:
-                self.paid[key] = gain > REBOX_COST * max(np.mean(g[-RECENT:]) for g in near)
-            elif near and key in self.verified_retries:
-                self.paid[key] = gain > REBOX_COST * max(np.mean(g[-RECENT:]) for g in near) and gain >= max(1, MIN_GAIN * deepest)
-            else:
+            every = len(near) == len(states) > 0
+            if not (every or (near and key in self.verified_retries)):
                 return False
+            beats = gain > REBOX_COST * max(np.mean(g[-RECENT:]) for g in near)
+            self.paid[key] = beats and (every or gain >= max(1, MIN_GAIN * deepest))
         return self.paid[key]
 
     def _reboxing(self, size: float, init: Box) -> bool:
