@@ -254,15 +254,20 @@ class Adaptive(Bisection):
       is retried with rebox, then (if it split inside) with ``DEEPEN`` times the in-cell splits it
       used up, before it is given up. A cell that verified only reboxed (its own plain run, or its
       parent's, lost) teaches no size: docking's plain cells are lost at every size where reboxed
-      ones 2^8 times as large verify. ``rebox_order`` (None: the call's order) runs reboxed cells
-      at that Taylor order where the call's is higher: their models restart from a box whenever
-      a remainder dominates, a variable per state, and order 5 in four variables has 3.6 times
-      the monomials of order 3 (docking's reboxed cells verify as often at order 3, at a fifth to
-      a tenth of the seconds). It is not the default: the camera loop of
-      ``tests/test_validate_camera_verify.py``, which verifies reboxed at order 5 in 44 cells,
-      was still unknown at order 3 after 4,763. Retries go on while they pay more often than
-      not, and for the two reasons above until they have lost ``patience`` times more often than
-      paid; retries still running, or not yet comparable with a halving, count as lost.
+      ones 2^8 times as large verify. ``rebox_order`` is the Taylor order of reboxed runs where the
+      call's is higher: their models restart from a box whenever a remainder dominates, a variable
+      per state, and order 5 in four variables has 3.6 times the monomials of order 3 (docking's
+      reboxed cells verify as often at order 3, at a fifth to a tenth of the seconds). None (the
+      default) learns it: once a reboxed run at the call's order has verified, reboxed runs start at
+      ``LOW_ORDER`` while those that verified, ``LOW_ODDS`` times over, are not ``patience`` fewer
+      than the reruns at the call's order that did better (verified, or got ``MIN_GAIN`` of the lost
+      run's steps deeper); a run at ``LOW_ORDER`` that is lost runs again at the call's before
+      anything is learnt from it, until those runs have verified ``patience`` times more often than
+      the reruns did better (the camera loop of ``tests/test_validate_camera_verify.py``, which
+      verifies reboxed at order 5 in 44 cells, was still unknown after 4,763 at order 3 alone). A
+      given order is kept, and a lost run at it is not run again. Retries go on while they pay more
+      often than not, and for the two reasons above until they have lost ``patience`` times more
+      often than paid; retries still running, or not yet comparable with a halving, count as lost.
       ``rebox=False`` never retries (``True`` is ``pv.verify(rebox=True)``: every cell reboxed
       from the start).
     - Whether state symbols pay (``state_symbols``, see :func:`percver.verify`), for the whole
@@ -311,7 +316,7 @@ class Adaptive(Bisection):
     needed: list = field(default_factory=list, repr=False)  # (cell, widths needed there)
     probe: Optional[Callable] = field(default=None, repr=False)  # (cell, steps) -> {state: spread}, set by the campaign
     symbols: Optional[bool] = None
-    # The Taylor order of the cells it runs reboxed where the call's is higher (None: the call's; class doc).
+    # The Taylor order of the cells it runs reboxed where the call's is higher (None: learnt; class doc).
     rebox_order: Optional[int] = None
     # (Cell) -> evidence that its enclosure wrapped, or None: set by the campaign (Taylor method only)
     wrapping: Optional[Callable] = field(default=None, repr=False)
@@ -328,6 +333,11 @@ class Adaptive(Bisection):
     pending: set = field(default_factory=set, repr=False)  # keys of reboxed retries not yet run
     verified_retries: set = field(default_factory=set, repr=False)  # keys of reboxed retries that verified
     call_order: Optional[int] = field(default=None, repr=False)  # the call's Taylor order (set by pv.verify)
+    low_out: set = field(default_factory=set, repr=False)  # keys of cells drawn to run reboxed at LOW_ORDER, until learnt
+    low_verified: int = field(default=0, repr=False)  # reboxed runs at LOW_ORDER that verified
+    call_verified: int = field(default=0, repr=False)  # reboxed runs at the call's order that verified
+    reruns: dict = field(default_factory=dict, repr=False)  # key -> deepest step of its lost LOW_ORDER run, while its rerun is out
+    rerun_better: list = field(default_factory=list, repr=False)  # per rerun at the call's order, in order: whether it did better
     deepened: set = field(default_factory=set, repr=False)  # keys of cells at min_width retried with DEEPEN times the in-cell splits
     stopped: dict = field(
         default_factory=dict, repr=False
@@ -413,6 +423,7 @@ class Adaptive(Bisection):
             pieces = {n: k for n, k in pieces.items() if k > 1}
         if not pieces:
             return [cell]
+        self.low_out.discard(_key(cell))  # its pieces run instead, with their own options
         cells, count = grid(cell, pieces)
         self.made += count - 1
         cells = list(cells)
@@ -448,6 +459,8 @@ class Adaptive(Bisection):
         if key in self.symbol_runs and result.options.get("state_symbols"):
             plain = self.symbol_runs.pop(key)
             self.symbols_paid.append(result.verdict == "verified" or result.deepest_step - plain >= max(1, MIN_GAIN * plain))
+        if result.options.get("rebox"):
+            self._learn_order(key, result)
         if key in self.retried and result.options.get("rebox") and key in self.pending:
             self.pending.discard(key)
             # A retry that verified went as deep as its runs needed: that counts, not the verdict
@@ -569,6 +582,15 @@ class Adaptive(Bisection):
             self.inert.pop(key, None)
             self.enclosed.pop(key, None)
             return None
+        if self._rerun_due(result, timed_out):
+            # Before anything is learnt from the loss: the call's order may verify it.
+            self.reruns[key] = result.deepest_step
+            if key in self.retried:  # the retry is judged by its run at the call's order
+                self.tried.pop(key, None)
+                self.paid.pop(key, None)
+                self.verified_retries.discard(key)
+                self.pending.add(key)
+            return Retry({"rebox": True, "order": None})
         size = _halvings(cell, init)
         halved, before = self.lineage.get(key, (None,) * 4)[3], self.enclosed.get(key)
         if halved is not None and before is not None and _as_wide(before, result):
@@ -580,7 +602,7 @@ class Adaptive(Bisection):
         if self._rebox_pays(cell, result, init):
             self.retried[key] = (result.steps_done, result.deepest_step, size)
             self.pending.add(key)
-            return Retry(self._reboxed())
+            return Retry(self._reboxed(key))
         # Ran with the small budget: the call's is left to try.
         explored = "max_splits" in result.options and key not in self.deepened
         capped = explored or "max_redone" in result.options
@@ -615,7 +637,7 @@ class Adaptive(Bisection):
             # that: the engine's in-cell forks separate the arrivals for a few runs' cost.
             self.lineage[key] = (reached, deepest, stalls, halved, path)
             self.goal_retried[key] = (steps, deepest_step, reboxed)
-            return Retry({"max_splits": None, **(self._reboxed() if reboxed else {"rebox": None, "order": None})})
+            return Retry({"max_splits": None, "order": None, **(self._reboxed(key) if reboxed else {"rebox": None})})
         if stalls >= self.patience * sum(above_min_width(init, init, widths, 0)) and not self._as_small_verified(cell, init):
             retry = self._last_tries(key, result, size, capped)
             if retry is not None:
@@ -692,7 +714,7 @@ class Adaptive(Bisection):
         if self.rebox is not False and not result.options.get("rebox") and key not in self.retried:
             self.retried[key] = (result.steps_done, result.deepest_step, size)
             self.pending.add(key)
-            return Retry(self._reboxed())
+            return Retry(self._reboxed(key))
         return None
 
     def _state_to_halve(
@@ -767,7 +789,7 @@ class Adaptive(Bisection):
         """A new cell's engine options: its in-cell budget, rebox once retries of cells near its
         size have paid more often than not (a plain run first would only be lost), and state
         symbols once their retries have."""
-        rebox = self._reboxed() if self._reboxing(_halvings(cell, init), init) else {}
+        rebox = self._reboxed(_key(cell)) if self._reboxing(_halvings(cell, init), init) else {}
         return {**self._budget(cell, init), **rebox, **({"state_symbols": True} if self._symbolic() else {})}
 
     def _symbolic(self) -> bool:
@@ -813,11 +835,47 @@ class Adaptive(Bisection):
         wins = sum(self._rebox_won(key, init) for key in keys)
         return wins, len(keys) - wins
 
-    def _reboxed(self) -> dict:
-        """The engine options of a reboxed run: rebox, at ``rebox_order`` (the call's order where
-        that is lower)."""
-        lower = self.rebox_order is not None and self.call_order is not None and self.rebox_order < self.call_order
-        return {"rebox": True, **({"order": self.rebox_order} if lower else {})}
+    def _reboxed(self, key: tuple) -> dict:
+        """The engine options of the reboxed run of cell ``key``: rebox, at ``rebox_order`` where
+        the call's order is higher, or (``rebox_order=None``) at ``LOW_ORDER`` while that pays."""
+        order = self.rebox_order if self.rebox_order is not None else LOW_ORDER if self._low_order() else None
+        if order is None or self.call_order is None or order >= self.call_order:
+            return {"rebox": True}
+        if self.rebox_order is None:
+            self.low_out.add(key)
+        return {"rebox": True, "order": order}
+
+    def _low_order(self) -> bool:
+        """Whether reboxed runs start at ``LOW_ORDER``: once a reboxed run at the call's order has
+        verified (where none does, a cheaper order would only add runs: on Mountain Car's blur row,
+        runs at order 3 went as deep, and the reruns that followed them reordered what was learnt
+        when, making 637 cells instead of 285), while its runs that verified, ``LOW_ODDS`` times
+        over, are not ``patience`` fewer than the reruns at the call's order that did better after
+        one of them was lost (reruns and runs at ``LOW_ORDER`` still out count as such)."""
+        better = sum(self.rerun_better) + len(self.reruns) + len(self.low_out)
+        return self.rebox_order is None and self.call_verified > 0 and better - LOW_ODDS * self.low_verified < self.patience
+
+    def _rerun_due(self, result, timed_out: bool) -> bool:
+        """Whether a reboxed run at ``LOW_ORDER`` that was lost runs again at the call's order:
+        until runs at ``LOW_ORDER`` have verified ``patience`` times more often than reruns did
+        better (a loop whose reboxed cells need the call's order would else halve them at the low
+        one for ever)."""
+        if timed_out or self.rebox_order is not None or not result.options.get("rebox") or result.options.get("order") != LOW_ORDER:
+            return False
+        return self.low_verified < sum(self.rerun_better) + self.patience
+
+    def _learn_order(self, key: tuple, result) -> None:
+        """Tallies a reboxed run for :meth:`_low_order`: one at ``LOW_ORDER`` (verified or not),
+        or the rerun of one that was lost (better if it verified, or got ``MIN_GAIN`` of the lost
+        run's steps deeper)."""
+        if result.options.get("order") == LOW_ORDER and key in self.low_out:
+            self.low_out.discard(key)
+            self.low_verified += result.verdict == "verified"
+        elif "order" not in result.options:
+            self.call_verified += result.verdict == "verified"
+            if key in self.reruns:
+                low = self.reruns.pop(key)
+                self.rerun_better.append(result.verdict == "verified" or result.deepest_step - low >= max(1, MIN_GAIN * low))
 
     def _rebox_won(self, key: tuple, init: Box) -> bool:
         """Whether the reboxed retry of cell ``key`` paid against halving plain cells of its size
@@ -895,6 +953,14 @@ REBOX_TRIALS = 2  # unknown cells retried with rebox whatever the reason, per si
 # with it: on Mountain Car the whole set's retry goes twice as deep, while cells eight halvings smaller
 # verify plain.
 REBOX_SIZES = 2
+# The Taylor order reboxed runs start at where the call's is higher (rebox_order=None): models that
+# restart from a box carry a variable per state, and order 5 in four variables has 3.6 times the
+# monomials of order 3 (docking's reboxed cells verify as often at order 3, at a fifth to a tenth of
+# the seconds); a lost run at it costs about a third of one at order 5.
+LOW_ORDER = 3
+# Reruns at the call's order that did better which one verified run at LOW_ORDER outweighs: it
+# saves about two thirds of a run, a lost one costs a third.
+LOW_ODDS = 2
 REBOX_COST = 2  # plain steps a reboxed step costs, about (Mountain Car: 1.75 at its verified cell size)
 RECENT = 4  # halvings of a state whose gains choose the next state to halve
 # A halving gained if it moved the loss of precision later by at least this share of the steps its
