@@ -588,7 +588,6 @@ class Adaptive(Bisection):
             if key in self.retried:  # the retry is judged by its run at the call's order
                 self.tried.pop(key, None)
                 self.paid.pop(key, None)
-                self.verified_retries.discard(key)
                 self.pending.add(key)
             return Retry({"rebox": True, "order": None})
         size = _halvings(cell, init)
