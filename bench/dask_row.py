@@ -19,7 +19,7 @@ from pathlib import Path
 # One BLAS thread: falsification's float simulation otherwise spins threads against the workers.
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 from percver.cases.mountain_car import verification  # noqa: E402
-from percver.verification import Cell  # noqa: E402
+from percver.verification.journal import journal_cells  # noqa: E402
 
 ROOT = Path(__file__).resolve().parent
 sys.path.insert(0, str(ROOT))
@@ -31,13 +31,7 @@ OUT = ROOT / "results" / "dask_row.json"
 def journaled(folder: Path) -> list:
     """Every cell of the run's journals (band 0's first), as [box {state: [lo, hi]}, verdict, engine s, branches]."""
     paths = sorted(folder.glob("*.jsonl"), key=lambda p: int(p.stem.rsplit("band", 1)[-1]) if "band" in p.stem else 0)
-    out = []
-    for path in paths:
-        for line in path.read_text().splitlines()[1:]:
-            if line.strip():
-                c = Cell.from_dict(json.loads(line))
-                out.append([c.box, c.verdict, round(c.seconds, 4), c.branches])
-    return out
+    return [[c.box, c.verdict, round(c.seconds, 4), c.branches] for path in paths for c in journal_cells(path)]
 
 
 def cpu_seconds() -> float:

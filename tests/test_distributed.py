@@ -109,6 +109,22 @@ def test_process_pool_ships_the_problem_once_and_matches_rayon(tmp_path):
     assert outcome.boxes == repeated.boxes and len(outcome.boxes) == outcome.steps_done + 1
 
 
+def test_an_executor_gives_the_adaptive_splitter_the_cells_of_a_local_run(tmp_path):
+    """The adaptive splitter learns from each outcome within its window: on an executor, as many
+    cells out as on local threads make the same cells, options and verdicts."""
+    loop, p, v = mountain_car()
+    kwargs = dict(MC, init={"p": (-0.5, -0.4), "v": (0, 0.01)}, goal=p >= 0.45)
+    local = pv.verify(loop, workers=2, **kwargs)
+    with pool(2) as executor:
+        remote = pv.verify(loop, executor=executor, journal=str(tmp_path / "adaptive.jsonl"), **kwargs)
+
+    def cells(result):
+        return [(json.dumps(c.box, sort_keys=True), c.verdict, json.dumps(c.options, sort_keys=True)) for c in by_box(result)]
+
+    assert local.verdict == "verified" and len(local.cells) >= 50
+    assert cells(remote) == cells(local)
+
+
 def cell_for_cell(results):
     """Per cell of all parts: its box, verdict, reason and counterexample (start and step)."""
     out = []

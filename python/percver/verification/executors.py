@@ -196,6 +196,8 @@ class Runner:
     def _batch_size(self, campaign, remaining: int, capacity: int) -> int:
         if self.batch:
             return self.batch
+        if campaign.window is not None:  # a batch of several would hold cells the next draws must learn from
+            return 1
         seconds, cells = campaign.cell_seconds
         by_time = TASK_SECONDS * cells / seconds if cells and seconds > 0 else 1
         # Near the end, smaller batches keep every worker busy.
@@ -247,7 +249,7 @@ class Runner:
                     submit(campaign, options, [cell for cell, _ in unsampled], None, 0, [c for _, c in unsampled])
 
         for campaign, _ in jobs:
-            campaign.run_on(None)
+            campaign.run_on(self.slots or 2 * self.capacity())
         try:
             while True:
                 fill()
