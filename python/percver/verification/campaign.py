@@ -93,8 +93,7 @@ class Campaign:
         """Sets the window for ``workers`` threads, or an executor's cells in flight (two per
         worker, one cell a batch). Threads past the splitter's window widen it to their number, so
         no thread waits for lack of cells drawn ahead; with as many cells out, a cluster makes the
-        cells a local run makes. Without a window, a 2-worker cluster drew 32 cells ahead of their
-        outcomes and the adaptive's blur row took 1.6x the local run's cells' seconds
+        cells a local run makes, where drawing far ahead of the outcomes made others, and more
         (bench/README.md, "Dask and the adaptive splitter")."""
         if self.window is not None:
             self.window = max(self.window, workers)
